@@ -1,0 +1,48 @@
+"""Shared wrapper for the Hydra entry points: user errors end in one clear line, never a traceback."""
+
+from __future__ import annotations
+
+import functools
+import os
+import sys
+from collections.abc import Callable
+from typing import Any
+
+import hydra
+from omegaconf import DictConfig
+
+import neuraldem.config  # noqa: F401  (registers resolvers before Hydra composes)
+from neuraldem.errors import NeuraldemError
+from neuraldem.paths import config_dir
+
+
+def quiet_environment() -> None:
+    """Defaults that make runs offline-safe and CPU-friendly; a user's own setting always wins."""
+    os.environ.setdefault("WANDB_MODE", "offline")
+    os.environ.setdefault("WANDB_SILENT", "true")
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
+def report_user_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """Turn a NeuraldemError into `neuraldem: error: ...` on stderr and exit status 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except NeuraldemError as err:
+            print(f"neuraldem: error: {err}", file=sys.stderr)
+            sys.exit(2)
+
+    return wrapper
+
+
+def hydra_app(config_name: str) -> Callable[[Callable[[DictConfig], Any]], Callable[[], Any]]:
+    """Decorator for `main(cfg)` functions: our config tree, our error reporting, offline defaults."""
+
+    def decorate(task: Callable[[DictConfig], Any]) -> Callable[[], Any]:
+        quiet_environment()
+        wrapped = report_user_errors(task)
+        return hydra.main(version_base="1.3", config_path=str(config_dir()), config_name=config_name)(wrapped)
+
+    return decorate

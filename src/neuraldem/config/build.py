@@ -1,0 +1,71 @@
+"""Building Lightning objects (trainer, loggers, callbacks) from their config groups, with checks."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import lightning as L
+from hydra.utils import instantiate
+from omegaconf import DictConfig
+
+from neuraldem.config import checks
+from neuraldem.errors import ConfigError
+
+ACCELERATORS = ("auto", "cpu", "gpu", "cuda", "mps")
+
+
+def check_trainer(cfg: DictConfig) -> None:
+    """Validate the trainer values users commonly set; anything else is checked by Lightning itself."""
+    checks.one_of("trainer.accelerator", cfg.get("accelerator", "auto"), ACCELERATORS)
+    max_steps = cfg.get("max_steps", -1)
+    if max_steps != -1:
+        checks.positive_int("trainer.max_steps", max_steps)
+    max_epochs = cfg.get("max_epochs", -1)
+    if max_epochs not in (-1, None):
+        checks.positive_int("trainer.max_epochs", max_epochs)
+    checks.positive_int("trainer.log_every_n_steps", cfg.get("log_every_n_steps", 50))
+    vci = cfg.get("val_check_interval")
+    if vci is not None:
+        if isinstance(vci, float) and not isinstance(vci, bool):
+            checks.number("trainer.val_check_interval", vci, lo=0.0, hi=1.0, lo_open=True)
+        else:
+            checks.positive_int("trainer.val_check_interval", vci)
+    clip = cfg.get("gradient_clip_val")
+    if clip is not None:
+        checks.positive("trainer.gradient_clip_val", clip)
+    devices = cfg.get("devices", "auto")
+    if devices not in ("auto", -1) and not isinstance(devices, str):
+        if isinstance(devices, int):
+            checks.positive_int("trainer.devices", devices)
+
+
+def build_trainer(cfg: DictConfig, callbacks: list[Any], loggers: list[Any]) -> L.Trainer:
+    check_trainer(cfg)
+    try:
+        return instantiate(cfg, callbacks=callbacks, logger=loggers or False)
+    except Exception as err:  # Lightning's own validation (MisconfigurationException, ValueError, ...)
+        msg = str(getattr(err, "__cause__", None) or err).strip().splitlines()[0]
+        raise ConfigError(f"invalid trainer config: {msg}") from None
+
+
+def _build_group(name: str, cfg: DictConfig | None) -> list[Any]:
+    out = []
+    for key, node in (cfg or {}).items():
+        if node is None:  # disabled with e.g. callbacks.lr_monitor=null
+            continue
+        if not isinstance(node, DictConfig) or "_target_" not in node:
+            raise ConfigError(f"{name}.{key} must be a config with a _target_ (or null to disable it)")
+        try:
+            out.append(instantiate(node))
+        except Exception as err:  # noqa: BLE001
+            msg = str(getattr(err, "__cause__", None) or err).strip().splitlines()[0]
+            raise ConfigError(f"cannot build {name}.{key}: {msg}") from None
+    return out
+
+
+def build_loggers(cfg: DictConfig | None) -> list[Any]:
+    return _build_group("logger", cfg)
+
+
+def build_callbacks(cfg: DictConfig | None) -> list[Any]:
+    return _build_group("callbacks", cfg)

@@ -1,0 +1,78 @@
+"""Validation of user-settable config values, with messages that name the key and the fix.
+
+Every constructor that takes a user-facing value checks it with one of these, using the dotted config key
+(e.g. ``data.batch_size``) so that the message tells the user exactly what to override.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+from neuraldem.errors import ConfigError
+
+
+def _fail(key: str, value: Any, requirement: str) -> ConfigError:
+    return ConfigError(f"config value {key}={value!r} is invalid: {requirement} (override it, e.g. {key}=...)")
+
+
+def positive_int(key: str, value: Any, *, allow_zero: bool = False) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise _fail(key, value, "must be an integer")
+    if value < 0 or (value == 0 and not allow_zero):
+        raise _fail(key, value, "must be >= 0" if allow_zero else "must be a positive integer")
+    return value
+
+
+def number(key: str, value: Any, *, lo: float | None = None, hi: float | None = None,
+           lo_open: bool = False, hi_open: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise _fail(key, value, "must be a finite number")
+    v = float(value)
+    if lo is not None and (v < lo or (lo_open and v == lo)):
+        raise _fail(key, value, f"must be {'>' if lo_open else '>='} {lo}")
+    if hi is not None and (v > hi or (hi_open and v == hi)):
+        raise _fail(key, value, f"must be {'<' if hi_open else '<='} {hi}")
+    return v
+
+
+def positive(key: str, value: Any) -> float:
+    return number(key, value, lo=0.0, lo_open=True)
+
+
+def fraction(key: str, value: Any) -> float:
+    return number(key, value, lo=0.0, hi=1.0)
+
+
+def one_of(key: str, value: Any, choices: Iterable[Any]) -> Any:
+    choices = list(choices)
+    if value not in choices:
+        raise _fail(key, value, f"must be one of {choices}")
+    return value
+
+
+def interval(key: str, value: Any) -> tuple[float, float]:
+    """A [lo, hi] pair with lo <= hi (parameter ranges)."""
+    if not isinstance(value, Sequence) or isinstance(value, str) or len(value) != 2:
+        raise _fail(key, value, "must be a pair [lo, hi]")
+    lo = number(f"{key}[0]", value[0])
+    hi = number(f"{key}[1]", value[1])
+    if lo > hi:
+        raise _fail(key, value, "needs lo <= hi")
+    return lo, hi
+
+
+def names(key: str, value: Any, allowed: Iterable[str] | None = None) -> list[str]:
+    """A non-empty list of unique names (e.g. conditioning scalars), optionally from an allowed set."""
+    if isinstance(value, str) or not isinstance(value, Sequence) or len(value) == 0:
+        raise _fail(key, value, "must be a non-empty list of names")
+    out = [str(v) for v in value]
+    if len(set(out)) != len(out):
+        raise _fail(key, value, "has duplicate names")
+    if allowed is not None:
+        allowed = list(allowed)
+        bad = [v for v in out if v not in allowed]
+        if bad:
+            raise _fail(key, value, f"unknown name(s) {bad}; allowed: {allowed}")
+    return out

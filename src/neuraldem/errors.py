@@ -1,0 +1,20 @@
+"""Errors a user can fix. Entry points print them as one line (no traceback) and exit with status 2.
+
+Each message names what is wrong (the file, field or config key) and how to fix it.
+"""
+
+
+class NeuraldemError(Exception):
+    """Base class: a problem with the user's input or environment, not a bug in neuraldem."""
+
+
+class ConfigError(NeuraldemError):
+    """A config value is missing, of the wrong type or out of range."""
+
+
+class DataError(NeuraldemError):
+    """A dataset or file is missing, malformed, truncated or of another schema."""
+
+
+class SolverError(NeuraldemError):
+    """A solver (LIGGGHTS, OpenFOAM) is missing, misconfigured, or a run failed."""

@@ -1,0 +1,1 @@
+"""Solver drivers: write inputs, run LIGGGHTS / OpenFOAM, read their outputs into arrays."""

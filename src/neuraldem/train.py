@@ -1,0 +1,77 @@
+"""`python -m neuraldem.train experiment=NAME`: compose the config, build data + model, fit with Lightning.
+
+Outputs (checkpoints, logs, the composed config) go to the run folder under the data dir.
+`--cfg job` prints the composed config, `--help` lists the config groups, `-m` runs a Hydra sweep.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import torch
+from hydra.errors import InstantiationException
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from neuraldem.cli import hydra_app
+from neuraldem.config import checks
+from neuraldem.config.build import build_callbacks, build_loggers, build_trainer, check_trainer
+from neuraldem.data.manifest import require_dataset
+from neuraldem.errors import ConfigError, NeuraldemError
+
+log = logging.getLogger(__name__)
+
+
+def train(cfg: DictConfig) -> dict[str, float]:
+    """Fit the model of `cfg` on its dataset; return the final logged metrics (for sweeps and tests)."""
+    seed = checks.positive_int("seed", cfg.seed, allow_zero=True)
+    L.seed_everything(seed, workers=True)
+    for key in ("data", "model"):
+        if cfg.get(key) is None:
+            raise ConfigError(f"no {key} config selected: pick one with {key}=NAME or experiment=NAME")
+    check_trainer(cfg.trainer)
+    require_dataset(Path(cfg.data.dataset_dir), str(cfg.data.name))
+
+    datamodule = instantiate_checked("data.datamodule", cfg.data.datamodule)
+    module = instantiate_checked("model", cfg.model, datamodule=datamodule, _recursive_=False)
+    trainer = build_trainer(cfg.trainer, callbacks=build_callbacks(cfg.get("callbacks")),
+                            loggers=build_loggers(cfg.get("logger")))
+    for lg in trainer.loggers:
+        lg.log_hyperparams(OmegaConf.to_container(cfg, resolve=True))  # type: ignore[arg-type]
+
+    log.info("training %s on %s, run folder %s", type(module).__name__, cfg.data.name, cfg.paths.output_dir)
+    trainer.fit(module, datamodule=datamodule, ckpt_path=cfg.get("ckpt_path"))
+    metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if torch.is_tensor(v) and v.numel() == 1}
+    if cfg.get("test"):
+        trainer.test(module, datamodule=datamodule, ckpt_path="best" if trainer.checkpoint_callback else None)
+        metrics.update({k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1})
+    bad = [k for k, v in metrics.items() if not math.isfinite(v)]
+    if bad:
+        log.warning("non-finite metrics at the end of training: %s", bad)
+    return metrics
+
+
+def instantiate_checked(key: str, node: DictConfig, **kwargs: Any) -> Any:
+    """`hydra.utils.instantiate`, but a wrong `_target_` or argument becomes a ConfigError naming `key`;
+    our own errors raised inside a constructor (bad value, missing dataset) pass through unchanged."""
+    try:
+        return instantiate(node, **kwargs)
+    except InstantiationException as err:
+        if isinstance(err.__cause__, NeuraldemError):
+            raise err.__cause__ from None
+        msg = str(err).strip().splitlines()[0]
+        raise ConfigError(f"cannot build {key}: {msg}") from None
+
+
+@hydra_app("train")
+def main(cfg: DictConfig) -> float | None:
+    metrics = train(cfg)
+    return metrics.get("val/loss")  # what a Hydra sweeper optimises
+
+
+if __name__ == "__main__":
+    main()

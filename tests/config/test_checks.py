@@ -1,0 +1,36 @@
+"""Config value checks: accept good values, reject bad ones with the key and the requirement."""
+
+from __future__ import annotations
+
+import pytest
+
+from neuraldem.config import checks
+from neuraldem.errors import ConfigError
+
+
+@pytest.mark.parametrize("value", [-1, 0, 1.5, "3", True, None])
+def test_positive_int_rejects(value):
+    with pytest.raises(ConfigError, match=r"data\.batch_size="):
+        checks.positive_int("data.batch_size", value)
+
+
+def test_positive_int_accepts():
+    assert checks.positive_int("x", 3) == 3
+    assert checks.positive_int("x", 0, allow_zero=True) == 0
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), -0.1, 1.1, "a"])
+def test_fraction_rejects(value):
+    with pytest.raises(ConfigError, match="invalid"):
+        checks.fraction("splits.val", value)
+
+
+def test_interval_and_names():
+    assert checks.interval("r", [0, 60]) == (0.0, 60.0)
+    with pytest.raises(ConfigError, match="lo <= hi"):
+        checks.interval("r", [60, 0])
+    assert checks.names("c", ["t", "alpha"], allowed=["t", "alpha", "mu_s"]) == ["t", "alpha"]
+    with pytest.raises(ConfigError, match="unknown name"):
+        checks.names("c", ["t", "beta"], allowed=["t", "alpha"])
+    with pytest.raises(ConfigError, match="duplicate"):
+        checks.names("c", ["t", "t"])

@@ -1,0 +1,50 @@
+"""Helpers shared by tests (importable as `tests.helpers`)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, open_dict
+
+import neuraldem.config  # noqa: F401  (resolvers)
+from neuraldem.paths import config_dir
+
+REPO = Path(__file__).resolve().parents[1]
+
+# applied to every composed training config: CPU, tiny runs, no external side effects
+CPU_TEST_OVERRIDES = [
+    "trainer=cpu",
+    "trainer.max_steps=2",
+    "trainer.val_check_interval=1",
+    "trainer.log_every_n_steps=1",
+    "trainer.enable_model_summary=false",
+    "logger=none",
+]
+
+
+def compose_cfg(config_name: str, overrides: list[str], output_dir: Path) -> DictConfig:
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        extra = CPU_TEST_OVERRIDES if config_name == "train" else []
+        cfg = compose(config_name=config_name, overrides=extra + overrides, return_hydra_config=True)
+    HydraConfig.instance().set_config(cfg)
+    with open_dict(cfg):
+        cfg.paths.output_dir = str(output_dir)
+        cfg.hydra.runtime.output_dir = str(output_dir)
+        if "callbacks" in cfg and cfg.callbacks is not None and "progress" in cfg.callbacks:
+            cfg.callbacks.progress = None
+    return cfg
+
+
+def run_module(module: str, *args: str, env: dict[str, str] | None = None,
+               timeout: float = 600) -> subprocess.CompletedProcess[str]:
+    """Run `python -m module args...` as a user would, capturing output."""
+    full_env = dict(os.environ, **(env or {}))
+    return subprocess.run([sys.executable, "-m", module, *args], cwd=REPO, env=full_env,
+                          capture_output=True, text=True, timeout=timeout)

@@ -1,0 +1,52 @@
+"""`python -m neuraldem.train` as a user meets it: help, printed config, and bad input in one clear line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from tests.helpers import run_module
+
+
+def _one_clear_error(proc) -> str:
+    out = proc.stdout + proc.stderr
+    assert proc.returncode != 0, out
+    assert "Traceback" not in out, out
+    return out
+
+
+def test_help_lists_groups():
+    proc = run_module("neuraldem.train", "--help")
+    assert proc.returncode == 0
+    for group in ("data:", "model:", "trainer:", "logger:", "experiment"):
+        assert group in proc.stdout
+
+
+def test_cfg_job_prints_composed_config(tmp_path: Path):
+    proc = run_module("neuraldem.train", "--cfg", "job", env={"NEURALDEM_DATA": str(tmp_path)})
+    assert proc.returncode == 0, proc.stderr
+    assert "trainer:" in proc.stdout and "_target_: lightning.pytorch.Trainer" in proc.stdout
+
+
+def test_missing_dataset_says_how_to_generate(tmp_path: Path):
+    proc = run_module("neuraldem.train", "data=hopper_tiny", env={"NEURALDEM_DATA": str(tmp_path)})
+    out = _one_clear_error(proc)
+    assert f"no dataset at {tmp_path}/datasets/hopper_tiny" in out
+    assert "python -m neuraldem.datagen data=hopper_tiny" in out
+
+
+def test_unknown_experiment(tmp_path: Path):
+    out = _one_clear_error(run_module("neuraldem.train", "experiment=no_such_thing",
+                                      env={"NEURALDEM_DATA": str(tmp_path)}))
+    assert "Could not find 'experiment/no_such_thing'" in out
+
+
+def test_negative_trainer_value(tmp_path: Path):
+    out = _one_clear_error(run_module("neuraldem.train", "trainer.max_steps=-5",
+                                      env={"NEURALDEM_DATA": str(tmp_path)}))
+    assert "trainer.max_steps=-5 is invalid" in out
+
+
+def test_typo_in_key(tmp_path: Path):
+    out = _one_clear_error(run_module("neuraldem.train", "trainr.max_steps=5",
+                                      env={"NEURALDEM_DATA": str(tmp_path)}))
+    assert "trainr" in out
