@@ -1,0 +1,182 @@
+"""One HDF5 file per hopper simulation: write (atomically) and read (validating) the trajectory.
+
+Layout (schema 1, see docs/data-format.md):
+  attrs: schema_version, kind="hopper", sim_id, params (JSON), solver, solver_version, created_utc
+  /particles/ids          (N,) int64      particles present at t = 0 (outlet opening), sorted
+  /particles/exit_time    (N,) float32    time the particle crossed the sink; NaN = never left
+  /snapshots/time         (T,) float64    snapshot times, t = 0 at opening
+  /snapshots/position     (T, N, 3) int16 quantised: x = origin + resolution * q; q = -32768: exited
+  /snapshots/velocity     (T, N, 3) float16, NaN where exited
+  /geometry               attrs: radius, outlet_radius, cone_height, wall_height, sink_z
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from neuraldem import __version__
+from neuraldem.data.schema import SCHEMA_VERSION, atomic_write_h5, check_version
+from neuraldem.errors import DataError
+from neuraldem.sim.hopper import HopperGeometry, HopperTrajectory
+
+KIND = "hopper"
+MISSING = np.iinfo(np.int16).min
+QMAX = np.iinfo(np.int16).max
+
+
+def quantise(positions: np.ndarray, origin: np.ndarray, resolution: float) -> np.ndarray:
+    q = np.rint((positions - origin) / resolution)
+    present = np.isfinite(q).all(axis=-1)
+    if present.any() and (q[present].min() < -QMAX or q[present].max() > QMAX):
+        span = np.nanmax(positions, axis=(0, 1)) - np.nanmin(positions, axis=(0, 1))
+        raise DataError(f"positions span {span.max():.3f} m, more than int16 holds at resolution {resolution} m: "
+                        f"raise data.storage.position_resolution to >= {span.max() / (2 * QMAX):.2e}")
+    out = np.full(positions.shape, MISSING, dtype=np.int16)
+    out[present] = q[present].astype(np.int16)
+    return out
+
+
+def write_hopper_file(path: Path, sim_id: str, traj: HopperTrajectory, params: dict[str, float],
+                      solver_version: str, position_resolution: float) -> None:
+    pos = traj.positions
+    finite = np.isfinite(pos[..., 0])
+    lo = np.nanmin(pos[finite], axis=0)
+    hi = np.nanmax(pos[finite], axis=0)
+    origin = 0.5 * (lo + hi)  # centred so the int16 range is used symmetrically
+    q = quantise(pos, origin, position_resolution)
+    vel = traj.velocities.astype(np.float16)
+
+    def fill(f: h5py.File) -> None:
+        f.attrs.update(schema_version=SCHEMA_VERSION, kind=KIND, sim_id=sim_id, params=json.dumps(params),
+                       solver="LIGGGHTS", solver_version=solver_version, n_inserted=traj.n_inserted,
+                       neuraldem_version=__version__,
+                       created_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"))
+        g = f.create_group("particles")
+        g.create_dataset("ids", data=traj.ids.astype(np.int64))
+        g.create_dataset("exit_time", data=traj.exit_times.astype(np.float32))
+        s = f.create_group("snapshots")
+        s.create_dataset("time", data=traj.times.astype(np.float64))
+        chunks = (1, pos.shape[1], 3)
+        dq = s.create_dataset("position", data=q, chunks=chunks, compression="gzip", compression_opts=4,
+                              shuffle=True)
+        dq.attrs.update(origin=origin, resolution=position_resolution, missing=MISSING, units="m")
+        s.create_dataset("velocity", data=vel, chunks=chunks, compression="gzip", compression_opts=4,
+                         shuffle=True).attrs["units"] = "m/s"
+        f.create_group("geometry").attrs.update(asdict(traj.geometry))
+
+    atomic_write_h5(path, fill)
+
+
+class HopperFile:
+    """Validating reader. Positions come back as float64 metres with NaN for exited particles.
+
+    Use as a context manager, or call `close()`; `load()` reads everything into a HopperTrajectory."""
+
+    def __init__(self, path: Path, validate: bool = True):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise DataError(f"dataset file {self.path} does not exist (regenerate with python -m neuraldem.datagen)")
+        try:
+            self.f = h5py.File(self.path, "r")
+        except OSError as err:
+            raise DataError(f"{self.path}: not a readable HDF5 file ({err}); delete it and rerun datagen, "
+                            "which regenerates missing simulations") from None
+        try:
+            check_version(self.f.attrs.get("schema_version"), self.path)
+            if self.f.attrs.get("kind") != KIND:
+                raise DataError(f"{self.path}: kind {self.f.attrs.get('kind')!r}, expected {KIND!r}")
+            self._read_meta()
+            if validate:
+                self.validate()
+        except Exception:
+            self.f.close()
+            raise
+
+    def __enter__(self) -> HopperFile:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.f.close()
+
+    def _field(self, name: str) -> h5py.Dataset:
+        if name not in self.f:
+            raise DataError(f"{self.path}: field /{name} is missing (file from another tool or truncated)")
+        return self.f[name]
+
+    def _read_meta(self) -> None:
+        self.sim_id = str(self.f.attrs.get("sim_id", self.path.stem))
+        self.params: dict[str, float] = json.loads(self.f.attrs.get("params", "{}"))
+        self.ids = self._field("particles/ids")[()]
+        self.exit_times = self._field("particles/exit_time")[()].astype(np.float64)
+        self.times = self._field("snapshots/time")[()]
+        self._pos = self._field("snapshots/position")
+        self._vel = self._field("snapshots/velocity")
+        self.origin = np.asarray(self._pos.attrs["origin"], dtype=np.float64)
+        self.resolution = float(self._pos.attrs["resolution"])
+        g = self._field("geometry").attrs
+        self.geometry = HopperGeometry(**{k: float(g[k]) for k in HopperGeometry.__dataclass_fields__})
+
+    @property
+    def n_particles(self) -> int:
+        return len(self.ids)
+
+    @property
+    def n_snapshots(self) -> int:
+        return len(self.times)
+
+    def validate(self) -> None:
+        """Shapes, ordering and value ranges; the error names the file and the field."""
+        T, N = self.n_snapshots, self.n_particles
+        for name, ds in (("snapshots/position", self._pos), ("snapshots/velocity", self._vel)):
+            if ds.shape != (T, N, 3):
+                raise DataError(f"{self.path}: /{name} has shape {ds.shape}, expected {(T, N, 3)}")
+        if self.exit_times.shape != (N,):
+            raise DataError(f"{self.path}: /particles/exit_time has shape {self.exit_times.shape}, expected {(N,)}")
+        if T == 0 or N == 0:
+            raise DataError(f"{self.path}: empty trajectory ({T} snapshots, {N} particles)")
+        if np.any(np.diff(self.times) <= 0) or abs(self.times[0]) > 1e-9:
+            raise DataError(f"{self.path}: /snapshots/time must start at 0 and increase")
+        if np.any(np.diff(self.ids) <= 0):
+            raise DataError(f"{self.path}: /particles/ids must be sorted and unique")
+        bad = np.isinf(self.exit_times) | (self.exit_times < 0)
+        if bad.any():
+            raise DataError(f"{self.path}: /particles/exit_time has {int(bad.sum())} negative or infinite values")
+        if not (np.isfinite(self.origin).all() and self.resolution > 0):
+            raise DataError(f"{self.path}: /snapshots/position has a broken origin/resolution attribute")
+        q = self._pos[()]
+        present = q[..., 0] != MISSING
+        if not present[0].all():
+            raise DataError(f"{self.path}: /snapshots/position: particles missing at t = 0")
+        if np.any(present[1:] & ~present[:-1]):
+            raise DataError(f"{self.path}: /snapshots/position: a particle reappears after it exited")
+        vel = self._vel[()]
+        if not np.isfinite(vel[present]).all():
+            raise DataError(f"{self.path}: /snapshots/velocity has NaN/inf for particles that are present")
+
+    def positions(self, t_index: int | slice | np.ndarray = slice(None)) -> np.ndarray:
+        q = self._pos[t_index]
+        out = self.origin + self.resolution * q.astype(np.float64)
+        out[q[..., 0] == MISSING] = np.nan
+        return out
+
+    def velocities(self, t_index: int | slice | np.ndarray = slice(None)) -> np.ndarray:
+        return self._vel[t_index].astype(np.float64)
+
+    def initial_positions(self) -> np.ndarray:
+        return self.positions(0)
+
+    def load(self) -> HopperTrajectory:
+        return HopperTrajectory(ids=self.ids, times=self.times, positions=self.positions(),
+                                velocities=self.velocities(), exit_times=self.exit_times,
+                                n_inserted=int(self.f.attrs.get("n_inserted", self.n_particles)),
+                                geometry=self.geometry)

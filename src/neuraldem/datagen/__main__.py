@@ -1,0 +1,69 @@
+"""`python -m neuraldem.datagen data=hopper_small n_sims=200 workers=2`
+
+Runs the real solver for every simulation of a dataset that is not finished yet, side by side on
+`workers` cores (serial solver processes; MPI on few cores only burns CPU), and keeps the manifest up to
+date after every simulation. Kill it any time and start it again: finished simulations are kept.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+
+import numpy as np
+from omegaconf import DictConfig
+
+from neuraldem.cli import hydra_app
+from neuraldem.config import checks
+from neuraldem.data.manifest import Manifest
+from neuraldem.datagen.driver import DatagenOptions, Pipeline, cpu_count, generate
+from neuraldem.errors import ConfigError
+
+log = logging.getLogger("neuraldem.datagen")
+
+
+def make_pipeline(data_cfg: DictConfig) -> Pipeline:
+    kind = data_cfg.get("kind")
+    if kind == "hopper":
+        from neuraldem.datagen.hopper import HopperPipeline
+
+        return HopperPipeline(data_cfg)
+    raise ConfigError(f"config value data.kind={kind!r} is invalid: datagen knows 'hopper'")
+
+
+def summary_lines(m: Manifest, n_sims: int) -> list[str]:
+    recs = m.simulations[:n_sims]
+    status = Counter(r.status for r in recs)
+    lines = [f"{m.name}: {n_sims} simulations: " + ", ".join(f"{v} {k}" for k, v in sorted(status.items()))]
+    cpu = [r.cost["cpu_s"] for r in recs if r.usable and "cpu_s" in r.cost]
+    if cpu:
+        lines.append(f"solver CPU s per simulation: median {np.median(cpu):.1f} (min {min(cpu):.1f}, "
+                     f"max {max(cpu):.1f})")
+    char = [r.cost["characterization_cpu_s"] for r in recs if "characterization_cpu_s" in r.cost]
+    if char:
+        lines.append(f"characterization CPU s per parameter set: median {np.median(char):.1f}")
+    steps = [r.cost["particle_steps"] / r.cost["cpu_s"] for r in recs if r.usable and r.cost.get("cpu_s")]
+    if steps:
+        lines.append(f"particle-steps per CPU-second: median {np.median(steps):.3g}")
+    for key in ("drainage_time", "residual_fraction", "outflow_rate", "mass_flow_index"):
+        vals = [r.metrics[key] for r in recs if r.usable and key in r.metrics and np.isfinite(r.metrics[key])]
+        if vals:
+            lines.append(f"{key}: {min(vals):.3g} .. {max(vals):.3g} (median {np.median(vals):.3g})")
+    return lines
+
+
+@hydra_app("datagen")
+def main(cfg: DictConfig) -> None:
+    n_sims = checks.positive_int("n_sims", cfg.n_sims)
+    workers = checks.positive_int("workers", cfg.workers)
+    if workers > cpu_count():
+        log.warning("workers=%d > %d cores: runs will share cores and each gets slower", workers, cpu_count())
+    pipe = make_pipeline(cfg.data)
+    m = generate(pipe, DatagenOptions(n_sims=n_sims, workers=workers, retry_failed=bool(cfg.retry_failed),
+                                      progress=bool(cfg.progress)))
+    for line in summary_lines(m, n_sims):
+        print(line)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,186 @@
+"""The resumable datagen loop shared by all scenes: manifest, parameter table, workers, progress.
+
+A scene plugs in a `Pipeline` (how to run and store one simulation, how to split). The loop:
+load or create the manifest (refusing a dataset made with a different scene), extend the parameter table,
+run every unfinished simulation on `workers` threads (each thread drives one serial solver process), and
+save the manifest after every finished simulation. Killed and restarted, it redoes only unfinished work.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+from collections import Counter
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+from tqdm import tqdm
+
+from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
+from neuraldem.data.schema import TMP_SUFFIX, sha256
+from neuraldem.errors import DataError, NeuraldemError
+
+log = logging.getLogger(__name__)
+
+
+class Pipeline(Protocol):
+    kind: str
+    name: str
+    dataset_dir: Path
+
+    def scene_record(self) -> dict[str, Any]:
+        """Everything that determines the data; a dataset made with another scene is refused."""
+
+    def solver_record(self) -> dict[str, str]: ...
+
+    def parameter_record(self) -> dict[str, Any]: ...
+
+    def new_parameters(self, n: int, batch: int) -> list[dict[str, float]]: ...
+
+    def prepare(self, manifest: Manifest) -> None:
+        """Adjust an opened manifest to the current settings that do not invalidate simulations."""
+
+    def incomplete(self, record: SimRecord) -> bool:
+        """Scene-specific work still missing for a finished simulation (e.g. its characterization)."""
+
+    def run(self, record: SimRecord) -> SimRecord:
+        """Do what is missing for one simulation (run, store, score, characterize); return the updated
+        record (never raise for solver trouble)."""
+
+    def splits(self, manifest: Manifest) -> dict[str, dict[str, list[str]]]: ...
+
+
+@dataclass
+class DatagenOptions:
+    n_sims: int
+    workers: int
+    retry_failed: bool = False
+    progress: bool = True
+
+
+def open_manifest(pipe: Pipeline) -> Manifest:
+    path = pipe.dataset_dir / MANIFEST_NAME
+    scene = json.loads(json.dumps(pipe.scene_record()))  # normalise (tuples -> lists) as stored
+    if not path.exists():
+        return Manifest(name=pipe.name, kind=pipe.kind, scene=scene, solver=pipe.solver_record(),
+                        parameters=pipe.parameter_record())
+    m = Manifest.load(pipe.dataset_dir)
+    if m.kind != pipe.kind or m.scene != scene:
+        diff = sorted(_diff_keys(m.scene, scene)) or ["kind"]
+        raise DataError(f"dataset {pipe.dataset_dir} was made with a different scene (differs in {diff}): "
+                        "choose another data.name for the new scene, or delete that folder to regenerate")
+    return m
+
+
+def _diff_keys(a: Any, b: Any, prefix: str = "") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = []
+        for k in sorted(set(a) | set(b)):
+            out += _diff_keys(a.get(k), b.get(k), f"{prefix}{k}.")
+        return out
+    return [] if a == b else [prefix.rstrip(".")]
+
+
+def extend_table(m: Manifest, pipe: Pipeline, n_sims: int) -> None:
+    missing = n_sims - len(m.simulations)
+    if missing <= 0:
+        return
+    batch = len({r.diagnostics.get("batch", 0) for r in m.simulations}) if m.simulations else 0
+    start = len(m.simulations)
+    for k, params in enumerate(pipe.new_parameters(missing, batch)):
+        i = start + k
+        m.simulations.append(SimRecord(sim_id=f"sim_{i:04d}", index=i, params=params,
+                                       diagnostics={"batch": batch}))
+
+
+def simulation_done(rec: SimRecord, dataset_dir: Path) -> bool:
+    """The solver part is finished: ok/clogged with its file present and unchanged."""
+    if rec.status not in ("ok", "clogged") or rec.file is None:
+        return False
+    path = dataset_dir / rec.file
+    if not path.is_file() or sha256(path) != rec.sha256:
+        log.warning("%s: %s missing or changed since it was written, running it again", rec.sim_id, path)
+        return False
+    return True
+
+
+def needs_run(rec: SimRecord, pipe: Pipeline, retry_failed: bool) -> bool:
+    if rec.status == "failed":
+        return retry_failed
+    return not simulation_done(rec, pipe.dataset_dir) or pipe.incomplete(rec)
+
+
+def remove_partials(dataset_dir: Path) -> None:
+    """Temporary files of writes killed mid-way are never read; delete them."""
+    for p in dataset_dir.rglob(f"*{TMP_SUFFIX}"):
+        p.unlink(missing_ok=True)
+
+
+def generate(pipe: Pipeline, opts: DatagenOptions) -> Manifest:
+    pipe.dataset_dir.mkdir(parents=True, exist_ok=True)
+    remove_partials(pipe.dataset_dir)
+    m = open_manifest(pipe)
+    pipe.prepare(m)
+    extend_table(m, pipe, opts.n_sims)
+    todo = [r for r in m.simulations[: opts.n_sims] if needs_run(r, pipe, opts.retry_failed)]
+    for rec in todo:
+        if rec.status == "failed":  # retried from scratch
+            rec.status, rec.reason = "pending", ""
+    done = opts.n_sims - len(todo)
+    m.splits = pipe.splits(m)
+    m.save(pipe.dataset_dir)
+    log.info("%s: %d simulations, %d finished, %d to run on %d worker(s)", pipe.name, opts.n_sims, done,
+             len(todo), opts.workers)
+    counts = Counter(r.status for r in m.simulations[: opts.n_sims] if r not in todo)
+    bar = tqdm(total=opts.n_sims, initial=done, desc=pipe.name, unit="sim", disable=not opts.progress,
+               dynamic_ncols=True)
+    with ThreadPoolExecutor(max_workers=opts.workers) as pool:
+        pending: dict[Future[SimRecord], SimRecord] = {pool.submit(_run_safely, pipe.run, r): r for r in todo}
+        while pending:
+            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for fut in finished:
+                old = pending.pop(fut)
+                new = fut.result()
+                m.simulations[m.simulations.index(old)] = new
+                counts[new.status] += 1
+                m.splits = pipe.splits(m)
+                m.save(pipe.dataset_dir)
+                bar.update(1)
+                bar.set_postfix(dict(counts))
+                if new.status != "ok":
+                    bar.write(f"{new.sim_id}: {new.status}: {new.reason}")
+    bar.close()
+    return m
+
+
+def _run_safely(fn: Callable[[SimRecord], SimRecord], rec: SimRecord) -> SimRecord:
+    """A simulation that breaks in an unexpected way is recorded as failed; the others go on."""
+    try:
+        return fn(rec)
+    except NeuraldemError as err:
+        return _failed(rec, str(err))
+    except Exception as err:  # noqa: BLE001 - recorded with its type, the job goes on
+        log.exception("%s: unexpected error", rec.sim_id)
+        return _failed(rec, f"internal error {type(err).__name__}: {err}")
+
+
+def _failed(rec: SimRecord, reason: str) -> SimRecord:
+    rec.status, rec.reason = "failed", reason
+    return rec
+
+
+def fresh_dir(path: Path) -> Path:
+    """An empty run folder (a killed run's leftovers are removed first)."""
+    if path.exists():
+        shutil.rmtree(path)
+    path.mkdir(parents=True)
+    return path
+
+
+def cpu_count() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)

@@ -1,0 +1,208 @@
+"""Hopper datagen pipeline: characterize the material, run the draining hopper, store, score."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from neuraldem.config import checks
+from neuraldem.data.hopper_fields import trajectory_fields_at
+from neuraldem.data.hopper_store import write_hopper_file
+from neuraldem.data.manifest import Manifest, SimRecord
+from neuraldem.data.schema import sha256
+from neuraldem.data.splits import auto_theta_band, band_split, random_split
+from neuraldem.datagen.driver import fresh_dir, simulation_done
+from neuraldem.datagen.sampling import latin_hypercube
+from neuraldem.errors import ConfigError, SolverError
+from neuraldem.eval.hopper_metrics import hopper_summary
+from neuraldem.sim import liggghts
+from neuraldem.sim.hopper import STATUS_FAILED, HopperScene, HopperTrajectory, run_hopper
+from neuraldem.sim.material import Material
+
+# what a user may sample, and the physically sensible limits of each range
+PARAMETER_LIMITS = {"alpha": (0.0, 75.0), "mu_s": (0.0, 2.0), "mu_r": (0.0, 1.0)}
+
+
+@dataclass
+class MetricSettings:
+    occupancy_radius_d: float = 0.6  # occupancy radius in particle diameters (> 0.5: voids count as full)
+    n_layers: int = 8
+    drain_margin: float = 0.01
+    outflow_window: tuple[float, float] = (0.1, 0.6)
+    mass_flow_threshold: float = 0.5
+
+    @classmethod
+    def from_config(cls, cfg: Any, key: str) -> MetricSettings:
+        s = cls(**{k: (tuple(v) if isinstance(v, (list, tuple)) or OmegaConf.is_list(v) else v)
+                   for k, v in dict(cfg).items()})
+        checks.number(f"{key}.occupancy_radius_d", s.occupancy_radius_d, lo=0.5, hi=2.0, lo_open=True)
+        checks.positive_int(f"{key}.n_layers", s.n_layers)
+        checks.number(f"{key}.drain_margin", s.drain_margin, lo=0.0, hi=0.2, lo_open=True)
+        lo, hi = checks.interval(f"{key}.outflow_window", list(s.outflow_window))
+        if not 0.0 <= lo < hi <= 1.0:
+            raise ConfigError(f"config value {key}.outflow_window={list(s.outflow_window)} is invalid: "
+                                     "needs 0 <= lo < hi <= 1 (fractions of the drained material)")
+        checks.number(f"{key}.mass_flow_threshold", s.mass_flow_threshold, lo=-1.0, hi=1.0)
+        return s
+
+
+def trajectory_metrics(traj: HopperTrajectory, diameter: float, settings: MetricSettings) -> dict[str, float]:
+    """Ground-truth metrics through the same path as predictions: fields at the initial positions."""
+    points = traj.positions[0]
+    occ, transport, _ = trajectory_fields_at(points, traj.times, traj.positions, traj.exit_times,
+                                             settings.occupancy_radius_d * diameter)
+    out = hopper_summary(traj.times, occ, transport[..., 2], points[:, 2], n_layers=settings.n_layers,
+                         drain_margin=settings.drain_margin)
+    # direct particle counts, for reference (not available to a field surrogate)
+    out["residual_fraction_particles"] = float(np.mean(~np.isfinite(traj.exit_times)))
+    out["duration"] = float(traj.times[-1])
+    return out
+
+
+@dataclass
+class HopperPipeline:
+    cfg: DictConfig  # the `data` config
+    kind: str = "hopper"
+    name: str = field(init=False)
+    dataset_dir: Path = field(init=False)
+
+    def __post_init__(self) -> None:
+        c = self.cfg
+        self.name = str(c.name)
+        self.dataset_dir = Path(c.dataset_dir)
+        self.scene = HopperScene.from_config(c.scene, "data.scene")
+        self.ranges = {}
+        for k, v in c.parameters.ranges.items():
+            if k not in PARAMETER_LIMITS:
+                raise ConfigError(f"data.parameters.ranges.{k}: unknown parameter; "
+                                         f"known: {sorted(PARAMETER_LIMITS)}")
+            lo, hi = checks.interval(f"data.parameters.ranges.{k}", list(v))
+            plo, phi = PARAMETER_LIMITS[k]
+            checks.number(f"data.parameters.ranges.{k}[0]", lo, lo=plo, hi=phi)
+            checks.number(f"data.parameters.ranges.{k}[1]", hi, lo=plo, hi=phi)
+            self.ranges[k] = (lo, hi)
+        missing = sorted(set(PARAMETER_LIMITS) - set(self.ranges))
+        if missing:
+            raise ConfigError(f"data.parameters.ranges lacks {missing}")
+        self.seed = checks.positive_int("data.parameters.seed", c.parameters.seed, allow_zero=True)
+        char = c.characterization
+        self.characterization_enabled = bool(char.enabled)
+        if self.characterization_enabled:
+            from neuraldem.sim.characterize import HeapSettings, ShearSettings
+
+            self.shear = ShearSettings.from_config(char.shear, "data.characterization.shear")
+            self.heap = HeapSettings.from_config(char.heap, "data.characterization.heap")
+        self.position_resolution = checks.positive("data.storage.position_resolution",
+                                                   c.storage.position_resolution)
+        self.keep_raw = bool(c.storage.keep_raw)
+        self.metrics = MetricSettings.from_config(c.metrics, "data.metrics")
+        self._solver_version: str | None = None
+
+    # ---- manifest records
+    def scene_record(self) -> dict[str, Any]:
+        return {"hopper": self.scene.as_dict(), "position_resolution": self.position_resolution}
+
+    def characterization_record(self) -> dict[str, Any]:
+        return json.loads(json.dumps({"shear": self.shear.as_dict(), "heap": self.heap.as_dict()}))
+
+    def prepare(self, m: Manifest) -> None:
+        """New characterization settings invalidate the measurements, not the simulations."""
+        if not self.characterization_enabled:
+            return
+        current = self.characterization_record()
+        if m.characterization is not None and m.characterization != current:
+            for rec in m.simulations:
+                rec.macro = {}
+        m.characterization = current
+
+    def incomplete(self, rec: SimRecord) -> bool:
+        return self.characterization_enabled and not rec.macro
+
+    def solver_record(self) -> dict[str, str]:
+        return {"name": "LIGGGHTS", "version": self.solver_version()}
+
+    def solver_version(self) -> str:
+        if self._solver_version is None:
+            import tempfile
+
+            with tempfile.TemporaryDirectory() as tmp:
+                version, _ = liggghts.free_fall_check(Path(tmp))
+            self._solver_version = version or "unknown"
+        return self._solver_version
+
+    def parameter_record(self) -> dict[str, Any]:
+        return {"names": list(self.ranges), "ranges": {k: list(v) for k, v in self.ranges.items()},
+                "sampling": "latin_hypercube", "seed": self.seed}
+
+    def new_parameters(self, n: int, batch: int) -> list[dict[str, float]]:
+        return latin_hypercube(self.ranges, n, self.seed, batch)
+
+    # ---- one simulation
+    def run(self, rec: SimRecord) -> SimRecord:
+        if self.characterization_enabled and not rec.macro:
+            self._characterize(rec)
+        if rec.status != STATUS_FAILED and not simulation_done(rec, self.dataset_dir):
+            self._simulate(rec)
+        return rec
+
+    def _material(self, rec: SimRecord) -> Material:
+        return Material(**{**self.scene.material.as_dict(), "mu_s": rec.params["mu_s"],
+                           "mu_r": rec.params["mu_r"]})
+
+    def _characterize(self, rec: SimRecord) -> None:
+        from neuraldem.sim.characterize import characterize
+
+        try:
+            char = characterize(self._material(rec), self.shear, self.heap,
+                                self.dataset_dir / "characterization" / rec.sim_id, self.scene.timeout_s)
+        except SolverError as err:
+            rec.status, rec.reason = STATUS_FAILED, f"characterization: {err}"
+            return
+        rec.macro = {"theta": float(char["theta"]), "repose": float(char["repose"])}
+        rec.cost["characterization_cpu_s"] = float(char.get("cpu_s", float("nan")))
+
+    def _simulate(self, rec: SimRecord) -> None:
+        p = rec.params
+        workdir = fresh_dir(self.dataset_dir / "runs" / rec.sim_id)
+        result = run_hopper(self.scene, p["alpha"], p["mu_s"], p["mu_r"], workdir, rec.index)
+        rec.cost.update({k: float(v) for k, v in result.diagnostics.items() if k in
+                         ("cpu_s", "wall_s", "max_rss_mb", "particle_steps")})
+        rec.diagnostics.update({k: v for k, v in result.diagnostics.items() if k in
+                                ("ended_by", "n_exited", "n_lost")})
+        rec.status, rec.reason = result.status, result.reason
+        if result.trajectory is None:
+            return
+        rel = f"sims/{rec.sim_id}.h5"
+        (self.dataset_dir / "sims").mkdir(exist_ok=True)
+        write_hopper_file(self.dataset_dir / rel, rec.sim_id, result.trajectory, dict(p),
+                          self.solver_version(), self.position_resolution)
+        rec.file, rec.sha256 = rel, sha256(self.dataset_dir / rel)
+        rec.metrics = trajectory_metrics(result.trajectory, self.scene.material.diameter, self.metrics)
+        if not self.keep_raw:
+            for name in ("dump.txt", "exits.txt"):
+                (workdir / name).unlink(missing_ok=True)
+
+    # ---- splits
+    def splits(self, m: Manifest) -> dict[str, dict[str, list[str]]]:
+        usable = m.usable()
+        if not usable:
+            return {}
+        s = self.cfg.splits
+        seed = checks.positive_int("data.splits.seed", s.seed, allow_zero=True)
+        fractions = {k: checks.fraction(f"data.splits.random.{k}", float(v)) for k, v in s.random.items()}
+        out = {"random": random_split([r.sim_id for r in usable], fractions, seed)}
+        alpha_band = checks.interval("data.splits.band.alpha", list(s.band.alpha))
+        thetas = np.array([r.macro["theta"] for r in usable if "theta" in r.macro])
+        theta_band = None
+        if len(thetas) == len(usable):
+            theta_band = (checks.interval("data.splits.band.theta", list(s.band.theta))
+                          if s.band.theta is not None else auto_theta_band(thetas, alpha_band, self.ranges["alpha"]))
+        out["band"] = band_split(usable, alpha_band, theta_band,
+                                 checks.fraction("data.splits.band.val", float(s.band.val)), seed)
+        m.split_info["band"] = {"alpha": list(alpha_band), "theta": list(theta_band) if theta_band else None}
+        return out

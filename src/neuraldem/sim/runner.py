@@ -1,0 +1,73 @@
+"""Run one LIGGGHTS input serially in its own folder: log, screen output, CPU time, timeout.
+
+Independent runs go side by side (one per core); MPI on a 2-core machine only burns CPU.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from neuraldem.errors import SolverError
+from neuraldem.sim.liggghts import find_liggghts, solver_env
+
+# LIGGGHTS prints its seeds check, mesh and insertion errors as "ERROR: ..." lines.
+ERROR_PREFIXES = ("ERROR", "ERROR on proc")
+
+
+@dataclass
+class SolverRun:
+    returncode: int
+    wall_s: float
+    cpu_s: float  # user + system time of the solver process
+    max_rss_mb: float
+    log: str  # the LIGGGHTS log text
+    workdir: Path
+
+    @property
+    def error_line(self) -> str | None:
+        for line in self.log.splitlines()[::-1]:
+            if line.startswith(ERROR_PREFIXES):
+                return line.strip()
+        return None
+
+
+def run_liggghts(workdir: Path, input_name: str, timeout_s: float | None = None,
+                 log_name: str = "log.liggghts") -> SolverRun:
+    """Run `liggghts -in input_name` in `workdir`; never raises for a failed run (the caller decides),
+    only when the binary is missing. The screen goes to `screen.txt`, the log to `log_name`."""
+    exe = find_liggghts()
+    t0 = time.perf_counter()
+    with open(workdir / "screen.txt", "w") as screen:
+        proc = subprocess.Popen([str(exe), "-in", input_name, "-log", log_name], cwd=workdir,
+                                env=solver_env(), stdout=screen, stderr=subprocess.STDOUT)
+        deadline = None if timeout_s is None else t0 + timeout_s
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
+            if deadline is not None and time.perf_counter() > deadline:
+                proc.kill()
+                _, status, usage = os.wait4(proc.pid, 0)
+                break
+            time.sleep(0.05)
+    proc.returncode = os.waitstatus_to_exitcode(status)  # -9 when killed at the time limit
+    wall = time.perf_counter() - t0
+    log_path = workdir / log_name
+    log = log_path.read_text(errors="replace") if log_path.exists() else ""
+    if not log:  # errors before the log opens only reach the screen
+        log = (workdir / "screen.txt").read_text(errors="replace")
+    return SolverRun(returncode=proc.returncode, wall_s=wall, cpu_s=usage.ru_utime + usage.ru_stime,
+                     max_rss_mb=usage.ru_maxrss / 1024.0, log=log, workdir=workdir)
+
+
+def require_success(run: SolverRun, what: str) -> None:
+    """Raise a SolverError naming the run folder and the solver's own error line."""
+    if run.returncode != 0 or run.error_line:
+        reason = run.error_line or f"exit status {run.returncode}"
+        if run.returncode == -9:
+            reason = "killed after the time limit"
+        raise SolverError(f"{what} failed in {run.workdir}: {reason} (see {run.workdir}/log.liggghts)")
