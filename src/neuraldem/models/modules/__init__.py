@@ -1,0 +1,1 @@
+"""Building blocks of the composed models: embeddings, conditioning, attention blocks, encoders, decoders."""

@@ -1,0 +1,37 @@
+"""Embeds the scalar simulation parameters (time, angle, frictions, inlet velocity, ...) into one vector.
+
+Which scalars (and how many) is an experiment choice: conditioning ablations only change `n_scalars`.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from neuraldem.config import checks
+from neuraldem.models.modules.mlp import Mlp
+from neuraldem.models.modules.position_embedding import ContinuousSincosEmbed
+
+
+class ScalarConditioner(nn.Module):
+    """(B, S) normalised scalars -> (B, cond_dim) conditioning vector.
+
+    Each scalar gets its own sin-cos embedding + MLP (no shared weights, so the model knows which scalar is
+    which); the per-scalar embeddings are concatenated and merged by a linear layer. Scalars are expected
+    normalised by the data layer to roughly [0, 1] (the same convention as positions).
+    """
+
+    def __init__(self, n_scalars: int, dim: int, cond_dim: int) -> None:
+        super().__init__()
+        self.n_scalars = checks.positive_int("model.net.n_scalars", n_scalars)
+        checks.positive_int("model.net.dim", dim)
+        checks.positive_int("model.net.cond_dim", cond_dim)
+        self.embed = ContinuousSincosEmbed(dim, ndim=1)
+        self.per_scalar = nn.ModuleList(Mlp(dim, cond_dim, cond_dim) for _ in range(n_scalars))
+        self.merge = nn.Linear(n_scalars * cond_dim, cond_dim)
+
+    def forward(self, scalars: torch.Tensor) -> torch.Tensor:
+        if scalars.ndim != 2 or scalars.shape[1] != self.n_scalars:
+            raise ValueError(f"expected scalars of shape (B, {self.n_scalars}), got {tuple(scalars.shape)}")
+        embedded = [mlp(self.embed(scalars[:, i:i + 1])) for i, mlp in enumerate(self.per_scalar)]
+        return self.merge(torch.cat(embedded, dim=-1))

@@ -1,0 +1,145 @@
+"""Multi-branch neural operator for coupled particle-fluid systems (fluidized bed), for next-step prediction.
+
+encoder (supernode pooling for particles, patch embedding for grids) -> multi-branch transformer blocks
+(encoder, approximator and decoder stages) -> one perceiver decoder per branch. Main branches "particles" and
+"fluid" are coupled in every block; the off-branch "mixing" reads from them but never influences them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import torch
+from torch import nn
+
+from neuraldem.config import checks
+from neuraldem.models.modules.multi_branch_block import MultiBranchTransformerBlock
+from neuraldem.models.modules.patch_embedding import PatchEmbedding, cell_centres
+from neuraldem.models.modules.perceiver_decoder import PerceiverDecoder
+from neuraldem.models.modules.scalar_conditioner import ScalarConditioner
+from neuraldem.models.modules.supernode_pooling import SupernodePooling
+
+MAIN_BRANCHES = ("particles", "fluid")
+OFF_BRANCHES = ("mixing",)
+BRANCHES = MAIN_BRANCHES + OFF_BRANCHES
+
+
+@dataclass
+class OperatorInputs:
+    """One batch of model inputs; every coordinate is normalised to [0, 1] per axis of the domain box.
+
+    particle_pos (B, N, 3) and particle_features (B, N, Cp) (e.g. the last displacement);
+    grid (B, Cg, X, Y, Z): fluid-branch cells (e.g. fluid velocity + solid fraction), covering the domain box;
+    mixing_grid (B, Cm, X', Y', Z'): off-branch cells (e.g. mixing concentration), same convention;
+    scalars (B, S): normalised conditioning scalars (e.g. inlet velocity);
+    query_pos {branch: (B, Q_branch, 3)}: where to decode each branch (branches left out are not decoded);
+    supernode_idx (B, M): optional explicit supernodes (indices into the N particles).
+    """
+
+    particle_pos: torch.Tensor
+    particle_features: torch.Tensor
+    grid: torch.Tensor
+    mixing_grid: torch.Tensor
+    scalars: torch.Tensor
+    query_pos: Mapping[str, torch.Tensor] = field(default_factory=dict)
+    supernode_idx: torch.Tensor | None = None
+
+
+class MultiBranchOperator(nn.Module):
+    """Maps the state at time t to the fields at t + dt, for the branches particles, fluid and mixing.
+
+    Args:
+        n_scalars: conditioning scalars S. particle_channels / fluid_channels / mixing_channels: input
+        channels of each branch, also its output channels (next-step prediction of the same quantities).
+        dim, num_heads, cond_dim, mlp_ratio: transformer width, heads, conditioning width, MLP ratio.
+        encoder_depth, approximator_depth, decoder_depth: multi-branch blocks per stage (paper: 4 each).
+        n_supernodes, n_supernodes_eval, radius, max_neighbours, position_mode: particle encoder
+        (see `SupernodePooling`; radius in normalised units). patch_size: cells per patch along (X, Y, Z).
+
+    forward(inputs: OperatorInputs, chunk_size=None) -> {branch: (B, Q_branch, channels)} for the branches in
+    `inputs.query_pos`.
+    """
+
+    def __init__(self, n_scalars: int = 1, particle_channels: int = 3, fluid_channels: int = 4,
+                 mixing_channels: int = 1, dim: int = 192, num_heads: int = 3, cond_dim: int = 384,
+                 encoder_depth: int = 1, approximator_depth: int = 1, decoder_depth: int = 1,
+                 n_supernodes: int = 256, n_supernodes_eval: int | None = None, radius: float = 0.05,
+                 max_neighbours: int = 32, position_mode: str = "both",
+                 patch_size: Sequence[int] = (2, 1, 2), mlp_ratio: float = 4.0) -> None:
+        super().__init__()
+        self.n_scalars = checks.positive_int("model.net.n_scalars", n_scalars)
+        self.channels = {
+            "particles": checks.positive_int("model.net.particle_channels", particle_channels),
+            "fluid": checks.positive_int("model.net.fluid_channels", fluid_channels),
+            "mixing": checks.positive_int("model.net.mixing_channels", mixing_channels),
+        }
+        depths = {stage: checks.positive_int(f"model.net.{stage}_depth", depth, allow_zero=True)
+                  for stage, depth in (("encoder", encoder_depth), ("approximator", approximator_depth),
+                                       ("decoder", decoder_depth))}
+        self.conditioner = ScalarConditioner(n_scalars, dim, cond_dim)
+        self.encoders = nn.ModuleDict({
+            "particles": SupernodePooling(particle_channels, dim, radius, n_supernodes, n_supernodes_eval,
+                                          max_neighbours, ndim=3, position_mode=position_mode),
+            "fluid": PatchEmbedding(fluid_channels, dim, patch_size),
+            "mixing": PatchEmbedding(mixing_channels, dim, patch_size),
+        })
+
+        def stage(depth: int) -> nn.ModuleList:
+            return nn.ModuleList(
+                MultiBranchTransformerBlock(dim, num_heads, cond_dim, MAIN_BRANCHES, OFF_BRANCHES, mlp_ratio)
+                for _ in range(depth))
+
+        self.encoder_blocks = stage(depths["encoder"])
+        self.approximator_blocks = stage(depths["approximator"])
+        self.decoder_blocks = stage(depths["decoder"])
+        self.decoders = nn.ModuleDict({
+            name: PerceiverDecoder(dim, self.channels[name], num_heads, cond_dim, ndim=3, mlp_ratio=mlp_ratio)
+            for name in BRANCHES
+        })
+
+    def encode(self, inputs: OperatorInputs) -> dict[str, torch.Tensor]:
+        """Input fields -> tokens {branch: (B, n_tokens_branch, dim)}."""
+        return {
+            "particles": self.encoders["particles"](inputs.particle_pos, inputs.particle_features,
+                                                    inputs.supernode_idx),
+            "fluid": self.encoders["fluid"](inputs.grid),
+            "mixing": self.encoders["mixing"](inputs.mixing_grid),
+        }
+
+    def forward(self, inputs: OperatorInputs, chunk_size: int | None = None) -> dict[str, torch.Tensor]:
+        unknown = sorted(set(inputs.query_pos) - set(BRANCHES))
+        if unknown:
+            raise ValueError(f"query positions for unknown branches {unknown}; branches are {list(BRANCHES)}")
+        cond = self.conditioner(inputs.scalars)
+        tokens = self.encode(inputs)
+        for block in [*self.encoder_blocks, *self.approximator_blocks, *self.decoder_blocks]:
+            tokens = block(tokens, cond)
+        # off-branch decoders see a detached conditioning vector, like the off-branches inside the blocks
+        return {
+            name: self.decoders[name](tokens[name], pos, cond if name in MAIN_BRANCHES else cond.detach(),
+                                      chunk_size=chunk_size)
+            for name, pos in inputs.query_pos.items()
+        }
+
+    def example_inputs(self, batch_size: int = 2, n_particles: int | None = None,
+                       grid_shape: Sequence[int] = (12, 1, 30),
+                       generator: torch.Generator | None = None) -> OperatorInputs:
+        """Random inputs of the right shapes (smoke tests, benchmarks), decoded at particles and cells."""
+        device = self.conditioner.merge.weight.device
+        pooling = self.encoders["particles"]
+        n_particles = n_particles or 2 * max(pooling.n_supernodes, pooling.n_supernodes_eval)
+
+        def rand(*shape: int) -> torch.Tensor:
+            return torch.rand(*shape, generator=generator).to(device)
+
+        particle_pos = rand(batch_size, n_particles, 3)
+        centres = cell_centres(grid_shape, device=device).expand(batch_size, -1, -1)
+        return OperatorInputs(
+            particle_pos=particle_pos,
+            particle_features=rand(batch_size, n_particles, self.channels["particles"]),
+            grid=rand(batch_size, self.channels["fluid"], *grid_shape),
+            mixing_grid=rand(batch_size, self.channels["mixing"], *grid_shape),
+            scalars=rand(batch_size, self.n_scalars),
+            query_pos={"particles": particle_pos, "fluid": centres, "mixing": centres},
+        )

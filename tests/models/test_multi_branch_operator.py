@@ -1,0 +1,122 @@
+import pytest
+import torch
+
+from neuraldem.models.multi_branch_operator import MAIN_BRANCHES, MultiBranchOperator, OperatorInputs
+from neuraldem.models.registry import build_net
+from tests.models.nets import activate_modulations, fit
+
+GRID = (12, 1, 30)  # pseudo-2D fluidized bed
+
+
+def tiny(**overrides) -> MultiBranchOperator:
+    torch.manual_seed(0)
+    return build_net("fb_tiny", **overrides)
+
+
+def inputs(model: MultiBranchOperator, grid_shape=GRID, n_particles: int = 64) -> OperatorInputs:
+    x = model.example_inputs(batch_size=2, n_particles=n_particles, grid_shape=grid_shape,
+                             generator=torch.Generator().manual_seed(1))
+    x.supernode_idx = torch.stack([torch.arange(16), torch.arange(16) * 2])  # fixed supernodes
+    return x
+
+
+def loss_against(model: MultiBranchOperator, x: OperatorInputs, target: dict[str, torch.Tensor]):
+    out = model(x)
+    return sum((out[name] - target[name]).square().mean() for name in out)
+
+
+def test_output_per_branch_on_pseudo_2d_grid():
+    model = tiny()
+    out = model(inputs(model))
+    assert {name: tuple(v.shape) for name, v in out.items()} == {
+        "particles": (2, 64, 3), "fluid": (2, 360, 4), "mixing": (2, 360, 1)}
+
+
+def test_branch_channels_are_configurable():
+    model = tiny(particle_channels=6, fluid_channels=5, mixing_channels=2, patch_size=[4, 1, 6])
+    out = model(inputs(model))
+    assert [v.shape[-1] for v in out.values()] == [6, 5, 2]
+
+
+def test_only_requested_branches_are_decoded():
+    model = tiny()
+    x = inputs(model)
+    x.query_pos = {"fluid": x.query_pos["fluid"][:, :10]}
+    assert list(model(x)) == ["fluid"]
+    x.query_pos = {"pressure": x.query_pos["fluid"]}
+    with pytest.raises(ValueError, match="unknown branches"):
+        model(x)
+
+
+def test_chunked_equals_unchunked_and_subset_equals_subset_of_all():
+    model = activate_modulations(tiny())
+    x = inputs(model)
+    full = model(x)
+    chunked = model(x, chunk_size=50)
+    subset = torch.tensor([1, 2, 40, 63])
+    x.query_pos = {name: pos[:, subset] for name, pos in x.query_pos.items()}
+    sub = model(x)
+    for name in full:
+        assert torch.allclose(chunked[name], full[name], atol=1e-6)
+        assert torch.allclose(sub[name], full[name][:, subset], atol=1e-6)
+
+
+def test_off_branch_inputs_do_not_change_main_outputs():
+    model = activate_modulations(tiny())
+    x = inputs(model)
+    out = model(x)
+    x.mixing_grid = torch.rand_like(x.mixing_grid)
+    changed = model(x)
+    assert not torch.allclose(changed["mixing"], out["mixing"])
+    for name in MAIN_BRANCHES:
+        assert torch.equal(changed[name], out[name])
+
+
+def test_off_branch_reads_main_branches():
+    model = activate_modulations(tiny())
+    x = inputs(model)
+    out = model(x)
+    x.grid = torch.rand_like(x.grid)
+    assert not torch.allclose(model(x)["mixing"], out["mixing"])
+
+
+def test_off_branch_loss_has_zero_gradient_for_main_branch_parameters():
+    model = activate_modulations(tiny())
+    model(inputs(model))["mixing"].square().mean().backward()
+    off_names = [n for n, p in model.named_parameters() if "mixing" in n.split(".")]
+    assert off_names and all(dict(model.named_parameters())[n].grad.abs().sum() > 0 for n in off_names[:3])
+    for name, param in model.named_parameters():
+        if "mixing" not in name.split("."):
+            assert param.grad is None or torch.all(param.grad == 0), name
+
+
+def test_conditioning_takes_effect_after_one_training_step():
+    model = tiny()
+    x = inputs(model)
+    other = OperatorInputs(**{**vars(x), "scalars": x.scalars + 0.3})
+    fresh, fresh_other = model(x), model(other)  # fresh DiT blocks are the identity: scalars do nothing
+    assert all(torch.equal(fresh[name], fresh_other[name]) for name in fresh)
+    target = {name: torch.randn_like(v) for name, v in model(x).items()}
+    fit(model, lambda: loss_against(model, x, target), steps=1)
+    after, after_other = model(x), model(other)
+    for name in after:
+        assert not torch.allclose(after[name], after_other[name]), name
+
+
+def test_supernodes_are_random_in_training_and_fixed_in_eval():
+    model = activate_modulations(tiny())
+    x = inputs(model)
+    x.supernode_idx = None
+    assert torch.equal(model.eval()(x)["particles"], model(x)["particles"])
+    torch.manual_seed(3)
+    a = model.train()(x)["particles"]
+    assert not torch.allclose(a, model(x)["particles"])
+
+
+def test_overfits_a_tiny_batch():
+    model = tiny()
+    x = inputs(model, grid_shape=(4, 1, 6), n_particles=32)
+    target = {name: torch.sin(6 * x.query_pos[name][..., :1]).expand_as(v) for name, v in model(x).items()}
+    losses = fit(model, lambda: loss_against(model, x, target), steps=60, lr=3e-3)
+    assert losses[-1] < losses[0] / 10, losses[::10]
+    print(f"loss {losses[0]:.3g} -> {losses[-1]:.3g}")
