@@ -1,8 +1,14 @@
 #!/usr/bin/env bash
-# README command 1: set everything up, check the machine, then run the main job on its small default.
+# README command 1: set everything up, check the machine, then run the main job on its small built-in
+# default: generate the tiny LIGGGHTS hopper dataset, train the hopper surrogate, evaluate it against DEM
+# and write the plots (a few CPU minutes after the install). Safe to run again: every step resumes.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 VENV=${NEURALDEM_VENV:-$(pwd)/.venv}
 export OMP_WAIT_POLICY=PASSIVE WANDB_MODE=offline
-"$VENV/bin/python" -m neuraldem.doctor
+PY="$VENV/bin/python"
+"$PY" -m neuraldem.doctor
+WORKERS=$("$PY" -c 'import os; print(max(1, min(2, len(os.sched_getaffinity(0)))))')
+"$PY" -m neuraldem.datagen data=hopper_tiny workers="$WORKERS"
+"$PY" -m neuraldem.train experiment=hopper_quickstart

@@ -43,3 +43,23 @@ def compose_train_cfg(tmp_path: Path):
         return compose_cfg(config_name, list(overrides), output_dir=tmp_path)
 
     return _compose
+
+
+@pytest.fixture(scope="session")
+def hopper_tiny_dataset(data_root: Path) -> Path:
+    """A real LIGGGHTS dataset at test size (hopper_tiny, 8 simulations with characterization), made once
+    per session with the datagen pipeline (resumable: reused when NEURALDEM_TEST_DATA is set)."""
+    from omegaconf import open_dict
+
+    from neuraldem.datagen.driver import DatagenOptions, generate
+    from neuraldem.datagen.hopper import HopperPipeline
+    from tests.helpers import compose_cfg
+
+    os.environ["NEURALDEM_DATA"] = str(data_root)
+    cfg = compose_cfg("datagen", ["data=hopper_tiny"], output_dir=data_root / "runs")
+    with open_dict(cfg):
+        cfg.data.dataset_dir = str(data_root / "datasets" / "hopper_tiny")
+    pipe = HopperPipeline(cfg.data)
+    m = generate(pipe, DatagenOptions(n_sims=8, workers=1, progress=False))
+    assert len(m.usable()) >= 6, [(r.sim_id, r.status, r.reason) for r in m.simulations]
+    return pipe.dataset_dir

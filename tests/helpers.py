@@ -36,7 +36,6 @@ def compose_cfg(config_name: str, overrides: list[str], output_dir: Path) -> Dic
     HydraConfig.instance().set_config(cfg)
     with open_dict(cfg):
         cfg.paths.output_dir = str(output_dir)
-        cfg.hydra.runtime.output_dir = str(output_dir)
         if "callbacks" in cfg and cfg.callbacks is not None and "progress" in cfg.callbacks:
             cfg.callbacks.progress = None
     return cfg

@@ -52,7 +52,26 @@ def train(cfg: DictConfig) -> dict[str, float]:
     bad = [k for k, v in metrics.items() if not math.isfinite(v)]
     if bad:
         log.warning("non-finite metrics at the end of training: %s", bad)
+    if cfg.get("evaluate"):
+        metrics.update(evaluate_after_training(cfg, trainer))
     return metrics
+
+
+def evaluate_after_training(cfg: DictConfig, trainer: L.Trainer) -> dict[str, float]:
+    """Score the best (else the last) checkpoint on the test split, into <run>/evaluation."""
+    from neuraldem.eval.hopper_report import TABLE_HEADER, evaluate_checkpoint
+
+    cb = trainer.checkpoint_callback
+    ckpt = (cb.best_model_path or cb.last_model_path) if cb is not None else ""
+    if not ckpt:
+        raise ConfigError("evaluate=true needs checkpoints: keep callbacks.checkpoint enabled")
+    result = evaluate_checkpoint(Path(ckpt), out_dir=Path(cfg.paths.output_dir) / "evaluation",
+                                 datasets_dir=Path(cfg.paths.datasets_dir), dataset_dir=cfg.data.dataset_dir,
+                                 progress=False)
+    print(TABLE_HEADER)
+    print(result["table_row"])
+    log.info("evaluation of %s written to %s", ckpt, Path(cfg.paths.output_dir) / "evaluation")
+    return {f"test/{k}": float(v) for k, v in result["aggregate"].items()}
 
 
 def instantiate_checked(key: str, node: DictConfig, **kwargs: Any) -> Any:

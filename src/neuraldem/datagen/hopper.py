@@ -12,7 +12,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from neuraldem.config import checks
 from neuraldem.data.hopper_fields import trajectory_fields_at
-from neuraldem.data.hopper_store import write_hopper_file
+from neuraldem.data.hopper_store import HopperFile, write_hopper_file
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import sha256
 from neuraldem.data.splits import auto_theta_band, band_split, random_split
@@ -64,6 +64,13 @@ def trajectory_metrics(traj: HopperTrajectory, diameter: float, settings: Metric
     return out
 
 
+def stored_metrics(path: Path, diameter: float, settings: MetricSettings) -> dict[str, float]:
+    """Metrics of the trajectory as stored (quantised positions), so anyone recomputing them from the
+    dataset gets exactly the manifest's numbers."""
+    with HopperFile(path) as f:
+        return trajectory_metrics(f.load(), diameter, settings)
+
+
 @dataclass
 class HopperPipeline:
     cfg: DictConfig  # the `data` config
@@ -108,7 +115,10 @@ class HopperPipeline:
         return {"hopper": self.scene.as_dict(), "position_resolution": self.position_resolution}
 
     def characterization_record(self) -> dict[str, Any]:
-        return json.loads(json.dumps({"shear": self.shear.as_dict(), "heap": self.heap.as_dict()}))
+        from neuraldem.sim.characterize import CACHE_VERSION
+
+        return json.loads(json.dumps({"shear": self.shear.as_dict(), "heap": self.heap.as_dict(),
+                                      "version": CACHE_VERSION}))
 
     def prepare(self, m: Manifest) -> None:
         """New characterization settings invalidate the measurements, not the simulations."""
@@ -182,7 +192,7 @@ class HopperPipeline:
         write_hopper_file(self.dataset_dir / rel, rec.sim_id, result.trajectory, dict(p),
                           self.solver_version(), self.position_resolution)
         rec.file, rec.sha256 = rel, sha256(self.dataset_dir / rel)
-        rec.metrics = trajectory_metrics(result.trajectory, self.scene.material.diameter, self.metrics)
+        rec.metrics = stored_metrics(self.dataset_dir / rel, self.scene.material.diameter, self.metrics)
         if not self.keep_raw:
             for name in ("dump.txt", "exits.txt"):
                 (workdir / name).unlink(missing_ok=True)

@@ -136,7 +136,8 @@ fix sink all mesh/surface/planar file sink.stl type 2
 fix walls all wall/gran {material.wall_model} mesh n_meshes 2 meshes wall plate
 
 region fill cylinder z 0.0 0.0 {r_ins} {geom.cone_height + d} {geom.wall_height - d} units box
-fix template all particletemplate/sphere {seeds[0]} atom_type 1 density constant {material.density} radius constant {material.radius}
+fix template all particletemplate/sphere {seeds[0]} atom_type 1 &
+    density constant {material.density} radius constant {material.radius}
 fix distribution all particledistribution/discrete {seeds[1]} 1 template 1.0
 fix insert all insert/pack seed {seeds[2]} distributiontemplate distribution vel constant 0.0 0.0 -0.5 &
     insert_every once overlapcheck yes all_in yes particles_in_region {scene.n_particles} region fill ntry_mc 20000
@@ -229,7 +230,7 @@ def trajectory_from_files(dump_path: Path, exit_path: Path | None, dt: float, op
     crossed = pos[..., 2] < geometry.sink_z
     pos[crossed] = np.nan
     vel[crossed] = np.nan
-    times = (np.array([f.step for f in frames]) - open_step) * dt
+    times = np.round((np.array([f.step for f in frames]) - open_step) * dt, 9)  # same grid as time_grid()
     exit_times = np.full(N, np.nan)
     if exit_path is not None and Path(exit_path).exists():
         eid, etime = read_exit_file(exit_path)

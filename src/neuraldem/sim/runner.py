@@ -18,6 +18,18 @@ from neuraldem.sim.liggghts import find_liggghts, solver_env
 ERROR_PREFIXES = ("ERROR", "ERROR on proc")
 
 
+def _die_with_parent() -> None:
+    """Linux: the solver gets SIGKILL when the thread that started it dies (a killed datagen leaves no
+    orphaned solver burning a core). Elsewhere a no-op."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 @dataclass
 class SolverRun:
     returncode: int
@@ -43,7 +55,8 @@ def run_liggghts(workdir: Path, input_name: str, timeout_s: float | None = None,
     t0 = time.perf_counter()
     with open(workdir / "screen.txt", "w") as screen:
         proc = subprocess.Popen([str(exe), "-in", input_name, "-log", log_name], cwd=workdir,
-                                env=solver_env(), stdout=screen, stderr=subprocess.STDOUT)
+                                env=solver_env(), stdout=screen, stderr=subprocess.STDOUT,
+                                preexec_fn=_die_with_parent)
         deadline = None if timeout_s is None else t0 + timeout_s
         while True:
             pid, status, usage = os.wait4(proc.pid, os.WNOHANG)

@@ -1,0 +1,71 @@
+"""Scaling between physical units and the model's unit ranges, fitted on the training split only.
+
+Positions map the scene box to [0, 1]^3; scalars map their training range to [0, 1]; times map
+[0, horizon] to [0, 1]. The stats travel inside every checkpoint, so a model is always evaluated with the
+scaling it was trained with.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from neuraldem.errors import DataError
+
+
+@dataclass
+class HopperNormalizer:
+    box_lo: list[float]  # scene box [m], 3 values
+    box_hi: list[float]
+    horizon: float  # [s] time range covered; particles that never leave get this as exit time
+    scalar_lo: dict[str, float] = field(default_factory=dict)
+    scalar_hi: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> HopperNormalizer:
+        return cls(**d)
+
+    # ---- positions
+    def positions(self, x: np.ndarray) -> np.ndarray:
+        lo, hi = np.asarray(self.box_lo), np.asarray(self.box_hi)
+        return (x - lo) / (hi - lo)
+
+    def positions_back(self, u: np.ndarray) -> np.ndarray:
+        lo, hi = np.asarray(self.box_lo), np.asarray(self.box_hi)
+        return lo + np.asarray(u) * (hi - lo)
+
+    def check_inside(self, x: np.ndarray, what: str, tol: float = 1e-6) -> None:
+        """Query points outside the box the model was trained on are an error, not a silent extrapolation."""
+        u = self.positions(np.asarray(x))
+        bad = ~np.all((u >= -tol) & (u <= 1 + tol), axis=-1)
+        if bad.any():
+            worst = np.asarray(x)[bad][0]
+            raise DataError(f"{what}: {int(bad.sum())} query point(s) outside the scene box "
+                            f"{np.round(self.box_lo, 4).tolist()} .. {np.round(self.box_hi, 4).tolist()} m "
+                            f"the model was trained on (e.g. {np.round(worst, 4).tolist()}); "
+                            "drop or clip them before querying")
+
+    # ---- time and scalars
+    def time(self, t: np.ndarray | float) -> np.ndarray:
+        return np.asarray(t, dtype=np.float64) / self.horizon
+
+    def time_back(self, u: np.ndarray | float) -> np.ndarray:
+        return np.asarray(u, dtype=np.float64) * self.horizon
+
+    def scalars(self, values: dict[str, float], names: list[str], t: float) -> np.ndarray:
+        out = []
+        for name in names:
+            if name == "t":
+                out.append(float(self.time(t)))
+                continue
+            if name not in values:
+                raise DataError(f"conditioning scalar {name!r} is not available (have {sorted(values)}); "
+                                "macroscopic scalars need datagen with data.characterization.enabled=true")
+            lo, hi = self.scalar_lo[name], self.scalar_hi[name]
+            out.append((values[name] - lo) / (hi - lo) if hi > lo else 0.5)
+        return np.asarray(out, dtype=np.float32)

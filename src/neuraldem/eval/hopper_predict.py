@@ -1,0 +1,89 @@
+"""Hopper fields over a whole trajectory, from a trained model or from the DEM data itself.
+
+Both predictors answer the same question, fields at fixed query points on a time grid, so the evaluation
+code cannot tell them apart: feeding the DEM predictor through it must reproduce the ground truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+import torch
+
+from neuraldem.data.hopper_fields import trajectory_fields_at
+from neuraldem.data.hopper_store import HopperFile
+from neuraldem.data.manifest import SimRecord
+from neuraldem.data.normalization import HopperNormalizer
+
+
+@dataclass
+class TrajectoryFields:
+    times: np.ndarray  # (T,)
+    occupancy: np.ndarray  # (T, Q) probability in [0, 1] (0/1 for DEM)
+    transport: np.ndarray  # (T, Q, 3) initial position [m]
+    residence: np.ndarray  # (T, Q) seconds until exit
+
+
+class HopperPredictor(Protocol):
+    def fields(self, rec: SimRecord, times: np.ndarray, points: np.ndarray) -> TrajectoryFields: ...
+
+
+def time_grid(horizon: float, interval: float) -> np.ndarray:
+    """Snapshot times 0, interval, ..., horizon (rounded like the stored times, so they compare equal)."""
+    return np.round(np.arange(int(round(horizon / interval)) + 1) * interval, 9)
+
+
+def hold_final_state(positions: np.ndarray, n_times: int) -> np.ndarray:
+    """Extend a (T, N, 3) trajectory to n_times snapshots by repeating its last state."""
+    if n_times <= len(positions):
+        return positions[:n_times]
+    pad = np.repeat(positions[-1:], n_times - len(positions), axis=0)
+    return np.concatenate([positions, pad])
+
+
+@dataclass
+class DemPredictor:
+    """Ground truth as a 'prediction': fields computed from the particles of the HDF5 file."""
+
+    dataset_dir: Path
+    occupancy_radius: float
+    horizon: float | None = None  # exit time given to particles that never leave; None = end of the run
+
+    def fields(self, rec: SimRecord, times: np.ndarray, points: np.ndarray) -> TrajectoryFields:
+        with HopperFile(self.dataset_dir / str(rec.file)) as f:
+            pos, exits = f.positions(), f.exit_times
+        pos = hold_final_state(pos, len(times))
+        horizon = self.horizon if self.horizon is not None else float(times[-1])
+        exits = np.where(np.isfinite(exits), exits, horizon)
+        occ, transport, residence = trajectory_fields_at(points, times, pos, exits, self.occupancy_radius)
+        return TrajectoryFields(times, occ.astype(np.float64), transport, residence)
+
+
+@dataclass
+class ModelPredictor:
+    """A trained HopperFieldModel queried at every time of the grid (one batch of all times per chunk)."""
+
+    net: torch.nn.Module
+    norm: HopperNormalizer
+    conditioning: list[str]
+    chunk_size: int = 16384
+    device: str = "cpu"
+
+    @torch.no_grad()
+    def fields(self, rec: SimRecord, times: np.ndarray, points: np.ndarray) -> TrajectoryFields:
+        self.norm.check_inside(points, f"{rec.sim_id} query points")
+        self.net.eval()
+        scalars = np.stack([self.norm.scalars(rec.conditioning(), self.conditioning, float(t)) for t in times])
+        q = torch.from_numpy(self.norm.positions(points)).float().to(self.device)
+        s = torch.from_numpy(scalars).to(self.device)
+        occ, transport, residence = [], [], []
+        for k in range(len(times)):  # one time per call keeps memory at (Q x dim)
+            out = self.net(s[k:k + 1], q[None], chunk_size=self.chunk_size)
+            occ.append(torch.sigmoid(out["occupancy"][0, :, 0]).cpu().numpy())
+            transport.append(out["transport"][0].cpu().numpy())
+            residence.append(out["residence"][0, :, 0].cpu().numpy())
+        return TrajectoryFields(times, np.stack(occ), self.norm.positions_back(np.stack(transport)),
+                                self.norm.time_back(np.stack(residence)))

@@ -1,0 +1,149 @@
+"""Evaluate a hopper checkpoint against DEM and write metrics.json, a Table-4-style table, plots and VTK."""
+
+from __future__ import annotations
+
+import os
+import platform
+import sys
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from neuraldem.data.hopper_store import HopperFile
+from neuraldem.data.manifest import Manifest, require_dataset
+from neuraldem.data.normalization import HopperNormalizer
+from neuraldem.data.schema import atomic_write_json
+from neuraldem.errors import DataError
+from neuraldem.eval import hopper_plots
+from neuraldem.eval.hopper_eval import SimEvaluation, aggregate, evaluate_sims
+from neuraldem.eval.hopper_metrics import layer_edges
+from neuraldem.eval.hopper_predict import DemPredictor, ModelPredictor, time_grid
+from neuraldem.eval.vtk_export import write_point_series
+from neuraldem.lit.hopper_module import HopperModule
+
+TABLE_SCALARS = ("mu_s", "mu_r", "theta", "repose")
+
+
+def load_hopper_checkpoint(path: Path, device: str = "cpu") -> HopperModule:
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"checkpoint {path} does not exist")
+    try:
+        raw = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # noqa: BLE001 - any unreadable file
+        raise DataError(f"{path} is not a readable checkpoint ({type(err).__name__})") from None
+    meta = raw.get("hyper_parameters", {}).get("metadata") if isinstance(raw, dict) else None
+    if not meta:
+        raise DataError(f"{path} is not a neuraldem checkpoint (no metadata): train one with "
+                        "python -m neuraldem.train experiment=...")
+    if meta.get("kind") != "hopper":
+        raise DataError(f"{path} is a {meta.get('kind')!r} checkpoint; hopper evaluation needs a hopper model")
+    module = HopperModule.load_from_checkpoint(path, map_location=device)
+    return module.to(device).eval()
+
+
+def check_scene(meta: dict[str, Any], m: Manifest, ckpt: Path, dataset_dir: Path) -> None:
+    if meta["scene"] != m.scene:
+        keys = sorted(k for k in set(meta["scene"]) | set(m.scene) if meta["scene"].get(k) != m.scene.get(k))
+        raise DataError(f"checkpoint {ckpt} was trained on dataset {meta['data_name']!r} whose scene differs "
+                        f"from {dataset_dir} (in {keys}): evaluate it on data of its own scene")
+
+
+def table_row(meta: dict[str, Any], agg: dict[str, float]) -> str:
+    marks = " | ".join("x" if s in meta["conditioning"] else "-" for s in TABLE_SCALARS)
+    return (f"| {marks} | {agg['drainage_mae_s']:.3f} | {agg['residual_mae_pp']:.2f} | "
+            f"{agg['outflow_rel_err_pct']:.1f} | {100 * agg['transport_mse']:.3f} | "
+            f"{1000 * agg['residence_mse']:.3f} |")
+
+
+TABLE_HEADER = ("| mu_s | mu_r | theta | repose (ffc substitute) | drainage MAE [s] | residual MAE [pp] | "
+                "outflow rel. error [%] | transport MSE [1e-2] | residence MSE [1e-3] |\n"
+                "|---|---|---|---|---|---|---|---|---|")
+
+
+def machine_info() -> dict[str, Any]:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "torch": torch.__version__, "python": platform.python_version(),
+            "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None}
+
+
+def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_dir: Path | None = None,
+                        split: str | None = None, part: str = "test", max_sims: int | None = None,
+                        threshold: float = 0.5, vtk: bool = True, device: str = "cpu",
+                        progress: bool = True) -> dict[str, Any]:
+    module = load_hopper_checkpoint(ckpt, device)
+    meta = module.metadata
+    dataset_dir = Path(dataset_dir) if dataset_dir else Path(datasets_dir) / meta["data_name"]
+    m = require_dataset(dataset_dir, meta["data_name"])
+    check_scene(meta, m, Path(ckpt), dataset_dir)
+    split = split or meta["split"]
+    records = [m.record(i) for i in m.split_ids(split, part)][:max_sims]
+    if not records:
+        raise DataError(f"no {part} simulations in split {split!r} of {dataset_dir}")
+    norm = HopperNormalizer.from_dict(meta["normalizer"])
+    hop = m.scene["hopper"]
+    times = time_grid(norm.horizon, float(hop["snapshot_interval"]))
+    radius = float(meta["occupancy_radius_d"]) * float(hop["material"]["diameter"])
+    model = ModelPredictor(module.net, norm, list(meta["conditioning"]), device=device)
+    truth = DemPredictor(dataset_dir, radius, horizon=norm.horizon)
+    box = np.asarray(norm.box_hi) - np.asarray(norm.box_lo)
+    evals = evaluate_sims(records, dataset_dir, truth, model, times, box, norm.horizon, threshold=threshold,
+                          keep_fields=len(records), progress=progress)
+    agg = aggregate(evals)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    result = {
+        "checkpoint": str(Path(ckpt).resolve()), "dataset": str(dataset_dir), "split": split, "part": part,
+        "conditioning": meta["conditioning"], "aggregate": agg, "table_row": table_row(meta, agg),
+        "simulations": [e.as_dict() for e in evals], "machine": machine_info(),
+        "command": " ".join(sys.argv), "date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    }
+    atomic_write_json(out_dir / "metrics.json", result)
+    (out_dir / "table.md").write_text(TABLE_HEADER + "\n" + result["table_row"] + "\n")
+    write_figures(evals, m, dataset_dir, times, out_dir, split, hop)
+    if vtk:
+        export_vtk(evals[0], m, dataset_dir, out_dir / "vtk", threshold)
+    return result
+
+
+def write_figures(evals: list[SimEvaluation], m: Manifest, dataset_dir: Path, times: np.ndarray,
+                  out_dir: Path, split: str, hop: dict[str, Any]) -> None:
+    hopper_plots.scatter_predicted_vs_dem(evals, out_dir / "predicted_vs_dem.png")
+    by_index = sorted(evals, key=lambda e: e.truth["mass_flow_index"])
+    hopper_plots.stripes_over_time({"funnel flow": by_index[0], "mass flow": by_index[-1]}, times,
+                                   out_dir / "stripes.png")
+    e = by_index[0]
+    with HopperFile(dataset_dir / str(m.record(e.sim_id).file)) as f:
+        points = f.initial_positions()
+    hopper_plots.residence_slice(e, points, float(hop["material"]["diameter"]), out_dir / "residence_slice.png")
+    if split == "band":
+        train = [m.record(i).conditioning() for i in m.split_ids(split, "train")]
+        hopper_plots.generalization_map(evals, train, out_dir / "generalization_map.png")
+
+
+def export_vtk(e: SimEvaluation, m: Manifest, dataset_dir: Path, folder: Path, threshold: float,
+               n_layers: int = 8) -> Path:
+    """Predicted trajectory of one simulation: the occupied initial positions at each time, coloured by
+    the predicted transport layer and residence time (open `<sim>_predicted.pvd` in ParaView)."""
+    assert e.fields_predicted is not None
+    with HopperFile(dataset_dir / str(m.record(e.sim_id).file)) as f:
+        points = f.initial_positions()
+    fp = e.fields_predicted
+    edges = layer_edges(points[:, 2], n_layers)
+    pts, data = [], []
+    for k in range(len(fp.times)):
+        occ = fp.occupancy[k] >= threshold
+        layer = np.clip(np.searchsorted(edges, fp.transport[k, occ, 2], side="right") - 1, 0, n_layers - 1)
+        pts.append(points[occ])
+        data.append({"transport_layer": layer.astype(np.int32), "residence_time": fp.residence[k, occ],
+                     "occupancy": fp.occupancy[k, occ], "transport": fp.transport[k, occ]})
+    return write_point_series(folder, f"{e.sim_id}_predicted", fp.times, pts, data)

@@ -1,0 +1,1 @@
+"""LightningModules: losses, optimizer (LION), schedules and checkpoint metadata around the nets."""

@@ -1,0 +1,107 @@
+"""HopperModule: trains a HopperFieldModel on occupancy, transport and residence (losses summed).
+
+The net is built here from its config, with as many input scalars as the data's conditioning list, so
+conditioning ablations need no change to the model config. Checkpoints carry the data's metadata
+(scene, conditioning, normalisation) that evaluation checks before using a model.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import lightning as L
+import torch
+import torch.nn.functional as F
+from hydra.utils import instantiate
+from lion_pytorch import Lion
+from omegaconf import DictConfig, OmegaConf
+
+from neuraldem.config import checks
+from neuraldem.data.hopper_datamodule import HopperDataModule
+from neuraldem.lit.schedules import warmup_cosine
+
+LOSSES = ("occupancy", "transport", "residence")
+
+
+def _plain(cfg: DictConfig | dict | None) -> dict[str, Any]:
+    """Plain Python containers: checkpoints must load without trusting omegaconf classes."""
+    if cfg is None:
+        return {}
+    return OmegaConf.to_container(cfg) if isinstance(cfg, DictConfig) else dict(cfg)  # type: ignore[return-value]
+
+
+class HopperModule(L.LightningModule):
+    def __init__(self, net: DictConfig | dict, datamodule: HopperDataModule | None = None,
+                 optimizer: DictConfig | dict | None = None, scheduler: DictConfig | dict | None = None,
+                 loss_weights: DictConfig | dict | None = None, chunk_size: int | None = None,
+                 metadata: dict[str, Any] | None = None):
+        super().__init__()
+        net_cfg = OmegaConf.create(net if not isinstance(net, DictConfig) else OmegaConf.to_container(net))
+        if metadata is None:  # training: the data decides what the model is conditioned on
+            if datamodule is None:
+                raise ValueError("HopperModule needs a datamodule (training) or metadata (a checkpoint)")
+            datamodule.prepare_manifest()
+            datamodule.setup("fit")
+            metadata = datamodule.checkpoint_metadata()
+        net_cfg.n_scalars = len(metadata["conditioning"])
+        self.metadata = metadata
+        opt = dict(lr=1e-4, weight_decay=0.05, betas=[0.9, 0.99]) | _plain(optimizer)
+        sched = dict(warmup_steps=100, end_factor=0.01) | _plain(scheduler)
+        weights = dict.fromkeys(LOSSES, 1.0) | _plain(loss_weights)
+        checks.positive("model.optimizer.lr", opt["lr"])
+        checks.number("model.optimizer.weight_decay", opt["weight_decay"], lo=0.0)
+        checks.positive_int("model.scheduler.warmup_steps", sched["warmup_steps"], allow_zero=True)
+        checks.fraction("model.scheduler.end_factor", sched["end_factor"])
+        for k, v in weights.items():
+            checks.one_of("model.loss_weights", k, LOSSES)
+            checks.number(f"model.loss_weights.{k}", v, lo=0.0)
+        self.opt_cfg, self.sched_cfg, self.loss_weights = opt, sched, weights
+        self.chunk_size = chunk_size
+        self.save_hyperparameters({"net": OmegaConf.to_container(net_cfg), "optimizer": opt, "scheduler": sched,
+                                   "loss_weights": weights, "chunk_size": chunk_size, "metadata": metadata})
+        self.net = instantiate(net_cfg)
+
+    def forward(self, scalars: torch.Tensor, query_pos: Any) -> dict[str, torch.Tensor]:
+        return self.net(scalars, query_pos, chunk_size=self.chunk_size)
+
+    def losses(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        out = self.net(batch["scalars"], {"occupancy": batch["occupancy_pos"],
+                                          "transport": batch["particle_pos"], "residence": batch["particle_pos"]})
+        mask = batch["particle_mask"].float()
+        n = mask.sum().clamp(min=1.0)
+        losses = {
+            "occupancy": F.binary_cross_entropy_with_logits(out["occupancy"][..., 0], batch["occupancy"]),
+            "transport": (((out["transport"] - batch["transport"]) ** 2).mean(-1) * mask).sum() / n,
+            "residence": (((out["residence"][..., 0] - batch["residence"]) ** 2) * mask).sum() / n,
+        }
+        with torch.no_grad():
+            pred = out["occupancy"][..., 0] > 0
+            losses["occupancy_accuracy"] = (pred == (batch["occupancy"] > 0.5)).float().mean()
+        losses["loss"] = sum(self.loss_weights[k] * losses[k] for k in LOSSES)
+        return losses
+
+    def _step(self, batch: dict[str, torch.Tensor], stage: str) -> torch.Tensor:
+        losses = self.losses(batch)
+        bs = batch["scalars"].shape[0]
+        self.log(f"{stage}/loss", losses["loss"], prog_bar=True, batch_size=bs, on_step=stage == "train",
+                 on_epoch=stage != "train")
+        self.log_dict({f"{stage}/{k}": v for k, v in losses.items() if k != "loss"}, batch_size=bs,
+                      on_step=stage == "train", on_epoch=stage != "train")
+        return losses["loss"]
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        return self._step(batch, "train")
+
+    def validation_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
+        self._step(batch, "val")
+
+    def test_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
+        self._step(batch, "test")
+
+    def configure_optimizers(self) -> dict[str, Any]:
+        opt = Lion(self.parameters(), lr=self.opt_cfg["lr"], betas=tuple(self.opt_cfg["betas"]),
+                   weight_decay=self.opt_cfg["weight_decay"])
+        total = self.trainer.max_steps if self.trainer.max_steps and self.trainer.max_steps > 0 else 10_000
+        warm, end = self.sched_cfg["warmup_steps"], self.sched_cfg["end_factor"]
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: warmup_cosine(s, warm, total, end))
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
