@@ -6,7 +6,7 @@ Layout (schema 1, see docs/data-format.md):
   /particles/exit_time    (N,) float32    time the particle crossed the sink; NaN = never left
   /snapshots/time         (T,) float64    snapshot times, t = 0 at opening
   /snapshots/position     (T, N, 3) int16 quantised: x = origin + resolution * q; q = -32768: exited
-  /snapshots/velocity     (T, N, 3) float16, NaN where exited
+  /snapshots/velocity     (T, N, 3) float16, NaN where exited (absent in compact copies, see data.transfer)
   /geometry               attrs: radius, outlet_radius, cone_height, wall_height, sink_z
 """
 
@@ -44,14 +44,14 @@ def quantise(positions: np.ndarray, origin: np.ndarray, resolution: float) -> np
 
 
 def write_hopper_file(path: Path, sim_id: str, traj: HopperTrajectory, params: dict[str, float],
-                      solver_version: str, position_resolution: float) -> None:
+                      solver_version: str, position_resolution: float, origin: np.ndarray | None = None) -> None:
+    """`origin` of the quantisation grid: default the centre of the positions' bounding box (uses the int16
+    range symmetrically); pass the origin of a stored file to rewrite it bit for bit."""
     pos = traj.positions
-    finite = np.isfinite(pos[..., 0])
-    lo = np.nanmin(pos[finite], axis=0)
-    hi = np.nanmax(pos[finite], axis=0)
-    origin = 0.5 * (lo + hi)  # centred so the int16 range is used symmetrically
+    if origin is None:
+        finite = np.isfinite(pos[..., 0])
+        origin = 0.5 * (np.nanmin(pos[finite], axis=0) + np.nanmax(pos[finite], axis=0))
     q = quantise(pos, origin, position_resolution)
-    vel = traj.velocities.astype(np.float16)
 
     def fill(f: h5py.File) -> None:
         f.attrs.update(schema_version=SCHEMA_VERSION, kind=KIND, sim_id=sim_id, params=json.dumps(params),
@@ -67,8 +67,9 @@ def write_hopper_file(path: Path, sim_id: str, traj: HopperTrajectory, params: d
         dq = s.create_dataset("position", data=q, chunks=chunks, compression="gzip", compression_opts=4,
                               shuffle=True)
         dq.attrs.update(origin=origin, resolution=position_resolution, missing=MISSING, units="m")
-        s.create_dataset("velocity", data=vel, chunks=chunks, compression="gzip", compression_opts=4,
-                         shuffle=True).attrs["units"] = "m/s"
+        if traj.velocities is not None:
+            s.create_dataset("velocity", data=traj.velocities.astype(np.float16), chunks=chunks,
+                             compression="gzip", compression_opts=4, shuffle=True).attrs["units"] = "m/s"
         f.create_group("geometry").attrs.update(asdict(traj.geometry))
 
     atomic_write_h5(path, fill)
@@ -120,7 +121,7 @@ class HopperFile:
         self.exit_times = self._field("particles/exit_time")[()].astype(np.float64)
         self.times = self._field("snapshots/time")[()]
         self._pos = self._field("snapshots/position")
-        self._vel = self._field("snapshots/velocity")
+        self._vel = self.f.get("snapshots/velocity")  # optional: compact copies have no velocities
         self.origin = np.asarray(self._pos.attrs["origin"], dtype=np.float64)
         self.resolution = float(self._pos.attrs["resolution"])
         g = self._field("geometry").attrs
@@ -138,7 +139,7 @@ class HopperFile:
         """Shapes, ordering and value ranges; the error names the file and the field."""
         T, N = self.n_snapshots, self.n_particles
         for name, ds in (("snapshots/position", self._pos), ("snapshots/velocity", self._vel)):
-            if ds.shape != (T, N, 3):
+            if ds is not None and ds.shape != (T, N, 3):
                 raise DataError(f"{self.path}: /{name} has shape {ds.shape}, expected {(T, N, 3)}")
         if self.exit_times.shape != (N,):
             raise DataError(f"{self.path}: /particles/exit_time has shape {self.exit_times.shape}, expected {(N,)}")
@@ -159,8 +160,7 @@ class HopperFile:
             raise DataError(f"{self.path}: /snapshots/position: particles missing at t = 0")
         if np.any(present[1:] & ~present[:-1]):
             raise DataError(f"{self.path}: /snapshots/position: a particle reappears after it exited")
-        vel = self._vel[()]
-        if not np.isfinite(vel[present]).all():
+        if self._vel is not None and not np.isfinite(self._vel[()][present]).all():
             raise DataError(f"{self.path}: /snapshots/velocity has NaN/inf for particles that are present")
 
     def positions(self, t_index: int | slice | np.ndarray = slice(None)) -> np.ndarray:
@@ -169,7 +169,14 @@ class HopperFile:
         out[q[..., 0] == MISSING] = np.nan
         return out
 
+    @property
+    def has_velocities(self) -> bool:
+        return self._vel is not None
+
     def velocities(self, t_index: int | slice | np.ndarray = slice(None)) -> np.ndarray:
+        if self._vel is None:
+            raise DataError(f"{self.path}: /snapshots/velocity is absent (a compact copy made for training); "
+                            "use the original dataset for velocities")
         return self._vel[t_index].astype(np.float64)
 
     def initial_positions(self) -> np.ndarray:
@@ -177,6 +184,7 @@ class HopperFile:
 
     def load(self) -> HopperTrajectory:
         return HopperTrajectory(ids=self.ids, times=self.times, positions=self.positions(),
-                                velocities=self.velocities(), exit_times=self.exit_times,
+                                velocities=self.velocities() if self.has_velocities else None,
+                                exit_times=self.exit_times,
                                 n_inserted=int(self.f.attrs.get("n_inserted", self.n_particles)),
                                 geometry=self.geometry)

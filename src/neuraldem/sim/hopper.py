@@ -183,7 +183,7 @@ class HopperTrajectory:
     ids: np.ndarray  # (N0,) ids of the particles present at t = 0, sorted
     times: np.ndarray  # (T,) snapshot times
     positions: np.ndarray  # (T, N0, 3) float64, NaN where the particle has exited
-    velocities: np.ndarray  # (T, N0, 3)
+    velocities: np.ndarray | None  # (T, N0, 3); None in compact copies made for training
     exit_times: np.ndarray  # (N0,) exit time at the sink, NaN if it never left
     n_inserted: int
     geometry: HopperGeometry
