@@ -1,0 +1,80 @@
+"""`python -m neuraldem.eval.collect_hopper_table RUNS_DIR... --out FILE.md`: the paper's Table 4 from runs.
+
+Finds every `evaluation/metrics.json` under the given folders (e.g. the folder of the ablation sweep
+`python -m neuraldem.train -m experiment=... data.split=random,band`), and writes one markdown table per
+split with one row per conditioning, plus a JSON file with the same numbers next to it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from neuraldem.cli import report_user_errors
+from neuraldem.data.schema import atomic_write_json
+from neuraldem.errors import DataError
+from neuraldem.eval.hopper_report import TABLE_HEADER
+
+ROW_ORDER = (["t", "alpha", "mu_s", "mu_r"], ["t", "alpha", "theta"], ["t", "alpha", "repose"],
+             ["t", "alpha", "theta", "repose"], ["t", "alpha", "mu_s", "mu_r", "theta", "repose"])
+
+
+def find_results(folders: list[Path]) -> list[dict]:
+    found = []
+    for folder in folders:
+        for path in sorted(Path(folder).rglob("evaluation/metrics.json")):
+            result = json.loads(path.read_text())
+            result["path"] = str(path)
+            found.append(result)
+    if not found:
+        raise DataError(f"no evaluation/metrics.json under {[str(f) for f in folders]}: train with "
+                        "evaluate=true (the hopper experiments do) or run python -m neuraldem.evaluate")
+    return found
+
+
+def order_key(result: dict) -> tuple[int, str]:
+    cond = result["conditioning"]
+    return (ROW_ORDER.index(cond) if cond in ROW_ORDER else len(ROW_ORDER), result["path"])
+
+
+def render(results: list[dict]) -> str:
+    lines = []
+    for split in sorted({r["split"] for r in results}):
+        rows = sorted((r for r in results if r["split"] == split), key=order_key)
+        n = sorted({r["aggregate"]["n_sims"] for r in rows})
+        lines += [f"### split: {split} ({'/'.join(map(str, n))} test simulations)", "", TABLE_HEADER]
+        lines += [r["table_row"] for r in rows]
+        lines.append("")
+        lines.append("| conditioning | drainage MAE [% of mean] | flow-regime accuracy [%] | checkpoint |")
+        lines.append("|---|---|---|---|")
+        for r in rows:
+            a = r["aggregate"]
+            lines.append(f"| {', '.join(r['conditioning'])} | {a['drainage_mae_pct_of_mean']:.1f} | "
+                         f"{100 * a['flow_regime_accuracy']:.0f} | {Path(r['checkpoint']).name} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+@report_user_errors
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m neuraldem.eval.collect_hopper_table", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("folders", type=Path, nargs="+")
+    p.add_argument("--out", type=Path, required=True,
+                   help="markdown file (a .json with the same numbers is written beside it)")
+    a = p.parse_args(argv)
+    results = find_results(a.folders)
+    text = render(results)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(text)
+    atomic_write_json(a.out.with_suffix(".json"), [
+        {k: r[k] for k in ("split", "conditioning", "aggregate", "checkpoint", "dataset", "machine", "command",
+                           "date_utc", "path")} for r in results])
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
