@@ -70,6 +70,16 @@ def test_flat_sticky_keeps_residue_steep_slippery_empties(flat_sticky, steep_sli
     assert np.isfinite(steep_slippery.trajectory.exit_times).all()
 
 
+def test_flow_regime_indicator_separates_funnel_from_mass_flow(flat_sticky, steep_slippery, scene):
+    from neuraldem.datagen.hopper import MetricSettings, trajectory_metrics
+
+    settings = MetricSettings()
+    funnel = trajectory_metrics(flat_sticky.trajectory, scene.material.diameter, settings)["mass_flow_index"]
+    mass = trajectory_metrics(steep_slippery.trajectory, scene.material.diameter, settings)["mass_flow_index"]
+    assert mass > settings.mass_flow_threshold > funnel, (mass, funnel)
+    assert mass - funnel > 1.0
+
+
 def test_particles_stay_inside_the_hopper(flat_sticky, scene):
     tr = flat_sticky.trajectory
     pos = tr.positions[np.isfinite(tr.positions[..., 0])]
