@@ -63,3 +63,22 @@ def hopper_tiny_dataset(data_root: Path) -> Path:
     m = generate(pipe, DatagenOptions(n_sims=8, workers=1, progress=False))
     assert len(m.usable()) >= 6, [(r.sim_id, r.status, r.reason) for r in m.simulations]
     return pipe.dataset_dir
+
+
+@pytest.fixture(scope="session")
+def tiny_checkpoint(hopper_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A HopperModule trained for 3 steps on the tiny dataset (for evaluation plumbing, not accuracy)."""
+    import lightning as L
+
+    from neuraldem.data.hopper_datamodule import HopperDataModule
+    from neuraldem.lit.hopper_module import HopperModule
+    from neuraldem.models.registry import net_config
+
+    dm = HopperDataModule(str(hopper_tiny_dataset), "hopper_tiny", ["t", "alpha", "mu_s", "mu_r"], n_queries=32)
+    module = HopperModule(net_config("hopper_tiny"), datamodule=dm)
+    trainer = L.Trainer(max_steps=3, accelerator="cpu", logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0)
+    trainer.fit(module, datamodule=dm)
+    path = tmp_path_factory.mktemp("ckpt") / "tiny.ckpt"
+    trainer.save_checkpoint(path)
+    return path

@@ -51,3 +51,34 @@ def test_query_points_are_real_initial_positions(hopper_tiny_dataset: Path):
     m = Manifest.load(hopper_tiny_dataset)
     with HopperFile(hopper_tiny_dataset / m.usable()[0].file) as f:
         assert np.isfinite(f.initial_positions()).all()
+
+
+def test_checkpoint_on_another_scene_is_refused(tiny_checkpoint: Path, hopper_tiny_dataset: Path, tmp_path: Path):
+    import shutil
+
+    from neuraldem.eval.hopper_report import evaluate_checkpoint
+
+    other = tmp_path / "other"
+    shutil.copytree(hopper_tiny_dataset, other)
+    m = Manifest.load(other)
+    m.scene["hopper"]["n_particles"] = 400
+    m.save(other)
+    with pytest.raises(DataError, match=r"scene differs .*\['hopper'\]"):
+        evaluate_checkpoint(tiny_checkpoint, tmp_path / "out", tmp_path, dataset_dir=other, progress=False)
+
+
+def test_evaluate_writes_everything(tiny_checkpoint: Path, hopper_tiny_dataset: Path, tmp_path: Path):
+    from neuraldem.eval.hopper_report import evaluate_checkpoint
+
+    result = evaluate_checkpoint(tiny_checkpoint, tmp_path, tmp_path, dataset_dir=hopper_tiny_dataset,
+                                 part="val", progress=False)
+    assert result["aggregate"]["n_sims"] >= 1 and "command" in result and result["machine"]["cores"]
+    for name in ("metrics.json", "table.md", "predicted_vs_dem.png", "stripes.png", "residence_slice.png"):
+        assert (tmp_path / name).is_file()
+    pvd = next((tmp_path / "vtk").glob("*.pvd"))
+    import meshio
+
+    first = next((tmp_path / "vtk").glob("*_0000.vtu"))
+    mesh = meshio.read(first)
+    assert {"transport_layer", "residence_time", "occupancy"} <= set(mesh.point_data)
+    assert "<Collection>" in pvd.read_text()
