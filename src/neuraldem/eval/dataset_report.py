@@ -81,7 +81,8 @@ def plot_macro(m: Manifest, path: Path) -> None:
     for ax, key in zip(axes, ("theta", "repose")):
         sc = ax.scatter([r.params["mu_s"] for r in ok], [r.macro[key] for r in ok],
                         c=[r.params["mu_r"] for r in ok], s=20, cmap="plasma")
-        ax.set(xlabel="mu_s", ylabel=f"{key} [deg]", title=f"{key} from the {'shear' if key == 'theta' else 'heap'} test")
+        test = "shear" if key == "theta" else "heap"
+        ax.set(xlabel="mu_s", ylabel=f"{key} [deg]", title=f"{key} from the {test} test")
         fig.colorbar(sc, ax=ax, label="mu_r")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
