@@ -105,7 +105,7 @@ def check_liggghts() -> Check:
         with tempfile.TemporaryDirectory(prefix="neuraldem-doctor-") as tmp:
             version, z = liggghts.free_fall_check(Path(tmp))
     except NeuraldemError as err:
-        return Check("LIGGGHTS", False, str(err), liggghts.INSTALL_HINT)
+        return Check("LIGGGHTS", False, err.problem, err.fix or liggghts.INSTALL_HINT)
     expected = liggghts.FREE_FALL_EXPECTED_Z
     ok = abs(z - expected) < 1e-6
     detail = f"{version or 'unknown version'} at {liggghts.find_liggghts()}, free-fall test z={z:.7f}"
@@ -121,7 +121,7 @@ def check_openfoam() -> Check:
         apps = openfoam.find_apps()
         env = openfoam.foam_env()
     except NeuraldemError as err:
-        return Check("OpenFOAM", False, str(err), openfoam.INSTALL_HINT)
+        return Check("OpenFOAM", False, err.problem, err.fix or openfoam.INSTALL_HINT)
     try:
         proc = subprocess.run([str(apps["DPMFoam"]), "-help"], env=env, capture_output=True, text=True,
                               timeout=60)

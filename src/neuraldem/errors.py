@@ -5,7 +5,13 @@ Each message names what is wrong (the file, field or config key) and how to fix 
 
 
 class NeuraldemError(Exception):
-    """Base class: a problem with the user's input or environment, not a bug in neuraldem."""
+    """Base class: a problem with the user's input or environment, not a bug in neuraldem.
+
+    `problem` says what is wrong, `fix` (optional) what to do; the message is both, joined by ': '."""
+
+    def __init__(self, problem: str, fix: str | None = None):
+        self.problem, self.fix = problem, fix
+        super().__init__(f"{problem}: {fix}" if fix else problem)
 
 
 class ConfigError(NeuraldemError):

@@ -22,7 +22,7 @@ def find_liggghts() -> Path:
     name = os.environ.get(BINARY_ENV, "liggghts")
     found = shutil.which(name)
     if found is None:
-        raise SolverError(f"LIGGGHTS executable {name!r} not found on PATH: {INSTALL_HINT}")
+        raise SolverError(f"LIGGGHTS executable {name!r} not found on PATH", fix=INSTALL_HINT)
     return Path(found)
 
 
@@ -86,7 +86,7 @@ def free_fall_check(workdir: Path, timeout_s: float = 60.0) -> tuple[str | None,
     out = proc.stdout + proc.stderr
     m = re.search(r"NEURALDEM_Z\s+(\S+)", out)
     if proc.returncode != 0 or m is None:
-        tail = " | ".join(out.strip().splitlines()[-3:])
+        tail = " | ".join(out.strip().splitlines()[-3:]) or "no output"
         raise SolverError(f"LIGGGHTS ({exe}) failed the 10-line test (exit {proc.returncode}): {tail}")
     return parse_version(out), float(m.group(1))
 

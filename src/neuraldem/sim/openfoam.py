@@ -23,10 +23,9 @@ def foam_env() -> dict[str, str]:
     """Environment for OpenFOAM apps. Sourcing Debian's bashrc fails; the etc dir is all they need."""
     pdir = project_dir()
     if not (pdir / "etc" / "controlDict").is_file():
-        raise SolverError(
-            f"OpenFOAM environment not found: {pdir}/etc/controlDict is missing. Set WM_PROJECT_DIR to your "
-            f"OpenFOAM installation (Debian: {DEBIAN_PROJECT_DIR}) or {INSTALL_HINT}"
-        )
+        raise SolverError(f"OpenFOAM environment not found: {pdir}/etc/controlDict is missing",
+                          fix=f"set WM_PROJECT_DIR to your OpenFOAM installation (Debian: {DEBIAN_PROJECT_DIR}) "
+                              f"or {INSTALL_HINT}")
     env = dict(os.environ)
     env["WM_PROJECT_DIR"] = str(pdir)
     env.setdefault("WM_PROJECT", "OpenFOAM")
@@ -41,5 +40,5 @@ def find_apps(apps: tuple[str, ...] = REQUIRED_APPS) -> dict[str, Path]:
     found = {app: shutil.which(app) for app in apps}
     missing = [app for app, path in found.items() if path is None]
     if missing:
-        raise SolverError(f"OpenFOAM executable(s) {missing} not found on PATH: {INSTALL_HINT}")
+        raise SolverError(f"OpenFOAM executable(s) {missing} not found on PATH", fix=INSTALL_HINT)
     return {app: Path(path) for app, path in found.items() if path is not None}
