@@ -22,6 +22,7 @@ from neuraldem.eval.hopper_report import TABLE_HEADER, evaluate_checkpoint
 def main(cfg: DictConfig) -> None:
     checks.one_of("part", cfg.part, ("train", "val", "test"))
     checks.fraction("threshold", cfg.threshold)
+    checks.one_of("device", cfg.device, ("auto", "cpu", "cuda"))
     if cfg.max_sims is not None:
         checks.positive_int("max_sims", cfg.max_sims)
     result = evaluate_checkpoint(

@@ -27,6 +27,13 @@ from neuraldem.lit.hopper_module import HopperModule
 TABLE_SCALARS = ("mu_s", "mu_r", "theta", "repose")
 
 
+def resolve_device(device: str) -> str:
+    """'auto' = the GPU when there is one."""
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    return device
+
+
 def load_hopper_checkpoint(path: Path, device: str = "cpu") -> HopperModule:
     path = Path(path)
     if not path.is_file():
@@ -79,8 +86,9 @@ def machine_info() -> dict[str, Any]:
 
 def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_dir: Path | None = None,
                         split: str | None = None, part: str = "test", max_sims: int | None = None,
-                        threshold: float = 0.5, vtk: bool = True, device: str = "cpu",
+                        threshold: float = 0.5, vtk: bool = True, device: str = "auto",
                         progress: bool = True) -> dict[str, Any]:
+    device = resolve_device(device)
     module = load_hopper_checkpoint(ckpt, device)
     meta = module.metadata
     dataset_dir = Path(dataset_dir) if dataset_dir else Path(datasets_dir) / meta["data_name"]

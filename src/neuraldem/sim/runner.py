@@ -1,5 +1,6 @@
-"""Run one LIGGGHTS input serially in its own folder: log, screen output, CPU time, timeout.
+"""Run solver processes serially in their own folder: output capture, CPU time, timeout.
 
+`run_process` is the shared process handling (LIGGGHTS here, OpenFOAM in `neuraldem.sim.openfoam`).
 Independent runs go side by side (one per core); MPI on a 2-core machine only burns CPU.
 """
 
@@ -47,15 +48,28 @@ class SolverRun:
         return None
 
 
-def run_liggghts(workdir: Path, input_name: str, timeout_s: float | None = None,
-                 log_name: str = "log.liggghts") -> SolverRun:
-    """Run `liggghts -in input_name` in `workdir`; never raises for a failed run (the caller decides),
-    only when the binary is missing. The screen goes to `screen.txt`, the log to `log_name`."""
-    exe = find_liggghts()
+@dataclass
+class ProcessResult:
+    """How a solver process ended and what it cost."""
+
+    returncode: int  # -9 when killed at the time limit
+    wall_s: float
+    cpu_s: float  # user + system time of the process (and its reaped children)
+    max_rss_mb: float
+    timed_out: bool
+
+
+def run_process(cmd: list[str], workdir: Path, env: dict[str, str], output: Path,
+                timeout_s: float | None = None) -> ProcessResult:
+    """Run one solver process in `workdir` with stdout and stderr going to `output`.
+
+    CPU time comes from os.wait4 (the process's own rusage, unaffected by other load on the machine); past
+    `timeout_s` of wall time the process is killed. The process dies with the thread that started it
+    (`_die_with_parent`), so a killed driver leaves no solver behind."""
     t0 = time.perf_counter()
-    with open(workdir / "screen.txt", "w") as screen:
-        proc = subprocess.Popen([str(exe), "-in", input_name, "-log", log_name], cwd=workdir,
-                                env=solver_env(), stdout=screen, stderr=subprocess.STDOUT,
+    timed_out = False
+    with open(output, "w") as out:
+        proc = subprocess.Popen(cmd, cwd=workdir, env=env, stdout=out, stderr=subprocess.STDOUT,
                                 preexec_fn=_die_with_parent)
         deadline = None if timeout_s is None else t0 + timeout_s
         while True:
@@ -65,16 +79,28 @@ def run_liggghts(workdir: Path, input_name: str, timeout_s: float | None = None,
             if deadline is not None and time.perf_counter() > deadline:
                 proc.kill()
                 _, status, usage = os.wait4(proc.pid, 0)
+                timed_out = True
                 break
             time.sleep(0.05)
-    proc.returncode = os.waitstatus_to_exitcode(status)  # -9 when killed at the time limit
-    wall = time.perf_counter() - t0
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    return ProcessResult(returncode=proc.returncode, wall_s=time.perf_counter() - t0,
+                         cpu_s=usage.ru_utime + usage.ru_stime, max_rss_mb=usage.ru_maxrss / 1024.0,
+                         timed_out=timed_out)
+
+
+def run_liggghts(workdir: Path, input_name: str, timeout_s: float | None = None,
+                 log_name: str = "log.liggghts") -> SolverRun:
+    """Run `liggghts -in input_name` in `workdir`; never raises for a failed run (the caller decides),
+    only when the binary is missing. The screen goes to `screen.txt`, the log to `log_name`."""
+    exe = find_liggghts()
+    res = run_process([str(exe), "-in", input_name, "-log", log_name], workdir, solver_env(),
+                      workdir / "screen.txt", timeout_s)
     log_path = workdir / log_name
     log = log_path.read_text(errors="replace") if log_path.exists() else ""
     if not log:  # errors before the log opens only reach the screen
         log = (workdir / "screen.txt").read_text(errors="replace")
-    return SolverRun(returncode=proc.returncode, wall_s=wall, cpu_s=usage.ru_utime + usage.ru_stime,
-                     max_rss_mb=usage.ru_maxrss / 1024.0, log=log, workdir=workdir)
+    return SolverRun(returncode=res.returncode, wall_s=res.wall_s, cpu_s=res.cpu_s,
+                     max_rss_mb=res.max_rss_mb, log=log, workdir=workdir)
 
 
 def require_success(run: SolverRun, what: str) -> None:
