@@ -72,7 +72,7 @@ def test_evaluate_writes_everything(tiny_checkpoint: Path, hopper_tiny_dataset: 
 
     result = evaluate_checkpoint(tiny_checkpoint, tmp_path, tmp_path, dataset_dir=hopper_tiny_dataset,
                                  part="val", progress=False)
-    assert result["aggregate"]["n_sims"] >= 1 and "command" in result and result["machine"]["cores"]
+    assert result["aggregate"]["n_sims"] >= 1 and "command" in result and result["machine"]["cpu_count"]
     for name in ("metrics.json", "table.md", "predicted_vs_dem.png", "stripes.png", "residence_slice.png"):
         assert (tmp_path / name).is_file()
     pvd = next((tmp_path / "vtk").glob("*.pvd"))

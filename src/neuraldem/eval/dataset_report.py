@@ -21,7 +21,7 @@ import numpy as np
 from neuraldem.cli import report_user_errors
 from neuraldem.data.manifest import Manifest
 from neuraldem.data.schema import atomic_write_json
-from neuraldem.eval.hopper_report import machine_info
+from neuraldem.machine import machine_info
 
 METRICS = {"drainage_time": "drainage time [s]", "residual_fraction": "residual fraction",
            "outflow_rate": "outflow rate [N0/s]", "mass_flow_index": "mass-flow index"}

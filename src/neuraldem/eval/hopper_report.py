@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import platform
 import sys
 from datetime import datetime, timezone
 from pathlib import Path
@@ -23,6 +21,7 @@ from neuraldem.eval.hopper_metrics import layer_edges
 from neuraldem.eval.hopper_predict import DemPredictor, ModelPredictor, time_grid
 from neuraldem.eval.vtk_export import write_point_series
 from neuraldem.lit.hopper_module import HopperModule
+from neuraldem.machine import machine_info
 
 TABLE_SCALARS = ("mu_s", "mu_r", "theta", "repose")
 
@@ -69,19 +68,6 @@ def table_row(meta: dict[str, Any], agg: dict[str, float]) -> str:
 TABLE_HEADER = ("| mu_s | mu_r | theta | repose (ffc substitute) | drainage MAE [s] | residual MAE [pp] | "
                 "outflow rel. error [%] | transport MSE [1e-2] | residence MSE [1e-3] |\n"
                 "|---|---|---|---|---|---|---|---|---|")
-
-
-def machine_info() -> dict[str, Any]:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "torch": torch.__version__, "python": platform.python_version(),
-            "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None}
 
 
 def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_dir: Path | None = None,
