@@ -82,3 +82,17 @@ def tiny_checkpoint(hopper_tiny_dataset: Path, tmp_path_factory: pytest.TempPath
     path = tmp_path_factory.mktemp("ckpt") / "tiny.ckpt"
     trainer.save_checkpoint(path)
     return path
+
+
+@pytest.fixture(scope="session")
+def fb_tiny_dataset(data_root: Path) -> Path:
+    """A real fb_tiny dataset (2 velocities: 2 + 1 packings, raw cases kept under runs/)."""
+    from tests.helpers import generate_fb_tiny
+
+    return generate_fb_tiny(data_root)
+
+
+@pytest.fixture(scope="session")
+def fb_tiny_case(fb_tiny_dataset: Path) -> Path:
+    """The raw DPMFoam case of the dataset's first trajectory (time directories, logs, monitors)."""
+    return fb_tiny_dataset / "runs" / "sim_0000"

@@ -47,3 +47,23 @@ def run_module(module: str, *args: str, env: dict[str, str] | None = None,
     full_env = dict(os.environ, **(env or {}))
     return subprocess.run([sys.executable, "-m", module, *args], cwd=REPO, env=full_env,
                           capture_output=True, text=True, timeout=timeout)
+
+
+FB_TINY_SIMS = 3  # the low velocity with 2 packings, the high one with 1
+
+
+def generate_fb_tiny(root: Path, n_sims: int = FB_TINY_SIMS) -> Path:
+    from omegaconf import open_dict
+
+    from neuraldem.datagen.driver import DatagenOptions, generate
+    from neuraldem.datagen.fb import FluidizedBedPipeline
+
+    os.environ["NEURALDEM_DATA"] = str(root)
+    cfg = compose_cfg("datagen", ["data=fb_tiny"], output_dir=root / "runs")
+    with open_dict(cfg):
+        cfg.data.dataset_dir = str(root / "datasets" / "fb_tiny")
+    pipe = FluidizedBedPipeline(cfg.data)
+    m = generate(pipe, DatagenOptions(n_sims=n_sims, workers=1, progress=False))
+    first = m.simulations[:n_sims]
+    assert all(r.status == "ok" for r in first), [(r.sim_id, r.status, r.reason) for r in first]
+    return pipe.dataset_dir

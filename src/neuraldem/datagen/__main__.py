@@ -28,7 +28,11 @@ def make_pipeline(data_cfg: DictConfig) -> Pipeline:
         from neuraldem.datagen.hopper import HopperPipeline
 
         return HopperPipeline(data_cfg)
-    raise ConfigError(f"config value data.kind={kind!r} is invalid: datagen knows 'hopper'")
+    if kind == "fluidized_bed":
+        from neuraldem.datagen.fb import FluidizedBedPipeline
+
+        return FluidizedBedPipeline(data_cfg)
+    raise ConfigError(f"config value data.kind={kind!r} is invalid: datagen knows 'hopper' and 'fluidized_bed'")
 
 
 def summary_lines(m: Manifest, n_sims: int) -> list[str]:
@@ -42,10 +46,12 @@ def summary_lines(m: Manifest, n_sims: int) -> list[str]:
     char = [r.cost["characterization_cpu_s"] for r in recs if "characterization_cpu_s" in r.cost]
     if char:
         lines.append(f"characterization CPU s per parameter set: median {np.median(char):.1f}")
-    steps = [r.cost["particle_steps"] / r.cost["cpu_s"] for r in recs if r.usable and r.cost.get("cpu_s")]
+    steps = [r.cost["particle_steps"] / r.cost["cpu_s"] for r in recs
+             if r.usable and r.cost.get("cpu_s") and "particle_steps" in r.cost]
     if steps:
         lines.append(f"particle-steps per CPU-second: median {np.median(steps):.3g}")
-    for key in ("drainage_time", "residual_fraction", "outflow_rate", "mass_flow_index"):
+    keys = sorted({k for r in recs if r.usable for k, v in r.metrics.items() if isinstance(v, (int, float))})
+    for key in keys:
         vals = [r.metrics[key] for r in recs if r.usable and key in r.metrics and np.isfinite(r.metrics[key])]
         if vals:
             lines.append(f"{key}: {min(vals):.3g} .. {max(vals):.3g} (median {np.median(vals):.3g})")

@@ -135,7 +135,8 @@ def _error_detail(log: str) -> str | None:
         for i, line in enumerate(lines):
             if marker in line:
                 if marker.startswith("-->"):  # the message is on the next non-empty lines
-                    detail = " ".join(x.strip() for x in lines[i + 1:i + 4] if x.strip() and not x.startswith("    From"))
+                    following = lines[i + 1:i + 4]
+                    detail = " ".join(x.strip() for x in following if x.strip() and not x.startswith("    From"))
                     return f"{marker.lstrip('-> ')}: {detail}".strip()
                 return line.strip()
     return None

@@ -1,0 +1,84 @@
+"""Figures of fluidized-bed trajectories (matplotlib, written as PNG): metric curves and time averages."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+def plot_curves(series: Mapping[str, Mapping[str, Any]], path: Path, title: str) -> None:
+    """Bed height, bubble fraction and Lacey index over time, one line per trajectory.
+
+    series: {label: {"time", "bed_height", "bed_height_particles", "bubble_fraction", "lacey_field",
+    "lacey_particles"}} (arrays over the snapshots; heights in m)."""
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4))
+    colors = plt.cm.coolwarm(np.linspace(0, 1, max(len(series), 2)))
+    for color, (label, s) in zip(colors, series.items()):
+        t = np.asarray(s["time"])
+        axes[0].plot(t, 1000 * np.asarray(s["bed_height"]), color=color, label=f"{label} (field)")
+        if "bed_height_particles" in s:
+            axes[0].plot(t, 1000 * np.asarray(s["bed_height_particles"]), color=color, ls=":", lw=1,
+                         label=f"{label} (particles)")
+        axes[1].plot(t, s["bubble_fraction"], color=color, label=label)
+        axes[2].plot(t, s["lacey_field"], color=color, label=f"{label} (field)")
+        if "lacey_particles" in s:
+            axes[2].plot(t, s["lacey_particles"], color=color, ls=":", lw=1, label=f"{label} (particles)")
+    axes[0].set(xlabel="t [s]", ylabel="bed height [mm]", title="bed height (95 % of the solid volume below)")
+    axes[1].set(xlabel="t [s]", ylabel="bubble fraction", title="void share of the bed volume", ylim=(0, None))
+    axes[2].set(xlabel="t [s]", ylabel="Lacey index M", title="mixing (group B = started right)", ylim=(-0.05, 1.1))
+    for ax in axes:
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_time_averages(stats: Mapping[str, Mapping[str, np.ndarray]], extent: tuple[float, float, float, float],
+                       path: Path, title: str) -> None:
+    """Per-cell time mean and std of solid fraction and fluid speed, on the central y slice (x-z maps),
+    one row per trajectory. stats: {label: {"solid_fraction_mean", "solid_fraction_std", "fluid_speed_mean",
+    "fluid_speed_std"}} each (nx, ny, nz); extent = (x0, x1, z0, z1) [m]."""
+    keys = (("solid_fraction_mean", "mean solid fraction", "viridis"),
+            ("solid_fraction_std", "std solid fraction", "magma"),
+            ("fluid_speed_mean", "mean fluid speed [m/s]", "viridis"),
+            ("fluid_speed_std", "std fluid speed [m/s]", "magma"))
+    fig, axes = plt.subplots(len(stats), len(keys), figsize=(2.6 * len(keys), 4.2 * len(stats)), squeeze=False)
+    vmax = {k: max(float(np.max(s[k])) for s in stats.values()) for k, _, _ in keys}
+    mm = [1000 * v for v in extent]
+    for row, (label, s) in zip(axes, stats.items()):
+        for ax, (key, name, cmap) in zip(row, keys):
+            field = s[key]
+            sl = field[:, field.shape[1] // 2, :]  # central y slice (x, z)
+            im = ax.imshow(sl.T, origin="lower", extent=mm, cmap=cmap, vmin=0, vmax=vmax[key], aspect="equal")
+            ax.set_title(f"{label}\n{name}", fontsize=8)
+            ax.set_xlabel("x [mm]", fontsize=7)
+            ax.set_ylabel("z [mm]", fontsize=7)
+            ax.tick_params(labelsize=6)
+            fig.colorbar(im, ax=ax, shrink=0.8).ax.tick_params(labelsize=6)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_solid_volume(series: Mapping[str, Mapping[str, Any]], path: Path, title: str) -> None:
+    """Total solid volume of the kernel field relative to the particles' volume (mass conservation)."""
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for label, s in series.items():
+        ax.plot(s["time"], np.asarray(s["solid_volume"]) / float(s["particle_volume_total"]) - 1.0, label=label)
+    ax.set(xlabel="t [s]", ylabel="V_solid(field) / V_particles - 1")
+    fig.suptitle(title, fontsize=10)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
