@@ -12,7 +12,7 @@ import hydra
 from omegaconf import DictConfig
 
 import neuraldem.config  # noqa: F401  (registers resolvers before Hydra composes)
-from neuraldem.errors import NeuraldemError
+from neuraldem.errors import ConfigError, NeuraldemError
 from neuraldem.paths import config_dir
 
 
@@ -35,6 +35,20 @@ def report_user_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
             sys.exit(2)
 
     return wrapper
+
+
+def parse_assignments(items: list[str], flag: str, example: str) -> dict[str, float]:
+    """`NAME=NUMBER` command-line values (e.g. repeated `--param alpha=30`) as a dict."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        try:
+            out[key] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep or not key:
+            raise ConfigError(f"{flag} {item!r}: expected NAME=NUMBER, e.g. {flag} {example}")
+    return out
 
 
 def hydra_app(config_name: str) -> Callable[[Callable[[DictConfig], Any]], Callable[[], Any]]:

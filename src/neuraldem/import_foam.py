@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neuraldem.cli import report_user_errors
+from neuraldem.cli import parse_assignments, report_user_errors
 from neuraldem.data.fb_store import KIND, write_fb_file
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import sha256
@@ -35,19 +35,6 @@ from neuraldem.errors import ConfigError, DataError
 from neuraldem.sim import openfoam
 from neuraldem.sim.dpmfoam import read_trajectory
 from neuraldem.sim.foam_reader import BoxGrid, CloudSnapshot, FoamCase, mesh_bounds, read_dict_entries, resolve
-
-
-def _pairs(items: list[str], flag: str) -> dict[str, float]:
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        try:
-            out[key] = float(value)
-        except ValueError:
-            sep = ""
-        if not sep or not key:
-            raise ConfigError(f"{flag} {item!r}: expected NAME=NUMBER, e.g. {flag} packing=0")
-    return out
 
 
 def choose_grid(case: FoamCase, a: argparse.Namespace) -> BoxGrid:
@@ -173,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
     grid = choose_grid(case, a)
     density = a.density if a.density is not None else particle_density(a.case, a.cloud)
     traj = read_trajectory(case, grid, t0, dt_ml, a.snapshots, density=density, cloud_reader=reader)
-    params = {"inlet_velocity": float(a.inlet_velocity), **_pairs(a.param, "--param")}
+    params = {"inlet_velocity": float(a.inlet_velocity), **parse_assignments(a.param, "--param", "packing=0")}
     a.dataset.mkdir(parents=True, exist_ok=True)
     (a.dataset / "sims").mkdir(exist_ok=True)
     rel = f"sims/{a.sim_id}.h5"

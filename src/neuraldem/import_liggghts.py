@@ -21,26 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
-from neuraldem.cli import report_user_errors
+from neuraldem.cli import parse_assignments, report_user_errors
 from neuraldem.data.hopper_store import write_hopper_file
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import sha256
 from neuraldem.datagen.hopper import MetricSettings, stored_metrics
 from neuraldem.errors import ConfigError
 from neuraldem.sim.hopper import HopperGeometry, trajectory_from_files
-
-
-def _pairs(items: list[str], flag: str) -> dict[str, float]:
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        try:
-            out[key] = float(value)
-        except ValueError:
-            sep = ""
-        if not sep or not key:
-            raise ConfigError(f"{flag} {item!r}: expected NAME=NUMBER, e.g. {flag} alpha=30")
-    return out
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -70,7 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("dt", "diameter", "radius", "outlet_radius", "resolution"):
         if not getattr(a, name) > 0:
             raise ConfigError(f"--{name.replace('_', '-')} must be positive, got {getattr(a, name)}")
-    params, macro = _pairs(a.param, "--param"), _pairs(a.macro, "--macro")
+    params = parse_assignments(a.param, "--param", "alpha=30")
+    macro = parse_assignments(a.macro, "--macro", "theta=24")
     sink_z = a.sink_z if a.sink_z is not None else -np.inf
     geom = HopperGeometry(radius=a.radius, outlet_radius=a.outlet_radius, cone_height=a.cone_height,
                           wall_height=np.nan, sink_z=sink_z)

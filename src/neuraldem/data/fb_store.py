@@ -40,7 +40,7 @@ import numpy as np
 
 from neuraldem import __version__
 from neuraldem.data.fb_fields import DEFAULT_PRIOR, group_b_share, initial_labels, particle_volumes, trajectory_fields
-from neuraldem.data.schema import SCHEMA_VERSION, atomic_write_h5, check_version
+from neuraldem.data.schema import SCHEMA_VERSION, ValidatedH5File, atomic_write_h5
 from neuraldem.errors import DataError
 from neuraldem.sim.dpmfoam import FbTrajectory
 from neuraldem.sim.foam_reader import BoxGrid
@@ -100,45 +100,13 @@ def write_fb_file(path: Path, sim_id: str, traj: FbTrajectory, params: dict[str,
     atomic_write_h5(path, fill)
 
 
-class FbFile:
+class FbFile(ValidatedH5File):
     """Validating reader of one trajectory. Use as a context manager or call `close()`.
 
     Per-snapshot access (`positions(t)`, `solid_fraction(t)`, ..., `pair(t)` for a next-step sample) reads
     only that snapshot's chunk; `validate()` (run on open unless validate=False) checks the whole file."""
 
-    def __init__(self, path: Path, validate: bool = True):
-        self.path = Path(path)
-        if not self.path.is_file():
-            raise DataError(f"dataset file {self.path} does not exist (regenerate with python -m neuraldem.datagen)")
-        try:
-            self.f = h5py.File(self.path, "r")
-        except OSError as err:
-            raise DataError(f"{self.path}: not a readable HDF5 file ({err}); delete it and rerun datagen, "
-                            "which regenerates missing simulations") from None
-        try:
-            check_version(self.f.attrs.get("schema_version"), self.path)
-            if self.f.attrs.get("kind") != KIND:
-                raise DataError(f"{self.path}: kind {self.f.attrs.get('kind')!r}, expected {KIND!r}")
-            self._read_meta()
-            if validate:
-                self.validate()
-        except Exception:
-            self.f.close()
-            raise
-
-    def __enter__(self) -> FbFile:
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
-    def close(self) -> None:
-        self.f.close()
-
-    def _field(self, name: str) -> h5py.Dataset | h5py.Group:
-        if name not in self.f:
-            raise DataError(f"{self.path}: field /{name} is missing (file from another tool or truncated)")
-        return self.f[name]
+    KIND = KIND
 
     def _read_meta(self) -> None:
         self.sim_id = str(self.f.attrs.get("sim_id", self.path.stem))

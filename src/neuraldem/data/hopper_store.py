@@ -16,13 +16,12 @@ import json
 from dataclasses import asdict
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
 
 import h5py
 import numpy as np
 
 from neuraldem import __version__
-from neuraldem.data.schema import SCHEMA_VERSION, atomic_write_h5, check_version
+from neuraldem.data.schema import SCHEMA_VERSION, ValidatedH5File, atomic_write_h5
 from neuraldem.errors import DataError
 from neuraldem.sim.hopper import HopperGeometry, HopperTrajectory
 
@@ -75,44 +74,12 @@ def write_hopper_file(path: Path, sim_id: str, traj: HopperTrajectory, params: d
     atomic_write_h5(path, fill)
 
 
-class HopperFile:
+class HopperFile(ValidatedH5File):
     """Validating reader. Positions come back as float64 metres with NaN for exited particles.
 
     Use as a context manager, or call `close()`; `load()` reads everything into a HopperTrajectory."""
 
-    def __init__(self, path: Path, validate: bool = True):
-        self.path = Path(path)
-        if not self.path.is_file():
-            raise DataError(f"dataset file {self.path} does not exist (regenerate with python -m neuraldem.datagen)")
-        try:
-            self.f = h5py.File(self.path, "r")
-        except OSError as err:
-            raise DataError(f"{self.path}: not a readable HDF5 file ({err}); delete it and rerun datagen, "
-                            "which regenerates missing simulations") from None
-        try:
-            check_version(self.f.attrs.get("schema_version"), self.path)
-            if self.f.attrs.get("kind") != KIND:
-                raise DataError(f"{self.path}: kind {self.f.attrs.get('kind')!r}, expected {KIND!r}")
-            self._read_meta()
-            if validate:
-                self.validate()
-        except Exception:
-            self.f.close()
-            raise
-
-    def __enter__(self) -> HopperFile:
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
-    def close(self) -> None:
-        self.f.close()
-
-    def _field(self, name: str) -> h5py.Dataset:
-        if name not in self.f:
-            raise DataError(f"{self.path}: field /{name} is missing (file from another tool or truncated)")
-        return self.f[name]
+    KIND = KIND
 
     def _read_meta(self) -> None:
         self.sim_id = str(self.f.attrs.get("sim_id", self.path.stem))
