@@ -5,7 +5,7 @@ from neuraldem.errors import ConfigError
 from neuraldem.models import registry
 from neuraldem.models.registry import NETS, build_net, model_config_names, net_config
 
-CPU_CONFIGS = ["hopper_tiny", "hopper_small", "fb_tiny", "fb_small"]
+CPU_CONFIGS = ["hopper_tiny", "hopper_base", "hopper_small", "fb_tiny", "fb_small"]
 PAPER_PARAMS = 850e6
 
 
