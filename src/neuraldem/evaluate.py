@@ -1,12 +1,13 @@
 """`python -m neuraldem.evaluate ckpt=PATH`: a trained model against its solver on held-out simulations.
 
-The checkpoint says what it is; a fluidized-bed model is scored by `neuraldem.eval.fb_eval` (rollouts of
-every held-out inlet velocity against CFD-DEM: time statistics, mass drift, Lacey curves, stability at 1x,
-3x, 10x the training horizon; options under `fluidized_bed:`). A hopper model: for each simulation of the chosen split part, the model is rolled over the whole trajectory from the
-scalars alone, its occupancy and transport fields are evaluated at the initial particle positions, and the
-same functions that scored the DEM data compute drainage time, residual, outflow, flow regime, stripes and
-residence time. Writes metrics.json, table.md (layout of the paper's Table 4), PNG figures and VTK files
-into the run folder, and prints the table.
+The checkpoint says what it is. A fluidized-bed model is scored by `neuraldem.eval.fb_eval`: one rollout per
+held-out inlet velocity against CFD-DEM (time statistics, mass drift, Lacey curves, stability at 1x, 3x, 10x
+the training horizon; options under `fluidized_bed:`), into metrics.json, report.md, PNG figures and VTK.
+A hopper model: for each simulation of the chosen split part, the model is rolled over the whole trajectory
+from the scalars alone, its occupancy and transport fields are evaluated at the initial particle positions,
+and the same functions that scored the DEM data compute drainage time, residual, outflow, flow regime,
+stripes and residence time. Writes metrics.json, table.md (layout of the paper's Table 4), PNG figures and
+VTK files into the run folder, and prints the table.
 """
 
 from __future__ import annotations

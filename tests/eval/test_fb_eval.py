@@ -22,9 +22,9 @@ from tests.helpers import run_module
 pytestmark = pytest.mark.solver
 
 
-@pytest.mark.parametrize("sim", ["sim_0000", "sim_0002"])
+@pytest.mark.parametrize(("sim", "via_file"), [("sim_0000", True), ("sim_0002", True), ("sim_0002", False)])
 def test_ground_truth_through_the_prediction_path_gives_its_own_metrics(fb_tiny_dataset: Path, tmp_path: Path,
-                                                                        sim: str):
+                                                                        sim: str, via_file: bool):
     m = Manifest.load(fb_tiny_dataset)
     rec, settings = m.record(sim), metric_settings(m)
     path = fb_tiny_dataset / str(rec.file)
@@ -32,10 +32,12 @@ def test_ground_truth_through_the_prediction_path_gives_its_own_metrics(fb_tiny_
         steps, truth_alpha = f.n_snapshots - 1, f.solid_fraction()
         truth_volume = fm.total_solid_volume(truth_alpha, f.grid.cell_volume)
         e = evaluate_trajectory(path, sim, rec.params["inlet_velocity"], DataStepper(f), steps, horizon_steps=steps,
-                                horizons=[1, 3], settings=settings, rollout_path=tmp_path / "gt.h5")
+                                horizons=[1, 3], settings=settings,
+                                rollout_path=tmp_path / "gt.h5" if via_file else None)
     r = e.result
     assert r["window_steps"] == steps and set(r["rel_l2"]) >= {"solid_fraction_mean", "fluid_speed_std"}
     assert all(v == 0.0 for v in r["rel_l2"].values()), r["rel_l2"]
+    assert all(v == 0.0 for v in r["rel_l2_full"].values()), r["rel_l2_full"]
     assert r["lacey"]["mae"] == 0.0
     assert r["mass"] == r["mass_truth"]
     assert r["mass"]["drift_pct"] == 100 * (truth_volume[-1] / truth_volume[0] - 1)
@@ -64,6 +66,7 @@ def test_evaluation_of_a_model_writes_metrics_report_and_plots(fb_tiny_checkpoin
     assert t["window_steps"] == 20 and t["mass"]["steps"] == 60
     assert [(h["multiple"], h["steps"]) for h in t["stability"]["horizons"]] == [(1, 20), (3, 60)]
     assert 0 < t["rel_l2"]["solid_fraction_mean"] < 10 and math.isfinite(t["mass"]["drift_pct"])
+    assert t["rel_l2_full"]["solid_fraction_mean"] != t["rel_l2"]["solid_fraction_mean"]  # 60 vs 20 steps
     assert result["aggregate"]["n_trajectories"] == 1 and result["aggregate"]["n_extrapolation"] == 1
     report = (tmp_path / "report.md").read_text()
     assert "| 2.042 | yes | 20 |" in report and "## Stability" in report and "3x (60 steps)" in report

@@ -172,7 +172,8 @@ class DataStepper:
 
 @dataclass
 class Rollout:
-    """The states of a rollout, stacked; particle samples every `particles_every` steps."""
+    """The states of a rollout, stacked (grid fields in float32, as stored); particle samples every
+    `particles_every` steps."""
 
     times: np.ndarray
     fluid_velocity: np.ndarray
@@ -207,7 +208,7 @@ def rollout(stepper: Stepper, state: FbState, steps: int, limits: DivergenceLimi
     checks.positive_int("steps", steps)
     checks.positive_int("particles_every", particles_every)
     limits = limits or DivergenceLimits()
-    states, samples = [state], [state]
+    grids, samples = [_grid_fields(state)], [state]  # particles are kept only every particles_every steps
     diverged_at, reason = None, ""
     bar = tqdm(range(1, steps + 1), desc="rollout", unit="step", disable=not progress, mininterval=1.0)
     for s in bar:
@@ -216,15 +217,15 @@ def rollout(stepper: Stepper, state: FbState, steps: int, limits: DivergenceLimi
         if problem is not None:
             diverged_at, reason = s, problem
             break
-        states.append(state)
+        grids.append(_grid_fields(state))
         if s % particles_every == 0:
             samples.append(state)
     bar.close()
     out = Rollout(
-        times=np.array([x.time for x in states]),
-        fluid_velocity=np.stack([x.fluid_velocity for x in states]),
-        solid_fraction=np.stack([x.solid_fraction for x in states]),
-        mixing=np.stack([x.mixing for x in states]),
+        times=np.array([g[0] for g in grids]),
+        fluid_velocity=np.stack([g[1] for g in grids]),
+        solid_fraction=np.stack([g[2] for g in grids]),
+        mixing=np.stack([g[3] for g in grids]),
         sample_times=np.array([x.time for x in samples]),
         positions=np.stack([x.positions for x in samples]),
         displacement=np.stack([x.displacement for x in samples]),
@@ -233,6 +234,10 @@ def rollout(stepper: Stepper, state: FbState, steps: int, limits: DivergenceLimi
     if diverged_at is not None:
         log.warning("%s", out.message())
     return out
+
+
+def _grid_fields(s: FbState) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    return s.time, s.fluid_velocity.astype(np.float32), s.solid_fraction.astype(np.float32), s.mixing.astype(np.float32)
 
 
 # ---- files

@@ -48,7 +48,8 @@ def optimizer_settings(optimizer: DictConfig | dict | None,
     return opt, sched
 
 
-def lion_warmup_cosine(params: Any, opt: dict[str, Any], sched: dict[str, Any], max_steps: int | None) -> dict[str, Any]:
+def lion_warmup_cosine(params: Any, opt: dict[str, Any], sched: dict[str, Any],
+                       max_steps: int | None) -> dict[str, Any]:
     """What `configure_optimizers` returns: LION with the schedule stepped every optimizer step."""
     optimizer = Lion(params, lr=opt["lr"], betas=tuple(opt["betas"]), weight_decay=opt["weight_decay"])
     total = max_steps if max_steps and max_steps > 0 else FALLBACK_TOTAL_STEPS
