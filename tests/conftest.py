@@ -96,3 +96,23 @@ def fb_tiny_dataset(data_root: Path) -> Path:
 def fb_tiny_case(fb_tiny_dataset: Path) -> Path:
     """The raw DPMFoam case of the dataset's first trajectory (time directories, logs, monitors)."""
     return fb_tiny_dataset / "runs" / "sim_0000"
+
+
+@pytest.fixture(scope="session")
+def fb_tiny_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A FluidizedBedModule trained for 3 steps on fb_tiny (for rollout/evaluation plumbing, not accuracy)."""
+    import lightning as L
+
+    from neuraldem.data.fb_datamodule import FluidizedBedDataModule
+    from neuraldem.lit.fb_module import FluidizedBedModule
+    from neuraldem.models.registry import net_config
+
+    torch.manual_seed(0)
+    dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2)
+    module = FluidizedBedModule(net_config("fb_tiny"), datamodule=dm)
+    trainer = L.Trainer(max_steps=3, accelerator="cpu", logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0)
+    trainer.fit(module, datamodule=dm)
+    path = tmp_path_factory.mktemp("ckpt") / "fb_tiny.ckpt"
+    trainer.save_checkpoint(path)
+    return path

@@ -67,3 +67,13 @@ def generate_fb_tiny(root: Path, n_sims: int = FB_TINY_SIMS) -> Path:
     first = m.simulations[:n_sims]
     assert all(r.status == "ok" for r in first), [(r.sim_id, r.status, r.reason) for r in first]
     return pipe.dataset_dir
+
+
+def copy_dataset(src: Path, dst: Path) -> Path:
+    """A dataset's manifest and HDF5 files (not its raw runs) in a new folder, to damage or edit in a test."""
+    import shutil
+
+    dst.mkdir(parents=True, exist_ok=True)
+    shutil.copy2(src / "manifest.json", dst / "manifest.json")
+    shutil.copytree(src / "sims", dst / "sims")
+    return dst

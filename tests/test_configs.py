@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import lightning as L
 import pytest
 from hydra.utils import instantiate
@@ -15,20 +13,26 @@ EXPERIMENTS = sorted(p.stem for p in (config_dir() / "experiment").glob("*.yaml"
 
 
 def test_there_are_experiments():
-    assert {"hopper_quickstart", "hopper_micro", "hopper_macro"} <= set(EXPERIMENTS)
+    assert {"hopper_quickstart", "hopper_micro", "hopper_macro", "fb", "fb_quick"} <= set(EXPERIMENTS)
 
 
 @pytest.mark.solver
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
-def test_experiment_builds(experiment: str, compose_train_cfg, hopper_tiny_dataset: Path):
-    # the tiny real dataset stands in for each experiment's own (built from the same pipeline)
-    cfg = compose_train_cfg(f"experiment={experiment}", f"data.dataset_dir={hopper_tiny_dataset}",
-                            "data.name=hopper_tiny")
+def test_experiment_builds(experiment: str, compose_train_cfg, request: pytest.FixtureRequest):
+    # the tiny real dataset of the experiment's kind stands in for its own (built by the same pipeline)
+    kind = compose_train_cfg(f"experiment={experiment}").data.kind
+    tiny = {"hopper": "hopper_tiny", "fluidized_bed": "fb_tiny"}[kind]
+    dataset = request.getfixturevalue(f"{tiny}_dataset")
+    overrides = [f"data.dataset_dir={dataset}", f"data.name={tiny}"]
+    if kind == "fluidized_bed":  # fb_tiny's 6 x 1 x 15 cells need patches that divide 15
+        overrides.append("model.net.patch_size=[2,1,3]")
+    cfg = compose_train_cfg(f"experiment={experiment}", *overrides)
     assert cfg.task_name == experiment
     dm = instantiate(cfg.data.datamodule)
     module = instantiate(cfg.model, datamodule=dm, _recursive_=False)
     assert isinstance(module, L.LightningModule)
     assert module.net.n_scalars == len(cfg.data.conditioning)
+    assert module.metadata["kind"] == kind == cfg.data.kind
     trainer = build_trainer(cfg.trainer, callbacks=build_callbacks(cfg.callbacks), loggers=[])
     assert trainer.max_steps == cfg.trainer.max_steps
 

@@ -1,10 +1,13 @@
-"""`python -m neuraldem.evaluate ckpt=PATH`: a hopper model against DEM on held-out simulations.
+"""`python -m neuraldem.evaluate ckpt=PATH`: a trained model against its solver on held-out simulations.
 
-For each simulation of the chosen split part, the model is rolled over the whole trajectory from the
-scalars alone, its occupancy and transport fields are evaluated at the initial particle positions, and the
-same functions that scored the DEM data compute drainage time, residual, outflow, flow regime, stripes and
-residence time. Writes metrics.json, table.md (layout of the paper's Table 4), PNG figures and VTK files
-into the run folder, and prints the table.
+The checkpoint says what it is. A fluidized-bed model is scored by `neuraldem.eval.fb_eval`: one rollout per
+held-out inlet velocity against CFD-DEM (time statistics, mass drift, Lacey curves, stability at 1x, 3x, 10x
+the training horizon; options under `fluidized_bed:`), into metrics.json, report.md, PNG figures and VTK.
+A hopper model: for each simulation of the chosen split part, the model is rolled over the whole trajectory
+from the scalars alone, its occupancy and transport fields are evaluated at the initial particle positions,
+and the same functions that scored the DEM data compute drainage time, residual, outflow, flow regime,
+stripes and residence time. Writes metrics.json, table.md (layout of the paper's Table 4), PNG figures and
+VTK files into the run folder, and prints the table.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from omegaconf import DictConfig
 
 from neuraldem.cli import hydra_app
 from neuraldem.config import checks
+from neuraldem.eval.checkpoints import checkpoint_metadata
 from neuraldem.eval.hopper_report import TABLE_HEADER, evaluate_checkpoint
 
 
@@ -25,6 +29,9 @@ def main(cfg: DictConfig) -> None:
     checks.one_of("device", cfg.device, ("auto", "cpu", "cuda"))
     if cfg.max_sims is not None:
         checks.positive_int("max_sims", cfg.max_sims)
+    if checkpoint_metadata(Path(cfg.ckpt))["kind"] == "fluidized_bed":
+        evaluate_fluidized_bed(cfg)
+        return
     result = evaluate_checkpoint(
         Path(cfg.ckpt), out_dir=Path(cfg.paths.output_dir), datasets_dir=Path(cfg.paths.datasets_dir),
         dataset_dir=cfg.dataset_dir, split=cfg.split, part=cfg.part, max_sims=cfg.max_sims,
@@ -36,6 +43,24 @@ def main(cfg: DictConfig) -> None:
           f"({agg['drainage_mae_pct_of_mean']:.1f} % of the mean), residual MAE {agg['residual_mae_pp']:.2f} pp, "
           f"outflow error {agg['outflow_rel_err_pct']:.1f} %, flow regime accuracy "
           f"{100 * agg['flow_regime_accuracy']:.0f} %")
+    print(f"results in {cfg.paths.output_dir}")
+
+
+def evaluate_fluidized_bed(cfg: DictConfig) -> None:
+    from neuraldem.eval.fb_eval import evaluate_checkpoint as evaluate_fb
+    from neuraldem.eval.fb_rollout import DivergenceLimits
+
+    fb = cfg.fluidized_bed
+    result = evaluate_fb(
+        Path(cfg.ckpt), out_dir=Path(cfg.paths.output_dir), datasets_dir=Path(cfg.paths.datasets_dir),
+        dataset_dir=cfg.dataset_dir, split=cfg.split, part=cfg.part, max_sims=cfg.max_sims,
+        horizons=list(fb.horizons), limits=DivergenceLimits(fb.max_packing, fb.tolerance),
+        seed=checks.positive_int("fluidized_bed.seed", fb.seed, allow_zero=True), vtk=cfg.vtk, device=cfg.device)
+    agg = result["aggregate"]
+    print((Path(cfg.paths.output_dir) / "report.md").read_text())
+    print(f"{agg['n_trajectories']} held-out velocities: mean solid-fraction rel. L2 "
+          f"{agg['solid_fraction_mean_rel_l2']:.3f}, max mass drift {agg['mass_max_abs_drift_pct']:.2f} % over "
+          f"{result['rollout_steps']} steps, Lacey MAE {agg['lacey_mae']:.3f}")
     print(f"results in {cfg.paths.output_dir}")
 
 

@@ -59,18 +59,31 @@ def train(cfg: DictConfig) -> dict[str, float]:
 
 def evaluate_after_training(cfg: DictConfig, trainer: L.Trainer) -> dict[str, float]:
     """Score the best (else the last) checkpoint on the test split, into <run>/evaluation."""
-    from neuraldem.eval.hopper_report import TABLE_HEADER, evaluate_checkpoint
-
     cb = trainer.checkpoint_callback
     ckpt = (cb.best_model_path or cb.last_model_path) if cb is not None else ""
     if not ckpt:
         raise ConfigError("evaluate=true needs checkpoints: keep callbacks.checkpoint enabled")
+    if cfg.data.get("kind") == "fluidized_bed":
+        return evaluate_fluidized_bed_after_training(cfg, Path(ckpt))
+    from neuraldem.eval.hopper_report import TABLE_HEADER, evaluate_checkpoint
+
     result = evaluate_checkpoint(Path(ckpt), out_dir=Path(cfg.paths.output_dir) / "evaluation",
                                  datasets_dir=Path(cfg.paths.datasets_dir), dataset_dir=cfg.data.dataset_dir,
                                  progress=False)
     print(TABLE_HEADER)
     print(result["table_row"])
     log.info("evaluation of %s written to %s", ckpt, Path(cfg.paths.output_dir) / "evaluation")
+    return {f"test/{k}": float(v) for k, v in result["aggregate"].items()}
+
+
+def evaluate_fluidized_bed_after_training(cfg: DictConfig, ckpt: Path) -> dict[str, float]:
+    from neuraldem.eval.fb_eval import evaluate_checkpoint
+
+    out = Path(cfg.paths.output_dir) / "evaluation"
+    result = evaluate_checkpoint(ckpt, out_dir=out, datasets_dir=Path(cfg.paths.datasets_dir),
+                                 dataset_dir=cfg.data.dataset_dir, progress=False)
+    print((out / "report.md").read_text())
+    log.info("evaluation of %s written to %s", ckpt, out)
     return {f"test/{k}": float(v) for k, v in result["aggregate"].items()}
 
 

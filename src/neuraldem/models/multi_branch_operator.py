@@ -108,18 +108,29 @@ class MultiBranchOperator(nn.Module):
         }
 
     def forward(self, inputs: OperatorInputs, chunk_size: int | None = None) -> dict[str, torch.Tensor]:
-        unknown = sorted(set(inputs.query_pos) - set(BRANCHES))
-        if unknown:
-            raise ValueError(f"query positions for unknown branches {unknown}; branches are {list(BRANCHES)}")
+        tokens, cond = self.latents(inputs)
+        return self.decode(tokens, cond, inputs.query_pos, chunk_size=chunk_size)
+
+    def latents(self, inputs: OperatorInputs) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """Tokens after the last block and the conditioning vector: decode them once or in several calls
+        (a rollout decodes the grid first, then the particles at positions sampled from the new grid)."""
         cond = self.conditioner(inputs.scalars)
         tokens = self.encode(inputs)
         for block in [*self.encoder_blocks, *self.approximator_blocks, *self.decoder_blocks]:
             tokens = block(tokens, cond)
+        return tokens, cond
+
+    def decode(self, tokens: Mapping[str, torch.Tensor], cond: torch.Tensor,
+               query_pos: Mapping[str, torch.Tensor], chunk_size: int | None = None) -> dict[str, torch.Tensor]:
+        """{branch: (B, Q_branch, channels)} at `query_pos` from the output of `latents`."""
+        unknown = sorted(set(query_pos) - set(BRANCHES))
+        if unknown:
+            raise ValueError(f"query positions for unknown branches {unknown}; branches are {list(BRANCHES)}")
         # off-branch decoders see a detached conditioning vector, like the off-branches inside the blocks
         return {
             name: self.decoders[name](tokens[name], pos, cond if name in MAIN_BRANCHES else cond.detach(),
                                       chunk_size=chunk_size)
-            for name, pos in inputs.query_pos.items()
+            for name, pos in query_pos.items()
         }
 
     def example_inputs(self, batch_size: int = 2, n_particles: int | None = None,

@@ -1,0 +1,65 @@
+"""One field-based autoregressive step of the fluidized-bed model, in model units.
+
+Shared by push-forward training and by rollouts, so both feed the model exactly the same kind of input:
+the grid fields come from the decoded fluid and mixing branches; particles are never tracked: their input
+positions are sampled anew from the predicted solid fraction (density proportional to it, uniform inside a
+cell), and their input displacement is the particle branch decoded at those positions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import torch
+
+from neuraldem.data.fb_normalization import FbNormalizer
+from neuraldem.models.modules.patch_embedding import cell_centres
+from neuraldem.models.multi_branch_operator import MultiBranchOperator, OperatorInputs
+
+SOLID_FRACTION_CHANNEL = 3  # fluid branch channels: fluid velocity (3), solid fraction (1)
+
+
+def grid_queries(inputs: OperatorInputs) -> torch.Tensor:
+    """(B, cells, 3) normalised cell centres of the fluid grid, in the C order of the decoded fields."""
+    centres = cell_centres(inputs.grid.shape[2:], device=inputs.grid.device)
+    return centres.expand(inputs.grid.shape[0], -1, -1)
+
+
+def sample_positions(solid_fraction: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+    """(B, n, 3) normalised positions drawn with density proportional to the solid fraction (B, nx, ny, nz).
+
+    Negative and non-finite values count as empty; a field with no solid anywhere is sampled uniformly
+    (a diverging rollout is caught by its caller, not here)."""
+    batch, shape = solid_fraction.shape[0], solid_fraction.shape[1:]
+    weights = torch.nan_to_num(solid_fraction.reshape(batch, -1).float(), nan=0.0, posinf=0.0).clamp(min=0.0)
+    weights = torch.where(weights.sum(dim=1, keepdim=True) > 0, weights, torch.ones_like(weights))
+    device = generator.device if generator is not None else solid_fraction.device
+    cell = torch.multinomial(weights.to(device), n, replacement=True, generator=generator)
+    dims = torch.tensor(shape, device=device)
+    ijk = torch.stack(torch.unravel_index(cell, tuple(shape)), dim=-1)
+    offset = torch.rand(batch, n, 3, generator=generator, device=device)
+    return ((ijk + offset) / dims).to(solid_fraction.device)
+
+
+def decode_grid(net: MultiBranchOperator, tokens: dict[str, torch.Tensor], cond: torch.Tensor,
+                inputs: OperatorInputs, chunk_size: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Next fluid grid (B, 4, nx, ny, nz) and mixing grid (B, 1, nx, ny, nz), model units."""
+    shape = inputs.grid.shape[2:]
+    queries = grid_queries(inputs)
+    out = net.decode(tokens, cond, {"fluid": queries, "mixing": queries}, chunk_size=chunk_size)
+    batch = inputs.grid.shape[0]
+    fluid = out["fluid"].transpose(1, 2).reshape(batch, -1, *shape)
+    mixing = out["mixing"].transpose(1, 2).reshape(batch, -1, *shape)
+    return fluid, mixing
+
+
+def advance(net: MultiBranchOperator, inputs: OperatorInputs, norm: FbNormalizer, n_particles: int,
+            generator: torch.Generator | None = None, chunk_size: int | None = None) -> OperatorInputs:
+    """The model's next state as the next input: decoded grids, particles re-sampled from the solid fraction."""
+    tokens, cond = net.latents(inputs)
+    fluid, mixing = decode_grid(net, tokens, cond, inputs, chunk_size)
+    alpha = fluid[:, SOLID_FRACTION_CHANNEL] * norm.std["solid_fraction"][0] + norm.mean["solid_fraction"][0]
+    positions = sample_positions(alpha, n_particles, generator)
+    displacement = net.decode(tokens, cond, {"particles": positions}, chunk_size=chunk_size)["particles"]
+    return replace(inputs, particle_pos=positions, particle_features=displacement, grid=fluid, mixing_grid=mixing,
+                   query_pos={}, supernode_idx=None)

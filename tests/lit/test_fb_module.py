@@ -1,0 +1,102 @@
+"""FluidizedBedModule on the real fb_tiny dataset: a tiny model learns, push-forward unrolls the rollout step,
+checkpoints carry the data's metadata, and configs that cannot fit the data fail before training."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import lightning as L
+import pytest
+import torch
+
+from neuraldem.data.fb_datamodule import FluidizedBedDataModule
+from neuraldem.errors import ConfigError
+from neuraldem.lit import fb_module
+from neuraldem.lit.fb_module import FluidizedBedModule
+from neuraldem.models.registry import net_config
+
+pytestmark = pytest.mark.solver
+
+
+def _module(dataset: Path, net_overrides: dict | None = None, **dm_kwargs) -> tuple[FluidizedBedModule,
+                                                                                  FluidizedBedDataModule]:
+    dm = FluidizedBedDataModule(str(dataset), "fb_tiny", **({"batch_size": 4} | dm_kwargs))
+    module = FluidizedBedModule(net_config("fb_tiny", **(net_overrides or {})), datamodule=dm,
+                                optimizer={"lr": 1e-3}, scheduler={"warmup_steps": 5})
+    return module, dm
+
+
+def _fit(module: FluidizedBedModule, dm: FluidizedBedDataModule, steps: int) -> L.Trainer:
+    trainer = L.Trainer(max_steps=steps, accelerator="cpu", logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0)
+    trainer.fit(module, datamodule=dm)
+    return trainer
+
+
+def test_tiny_model_learns_and_checkpoint_round_trips(fb_tiny_dataset: Path, tmp_path: Path):
+    torch.manual_seed(0)
+    module, dm = _module(fb_tiny_dataset)
+    assert module.net.n_scalars == 1 and module.metadata["kind"] == "fluidized_bed"
+    batch = next(iter(dm.test_dataloader()))  # held-out velocity, never trained on
+    module.eval()
+    with torch.no_grad():
+        before = module.losses(batch)
+    module.train()
+    trainer = _fit(module, dm, 40)
+    module.eval()
+    with torch.no_grad():
+        after = module.losses(batch)
+    assert after["loss"] < 0.8 * before["loss"], (before, after)
+    assert after["loss"] == pytest.approx(sum(after[b] for b in ("particles", "fluid", "mixing")))
+    path = tmp_path / "fb.ckpt"
+    trainer.save_checkpoint(path)
+    back = FluidizedBedModule.load_from_checkpoint(path).eval()
+    assert back.metadata == module.metadata
+    assert back.metadata["train_velocities"] == [pytest.approx(1.228531)]
+    with torch.no_grad():
+        torch.testing.assert_close(back.losses(batch)["loss"], after["loss"])
+
+
+def test_push_forward_unrolls_k_minus_one_model_steps(fb_tiny_dataset: Path, monkeypatch: pytest.MonkeyPatch):
+    calls = []
+    real_advance = fb_module.advance
+
+    def counting_advance(net, x, norm, n_particles, **kwargs):
+        calls.append((torch.is_grad_enabled(), n_particles))
+        out = real_advance(net, x, norm, n_particles, **kwargs)
+        assert out.particle_pos.shape == x.particle_pos.shape and out.grid.shape == x.grid.shape
+        assert out.particle_pos.min() >= 0 and out.particle_pos.max() <= 1  # sampled inside the box
+        return out
+
+    monkeypatch.setattr(fb_module, "advance", counting_advance)
+    torch.manual_seed(0)
+    module, dm = _module(fb_tiny_dataset, push_forward_steps=3)
+    assert module.push_forward_steps == 3 and module.metadata["push_forward_steps"] == 3
+    _fit(module, dm, 2)
+    assert calls == [(False, 300)] * 4  # 2 training steps x (k - 1), without gradient
+    batch = next(iter(dm.test_dataloader()))
+    calls.clear()
+    module.losses(batch)  # evaluation: plain next-step
+    assert calls == []
+
+
+def test_config_that_cannot_fit_the_data(fb_tiny_dataset: Path):
+    with pytest.raises(ConfigError, match=r"model\.net\.patch_size=\[2, 1, 2\] is invalid: the dataset's grid has "
+                                          r"\[6, 1, 15\] cells.*\[1, 3, 5, 15\]"):
+        _module(fb_tiny_dataset, {"patch_size": [2, 1, 2]})
+    with pytest.raises(ConfigError, match=r"model\.net\.n_supernodes=400 is invalid: a sample holds 300 particles"):
+        _module(fb_tiny_dataset, {"n_supernodes": 400})
+    with pytest.raises(ConfigError, match=r"n_supernodes=32 is invalid: a sample holds 20 particles"):
+        _module(fb_tiny_dataset, {"n_supernodes": 32}, particles_per_sample=20)
+
+
+def test_bad_optimisation_values(fb_tiny_dataset: Path):
+    dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny")
+    with pytest.raises(ConfigError, match=r"model\.optimizer\.lr=-1"):
+        FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, optimizer={"lr": -1})
+    with pytest.raises(ConfigError, match=r"unknown key\(s\) \['warmup'\] in model\.scheduler"):
+        FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, scheduler={"warmup": 3})
+    with pytest.raises(ConfigError, match=r"model\.loss_weights key='pressure' is invalid"):
+        FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, loss_weights={"pressure": 1.0})
+    with pytest.raises(ConfigError, match=r"model\.optimizer\.betas=\[0\.9\] is invalid: must be a pair"):
+        FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, optimizer={"betas": [0.9]})
