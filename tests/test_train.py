@@ -50,3 +50,12 @@ def test_typo_in_key(tmp_path: Path):
     out = _one_clear_error(run_module("neuraldem.train", "trainr.max_steps=5",
                                       env={"NEURALDEM_DATA": str(tmp_path)}))
     assert "trainr" in out
+
+
+def test_training_without_any_logger(hopper_tiny_dataset: Path, tmp_path: Path):
+    """logger=none must train: callbacks that only feed a logger (the LR monitor) are dropped, not fatal."""
+    proc = run_module("neuraldem.train", "experiment=hopper_quickstart", "logger=none", "evaluate=false",
+                      "trainer.max_steps=2", "trainer.val_check_interval=2", f"data.dataset_dir={hopper_tiny_dataset}",
+                      f"hydra.run.dir={tmp_path}/run", env={"NEURALDEM_DATA": str(tmp_path)})
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert (tmp_path / "run" / "checkpoints" / "last.ckpt").is_file()

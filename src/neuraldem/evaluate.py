@@ -24,6 +24,7 @@ from neuraldem.eval.hopper_report import TABLE_HEADER, evaluate_checkpoint
 
 @hydra_app("evaluate")
 def main(cfg: DictConfig) -> None:
+    checks.required(cfg, "evaluate", {"ckpt": "ckpt=<run>/checkpoints/last.ckpt"})
     checks.one_of("part", cfg.part, ("train", "val", "test"))
     checks.fraction("threshold", cfg.threshold)
     checks.one_of("device", cfg.device, ("auto", "cpu", "cuda"))

@@ -12,20 +12,17 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from neuraldem.cli import hydra_app
 from neuraldem.config import checks
-from neuraldem.errors import ConfigError
 from neuraldem.eval.fb_rollout import DivergenceLimits, run_rollout
 from neuraldem.eval.hopper_report import resolve_device
 
 
 @hydra_app("rollout")
 def main(cfg: DictConfig) -> None:
-    for key, example in (("ckpt", "ckpt=<run>/checkpoints/last.ckpt"), ("velocity", "velocity=1.6")):
-        if OmegaConf.is_missing(cfg, key):
-            raise ConfigError(f"{key} is required: python -m neuraldem.rollout {example} ...")
+    checks.required(cfg, "rollout", {"ckpt": "ckpt=<run>/checkpoints/last.ckpt", "velocity": "velocity=1.6"})
     checks.one_of("device", cfg.device, ("auto", "cpu", "cuda"))
     limits = DivergenceLimits(checks.number("max_packing", cfg.max_packing, lo=0.0, hi=1.0, lo_open=True),
                               checks.number("tolerance", cfg.tolerance, lo=0.0, hi=0.5))

@@ -38,8 +38,9 @@ def train(cfg: DictConfig) -> dict[str, float]:
 
     datamodule = instantiate_checked("data.datamodule", cfg.data.datamodule)
     module = instantiate_checked("model", cfg.model, datamodule=datamodule, _recursive_=False)
-    trainer = build_trainer(cfg.trainer, callbacks=build_callbacks(cfg.get("callbacks")),
-                            loggers=build_loggers(cfg.get("logger")))
+    loggers = build_loggers(cfg.get("logger"))
+    trainer = build_trainer(cfg.trainer, callbacks=build_callbacks(cfg.get("callbacks"), with_logger=bool(loggers)),
+                            loggers=loggers)
     for lg in trainer.loggers:
         lg.log_hyperparams(OmegaConf.to_container(cfg, resolve=True))  # type: ignore[arg-type]
 

@@ -34,3 +34,12 @@ def test_interval_and_names():
         checks.names("c", ["t", "beta"], allowed=["t", "alpha"])
     with pytest.raises(ConfigError, match="duplicate"):
         checks.names("c", ["t", "t"])
+
+
+def test_required_keys_name_themselves_and_an_example():
+    from omegaconf import OmegaConf
+
+    cfg = OmegaConf.create({"ckpt": "???", "velocity": 1.5})
+    with pytest.raises(ConfigError, match=r"ckpt is required: python -m neuraldem.evaluate ckpt=X"):
+        checks.required(cfg, "evaluate", {"ckpt": "ckpt=X", "velocity": "velocity=1.6"})
+    checks.required(OmegaConf.create({"ckpt": "a.ckpt"}), "evaluate", {"ckpt": "ckpt=X"})  # present: no error

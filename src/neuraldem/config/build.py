@@ -6,6 +6,7 @@ from typing import Any
 
 import lightning as L
 from hydra.utils import instantiate
+from lightning.pytorch.callbacks import LearningRateMonitor
 from omegaconf import DictConfig
 
 from neuraldem.config import checks
@@ -67,5 +68,10 @@ def build_loggers(cfg: DictConfig | None) -> list[Any]:
     return _build_group("logger", cfg)
 
 
-def build_callbacks(cfg: DictConfig | None) -> list[Any]:
-    return _build_group("callbacks", cfg)
+def build_callbacks(cfg: DictConfig | None, with_logger: bool = True) -> list[Any]:
+    """Callbacks of the config; without a logger, those that only feed a logger (LR monitor) are left out
+    rather than letting Lightning refuse the run."""
+    callbacks = _build_group("callbacks", cfg)
+    if not with_logger:
+        callbacks = [cb for cb in callbacks if not isinstance(cb, LearningRateMonitor)]
+    return callbacks

@@ -76,3 +76,12 @@ def names(key: str, value: Any, allowed: Iterable[str] | None = None) -> list[st
         if bad:
             raise _fail(key, value, f"unknown name(s) {bad}; allowed: {allowed}")
     return out
+
+
+def required(cfg: Any, command: str, examples: dict[str, str]) -> None:
+    """Keys a command cannot run without (`???` in its config) name themselves and an example, not a traceback."""
+    from omegaconf import OmegaConf
+
+    for key, example in examples.items():
+        if OmegaConf.is_missing(cfg, key):
+            raise ConfigError(f"{key} is required: python -m neuraldem.{command} {example} ...")
