@@ -13,21 +13,13 @@ import lightning as L
 import torch
 import torch.nn.functional as F
 from hydra.utils import instantiate
-from lion_pytorch import Lion
 from omegaconf import DictConfig, OmegaConf
 
 from neuraldem.config import checks
 from neuraldem.data.hopper_datamodule import HopperDataModule
-from neuraldem.lit.schedules import warmup_cosine
+from neuraldem.lit.optim import lion_warmup_cosine, optimizer_settings, plain
 
 LOSSES = ("occupancy", "transport", "residence")
-
-
-def _plain(cfg: DictConfig | dict | None) -> dict[str, Any]:
-    """Plain Python containers: checkpoints must load without trusting omegaconf classes."""
-    if cfg is None:
-        return {}
-    return OmegaConf.to_container(cfg) if isinstance(cfg, DictConfig) else dict(cfg)  # type: ignore[return-value]
 
 
 class HopperModule(L.LightningModule):
@@ -45,13 +37,8 @@ class HopperModule(L.LightningModule):
             metadata = datamodule.checkpoint_metadata()
         net_cfg.n_scalars = len(metadata["conditioning"])
         self.metadata = metadata
-        opt = dict(lr=1e-4, weight_decay=0.05, betas=[0.9, 0.99]) | _plain(optimizer)
-        sched = dict(warmup_steps=100, end_factor=0.01) | _plain(scheduler)
-        weights = dict.fromkeys(LOSSES, 1.0) | _plain(loss_weights)
-        checks.positive("model.optimizer.lr", opt["lr"])
-        checks.number("model.optimizer.weight_decay", opt["weight_decay"], lo=0.0)
-        checks.positive_int("model.scheduler.warmup_steps", sched["warmup_steps"], allow_zero=True)
-        checks.fraction("model.scheduler.end_factor", sched["end_factor"])
+        opt, sched = optimizer_settings(optimizer, scheduler)
+        weights = dict.fromkeys(LOSSES, 1.0) | plain(loss_weights)
         for k, v in weights.items():
             checks.one_of("model.loss_weights", k, LOSSES)
             checks.number(f"model.loss_weights.{k}", v, lo=0.0)
@@ -99,9 +86,4 @@ class HopperModule(L.LightningModule):
         self._step(batch, "test")
 
     def configure_optimizers(self) -> dict[str, Any]:
-        opt = Lion(self.parameters(), lr=self.opt_cfg["lr"], betas=tuple(self.opt_cfg["betas"]),
-                   weight_decay=self.opt_cfg["weight_decay"])
-        total = self.trainer.max_steps if self.trainer.max_steps and self.trainer.max_steps > 0 else 10_000
-        warm, end = self.sched_cfg["warmup_steps"], self.sched_cfg["end_factor"]
-        sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: warmup_cosine(s, warm, total, end))
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        return lion_warmup_cosine(self.parameters(), self.opt_cfg, self.sched_cfg, self.trainer.max_steps)
