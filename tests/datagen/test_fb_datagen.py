@@ -60,6 +60,24 @@ def test_parameter_table_is_deterministic_and_extends(tmp_path: Path):
     assert pipe.packing_seed(SimRecord("a", 0, {})) != pipe.packing_seed(SimRecord("b", 1, {}))
 
 
+def test_run_order_spreads_a_partial_set_over_the_velocity_range(tmp_path: Path):
+    pipe = pipeline(tmp_path)
+    table = pipe.parameter_sequence(93)
+    records = [SimRecord(sim_id=f"s{i}", index=i, params=p) for i, p in enumerate(table)]
+    order = pipe.run_order(list(reversed(records)))
+    assert sorted(r.index for r in order) == list(range(93))  # a permutation: nothing lost or repeated
+    first = [r.params for r in order[:30]]
+    assert {p["packing"] for p in first} == {0.0}  # every velocity once before any second packing
+    velocities = sorted({p["inlet_velocity"] for p in table[:90]})
+    assert len({p["inlet_velocity"] for p in first}) == 30
+    lo, hi = velocities[0], velocities[-1]
+    assert [order[0].params["inlet_velocity"], order[1].params["inlet_velocity"]] == [lo, hi]
+    for k in (3, 5, 9):  # any prefix leaves no gap wider than about twice the even spacing
+        got = sorted(r.params["inlet_velocity"] for r in order[:k])
+        assert max(b - a for a, b in zip(got, got[1:])) <= 2.2 * (hi - lo) / (k - 1)
+    assert [r.params["duration"] for r in order[-3:]] == [30.0, 30.0, 30.0]  # long ones last
+
+
 @pytest.mark.parametrize("override,message", [
     ("data.parameters.inlet_velocity=[0,2]", "data.parameters.inlet_velocity[0]=0.0 is invalid"),
     ("data.parameters.inlet_velocity=[2.2,1.2]", "lo <= hi"),

@@ -90,6 +90,15 @@ def _settings(cls: Any, cfg: Any, key: str) -> Any:
     return cls(**{k: (tuple(v) if OmegaConf.is_list(v) or isinstance(v, list) else v) for k, v in values.items()})
 
 
+def coarse_to_fine_rank(i: int, n: int) -> int:
+    """Position of slot i of n in a farthest-first sweep (0, n-1, the middle, then always the slot farthest
+    from those already taken), so that the first k slots run spread over the whole range for every k."""
+    order = [0] + ([n - 1] if n > 1 else [])
+    while len(order) < n:
+        order.append(max((s for s in range(n) if s not in order), key=lambda s: min(abs(s - o) for o in order)))
+    return order.index(i)
+
+
 def file_metrics(path: Path, settings: FbMetricSettings) -> dict[str, float]:
     """Ground-truth metrics of a stored trajectory: the field metrics (as for predictions) plus
     particle-based references (Lacey from the particles, bed height from particle heights)."""
@@ -201,6 +210,18 @@ class FluidizedBedPipeline:
 
     def incomplete(self, record: SimRecord) -> bool:
         return False
+
+    def run_order(self, todo: list[SimRecord]) -> list[SimRecord]:
+        """The table is sorted by velocity; run it so that any finished part spans the whole range: first
+        packing of every velocity in a coarse-to-fine order, then the further packings, the long test
+        trajectories last (they cost ten short ones each)."""
+        return sorted(todo, key=self._run_rank)
+
+    def _run_rank(self, rec: SimRecord) -> tuple[int, int, int]:
+        if rec.params["duration"] > self.duration:
+            return (1, 0, rec.index)
+        velocity_slot = (rec.index // self.packings) % self.n_velocities
+        return (0, int(rec.params["packing"]), coarse_to_fine_rank(velocity_slot, self.n_velocities))
 
     def parameter_sequence(self, count: int) -> list[dict[str, float]]:
         """The first `count` entries of the deterministic parameter table (module docstring)."""
