@@ -7,11 +7,27 @@ import sys
 
 from neuraldem.errors import NeuraldemError
 
-# name -> (module with `main(argv) -> int`, what it measures); modules are imported only when run
+# name -> ("module" with `main(argv) -> int`, or "module:function"; what it measures); imported only when run
 BENCHMARKS = {
     "model_step": ("neuraldem.bench.model_step",
                    "forward+backward time per training step of model configs, 1 vs 2 torch threads"),
+    "hopper_speed": ("neuraldem.bench.hopper_speed",
+                     "LIGGGHTS vs the hopper surrogate on the same questions, side by side (speed-up ratios)"),
+    "hopper_scaling": ("neuraldem.bench.hopper_scaling",
+                       "LIGGGHTS cost vs particle count; surrogate cost vs query points and latent tokens"),
+    "speed_accuracy": ("neuraldem.bench.speed_accuracy",
+                       "time to answer vs error: surrogate runs and cheaper LIGGGHTS settings, Pareto front"),
+    "right_sizing": ("neuraldem.bench.right_sizing",
+                     "the smallest model within 10 % of the best accuracy, per task, with its speed"),
+    "all": ("neuraldem.bench.suite:run_all", "every hopper benchmark above, in one command"),
+    "render": ("neuraldem.bench.suite:render", "redraw every figure and table from the results files"),
 }
+
+
+def entry_point(name: str):
+    """The `main(argv) -> int` of benchmark `name` (imported now)."""
+    module, _, function = BENCHMARKS[name][0].partition(":")
+    return getattr(importlib.import_module(module), function or "main")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -26,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: unknown benchmark {name!r}; choose one of {sorted(BENCHMARKS)}", file=sys.stderr)
         return 2
     try:
-        return importlib.import_module(BENCHMARKS[name][0]).main(args)
+        return entry_point(name)(args)
     except NeuraldemError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import shlex
+import sys
 from pathlib import Path
 from typing import Any
 
+from neuraldem.data.schema import atomic_write_json
+from neuraldem.errors import DataError
 from neuraldem.machine import machine_info
 from neuraldem.paths import results_dir
 
@@ -19,7 +23,8 @@ def write_results(name: str, results: Any, *, command: str, path: Path | None = 
                   machine: dict[str, Any] | None = None) -> Path:
     """Write `{benchmark, date, command, machine, results}` to `path` (default results/bench/NAME.json).
 
-    Pass `machine` taken before a long run so its load average describes the conditions during the run."""
+    Pass `machine` taken before a long run so its load average describes the conditions during the run.
+    Written atomically: a benchmark killed while writing leaves the previous results intact."""
     path = path or default_path(name)
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {
@@ -29,5 +34,39 @@ def write_results(name: str, results: Any, *, command: str, path: Path | None = 
         "machine": machine or machine_info(),
         "results": results,
     }
-    path.write_text(json.dumps(payload, indent=2) + "\n")
+    atomic_write_json(path, payload)
     return path
+
+
+def command_line(name: str, argv: list[str]) -> str:
+    """The command that reproduces a result, recorded with it."""
+    return shlex.join(["python", "-m", "neuraldem.bench", name, *argv])
+
+
+def read_results(path: Path, name: str) -> dict[str, Any]:
+    """A results file written by benchmark `name` (to re-render its figures and tables without measuring)."""
+    path = Path(path)
+    try:
+        payload = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise DataError(f"no results at {path}: run `python -m neuraldem.bench {name}` first") from None
+    except json.JSONDecodeError as err:
+        raise DataError(f"{path} is not valid JSON ({err}): rerun `python -m neuraldem.bench {name}`") from None
+    if payload.get("benchmark") != name:
+        raise DataError(f"{path} holds results of benchmark {payload.get('benchmark')!r}, not {name!r}: pass the "
+                        f"file written by `python -m neuraldem.bench {name}`")
+    return payload
+
+
+QUIET_LOAD = 0.5  # 1-minute load average above which other processes compete with a measurement
+
+
+def warn_if_busy(machine: dict[str, Any]) -> str | None:
+    """A warning line when the machine was busy as the measurement began (timings then overstate costs)."""
+    load = (machine.get("load_average_1_5_15min") or [0.0])[0]
+    if load > QUIET_LOAD:
+        msg = (f"warning: 1-minute load average {load:.2f} > {QUIET_LOAD}: other processes compete with this "
+               "measurement; take the figures you publish on a quiet machine (docs/benchmarks.md)")
+        print(msg, file=sys.stderr)
+        return msg
+    return None

@@ -1,0 +1,132 @@
+"""Right-sizing: the smallest model within 10 % of the best accuracy, for each scene, with its speed.
+
+`python -m neuraldem.bench right_sizing (--runs DIR... | --from results/bench/speed_accuracy.json)
+[--metric drainage_mae_pct_of_mean] [--tolerance 0.10]` writes results/bench/right_sizing.json and .md.
+
+Runs are compared only with runs that answer the same task: the same dataset, split and conditioning.
+"Within 10 %" means error <= 1.10 x the best error of the group. Among those, the smallest is the one with
+the fewest parameters, then the fewest latent tokens, then the fewest training query points, then the
+fastest answer: a bigger model is worth its cost only where it is measurably more accurate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Any
+
+from neuraldem.bench.hopper_runs import HOPPER_ERRORS, collect_runs
+from neuraldem.bench.report import command_line, default_path, machine_info, read_results, write_results
+from neuraldem.bench.speed_accuracy import surrogate_points
+from neuraldem.config import checks
+from neuraldem.errors import DataError
+
+NAME = "right_sizing"
+
+
+def _value(v: Any) -> float:
+    return float(v) if isinstance(v, (int, float)) and math.isfinite(v) else math.inf
+
+
+def size_key(row: dict[str, Any]) -> tuple[float, ...]:
+    """Smaller first: parameters, latent tokens, training query points, then time to answer (unknown = last)."""
+    size = row.get("size", {})
+    return (_value(size.get("parameters")), _value(size.get("n_latent_tokens")),
+            _value(size.get("train_queries")), _value(row.get("time_to_answer_s")))
+
+
+def task_of(row: dict[str, Any]) -> tuple[str, str, tuple[str, ...]]:
+    return (str(row.get("data_name")), str(row.get("split")), tuple(row.get("conditioning", [])))
+
+
+def right_size(rows: list[dict[str, Any]], metric: str, tolerance: float = 0.10) -> list[dict[str, Any]]:
+    """One pick per task (dataset, split, conditioning): the smallest row with error <= (1 + tolerance) x the
+    group's best error. Rows without a finite error are listed as left out."""
+    checks.one_of("metric", metric, HOPPER_ERRORS)
+    checks.number("tolerance", tolerance, lo=0.0)
+    tasks: dict[tuple, list[dict[str, Any]]] = {}
+    for row in rows:
+        tasks.setdefault(task_of(row), []).append(row)
+    picks = []
+    for (data_name, split, conditioning), group in sorted(tasks.items()):
+        scored = [r for r in group if math.isfinite(_value(r.get("errors", {}).get(metric)))]
+        if not scored:
+            continue
+        best = min(scored, key=lambda r: (r["errors"][metric], size_key(r)))
+        threshold = best["errors"][metric] * (1.0 + tolerance)
+        within = sorted((r for r in scored if r["errors"][metric] <= threshold), key=size_key)
+        pick = within[0]
+        picks.append({
+            "data_name": data_name, "split": split, "conditioning": list(conditioning), "metric": metric,
+            "tolerance": tolerance, "best": _summary(best, metric), "threshold": threshold,
+            "pick": _summary(pick, metric), "within_tolerance": [r["label"] for r in within],
+            "left_out": [r["label"] for r in group if r not in scored],
+            "candidates": [_summary(r, metric) for r in sorted(scored, key=size_key)],
+        })
+    if not picks:
+        raise DataError(f"no run has a finite {metric!r}: nothing to right-size (check the runs' evaluations)")
+    return picks
+
+
+def _summary(row: dict[str, Any], metric: str) -> dict[str, Any]:
+    return {"label": row["label"], "error": row["errors"][metric], "size": row.get("size", {}),
+            "time_to_answer_s": row.get("time_to_answer_s"), "run_dir": row.get("run_dir")}
+
+
+def render_markdown(picks: list[dict[str, Any]]) -> str:
+    lines = []
+    for t in picks:
+        label = HOPPER_ERRORS[t["metric"]]
+        pick, best = t["pick"], t["best"]
+        lines += [f"### {t['data_name']}, split {t['split']}, conditioning {', '.join(t['conditioning'])}", "",
+                  (f"Pick: **{pick['label']}** ({label} {pick['error']:.2f}; best {best['error']:.2f} by "
+                   f"{best['label']}; tolerance {100 * t['tolerance']:.0f} %)."), "",
+                  f"| run | parameters | latent tokens | training queries | time to answer [s] | {label} | |",
+                  "|---|---|---|---|---|---|---|"]
+        for c in t["candidates"]:
+            s = c["size"]
+            mark = "pick" if c["label"] == t["pick"]["label"] else ("within" if c["label"] in t["within_tolerance"]
+                                                                     else "")
+            time_s = c["time_to_answer_s"]
+            lines.append(f"| {c['label']} | {_cell(s.get('parameters'), ',')} | {_cell(s.get('n_latent_tokens'))} | "
+                         f"{_cell(s.get('train_queries'))} | {_cell(time_s, '.3g')} | {c['error']:.2f} | {mark} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _cell(v: Any, fmt: str = "") -> str:
+    return "-" if v is None else format(v, fmt)
+
+
+def main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog=f"python -m neuraldem.bench {NAME}", description=__doc__.split("\n")[0])
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--runs", type=Path, nargs="+", help="folders holding evaluated runs (timed here)")
+    src.add_argument("--from", dest="from_file", type=Path, help="a speed_accuracy.json (its surrogate points)")
+    p.add_argument("--metric", default="drainage_mae_pct_of_mean", choices=list(HOPPER_ERRORS))
+    p.add_argument("--tolerance", type=float, default=0.10, help="0.10 = within 10 %% of the best error")
+    p.add_argument("--skip-unevaluated", action="store_true")
+    p.add_argument("--repeats", type=int, default=3, help="timed answers per run (median), with --runs")
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--out", type=Path, default=None, help=f"default results/bench/{NAME}.json (+ .md)")
+    a = p.parse_args(argv)
+    checks.positive_int("repeats", a.repeats)
+    checks.positive_int("threads", a.threads)
+    machine = machine_info()
+    if a.from_file is not None:
+        rows = [pt for pt in read_results(a.from_file, "speed_accuracy")["results"]["points"]
+                if pt["method"] == "surrogate"]
+        source = f"surrogate points of {a.from_file}"
+    else:
+        runs, _ = collect_runs(a.runs, a.skip_unevaluated)
+        rows = surrogate_points(runs, a.repeats, a.threads, None)
+        source = "runs timed by this command"
+    picks = right_size(rows, a.metric, a.tolerance)
+    path = write_results(NAME, {"source": source, "picks": picks}, command=command_line(NAME, argv),
+                         path=a.out or default_path(NAME), machine=machine)
+    text = render_markdown(picks)
+    path.with_suffix(".md").write_text(text)
+    print(text)
+    print(f"wrote {path} and {path.with_suffix('.md')}")
+    return 0

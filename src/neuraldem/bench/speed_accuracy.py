@@ -1,0 +1,170 @@
+"""The speed-accuracy chart: time to answer one trajectory against the error of what a practitioner asks.
+
+`python -m neuraldem.bench speed_accuracy --runs DIR... [--solver-variants same:1 fewer:0.5 ...]
+[--solver-sims 3] [--reuse-solver FILE] [--skip-solver]` writes results/bench/speed_accuracy.json, .png, .md.
+
+Points: every evaluated surrogate run under the folders (errors from its evaluation/metrics.json, time to
+answer measured here), and LIGGGHTS at cheaper settings scored against the dataset's reference runs of the
+same parameters (`bench.solver_variants`). One panel per quantity (drainage time, residual, outflow); the
+Pareto front of each panel is what users should choose from.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Any
+
+from neuraldem.bench import plots
+from neuraldem.bench.hopper_runs import HOPPER_ERRORS, EvaluatedRun, collect_runs, time_to_answer
+from neuraldem.bench.hopper_solver import dataset_scene, default_workdir, split_records
+from neuraldem.bench.pareto import pareto_front
+from neuraldem.bench.report import (
+    command_line,
+    default_path,
+    machine_info,
+    read_results,
+    warn_if_busy,
+    write_results,
+)
+from neuraldem.bench.solver_variants import DEFAULT_VARIANTS, SolverVariant, score_variant
+from neuraldem.bench.timing import SYSTEM_CLOCK, Clock
+from neuraldem.config import checks
+from neuraldem.errors import ConfigError
+from neuraldem.paths import data_dir
+
+NAME = "speed_accuracy"
+
+
+def runs_of_one_scene(runs: list[EvaluatedRun], scene: str | None) -> list[EvaluatedRun]:
+    """A chart compares answers to the same questions: runs of one dataset (`scene` picks it if several)."""
+    names = sorted({r.data_name for r in runs})
+    if scene is not None:
+        picked = [r for r in runs if r.data_name == scene]
+        if not picked:
+            raise ConfigError(f"--scene {scene!r}: no evaluated run of that dataset; the runs are of {names}")
+        return picked
+    if len(names) > 1:
+        raise ConfigError(f"the runs are of several datasets {names}: pick one with --scene NAME")
+    return runs
+
+
+def surrogate_points(runs: list[EvaluatedRun], repeats: int, threads: int, dataset: Path | None,
+                     clock: Clock = SYSTEM_CLOCK) -> list[dict[str, Any]]:
+    points = []
+    for run in runs:
+        run.timing = time_to_answer(run, repeats, threads, dataset, clock).as_dict()
+        points.append(run.as_point())
+    return points
+
+
+def solver_points(dataset_dir: Path, variants: list[SolverVariant], n_sims: int, split: str,
+                  workdir: Path) -> list[dict[str, Any]]:
+    """Each variant run for the parameters of the first `n_sims` test simulations of `split`."""
+    base, m = dataset_scene(dataset_dir)
+    records = split_records(m, split)[:checks.positive_int("solver_sims", n_sims)]
+    cache: dict[str, dict[str, float]] = {}
+    return [score_variant(v, base, records, dataset_dir, workdir, reference_cache=cache) for v in variants]
+
+
+def reference_time(dataset_dir: Path, solver: list[dict[str, Any]]) -> dict[str, Any]:
+    """LIGGGHTS at the reference settings: re-run here (variant same:1) if present, else the CPU seconds the
+    manifest recorded at datagen for the same simulations."""
+    for p in solver:
+        if p.get("variant") == "same:1" and p.get("time_to_answer_s") is not None:
+            return {"time_to_answer_s": p["time_to_answer_s"], "source": "measured (variant same:1)"}
+    _, m = dataset_scene(dataset_dir)
+    sims = {s["sim_id"] for p in solver for s in p.get("simulations", [])} or {r.sim_id for r in m.usable()}
+    cpu = sorted(m.record(s).cost["cpu_s"] for s in sims if "cpu_s" in m.record(s).cost)
+    if not cpu:
+        return {}
+    return {"time_to_answer_s": cpu[len(cpu) // 2], "source": "dataset manifest: CPU s recorded at datagen"}
+
+
+def chart(points: list[dict[str, Any]]) -> dict[str, list[int]]:
+    """Pareto front (indices into `points`) per quantity, over the points with a time and that error."""
+    fronts = {}
+    for key in HOPPER_ERRORS:
+        xy = [(_num(p.get("time_to_answer_s")), _num(p.get("errors", {}).get(key))) for p in points]
+        fronts[key] = pareto_front(xy)
+    return fronts
+
+
+def _num(v: Any) -> float:
+    return float(v) if isinstance(v, (int, float)) and math.isfinite(v) else float("nan")
+
+
+def render_markdown(results: dict[str, Any]) -> str:
+    keys = list(HOPPER_ERRORS)
+    on_front = {k: set(results["pareto_front"][k]) for k in keys}
+    lines = ["| method | point | time to answer [s] | " + " | ".join(HOPPER_ERRORS[k] for k in keys) + " |",
+             "|---|---|---|" + "---|" * len(keys)]
+    order = sorted(range(len(results["points"])),
+                   key=lambda i: _num(results["points"][i].get("time_to_answer_s")))
+    for i in order:
+        p = results["points"][i]
+        cells = []
+        for k in keys:
+            v = _num(p.get("errors", {}).get(k))
+            cells.append("failed" if math.isnan(v) else f"{v:.2f}{' *' if i in on_front[k] else ''}")
+        t = _num(p.get("time_to_answer_s"))
+        lines.append(f"| {p['method']} | {p['label']} | {'-' if math.isnan(t) else f'{t:.3g}'} | "
+                     + " | ".join(cells) + " |")
+    ref = results.get("reference") or {}
+    lines += ["", "`*` = on the Pareto front of that quantity (no point is both faster and more accurate)."]
+    if ref:
+        lines.append(f"LIGGGHTS reference: {ref['time_to_answer_s']:.3g} s per trajectory ({ref['source']}).")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog=f"python -m neuraldem.bench {NAME}", description=__doc__.split("\n")[0])
+    p.add_argument("--runs", type=Path, nargs="+", required=True, help="folders holding evaluated training runs")
+    p.add_argument("--scene", default=None, help="dataset name, when the runs are of several")
+    p.add_argument("--dataset", type=Path, default=None, help="dataset dir (default: the one the runs recorded)")
+    p.add_argument("--skip-unevaluated", action="store_true", help="leave out runs without evaluation/metrics.json")
+    p.add_argument("--repeats", type=int, default=3, help="timed surrogate answers per run (median)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads of the surrogate")
+    p.add_argument("--solver-variants", nargs="+", default=list(DEFAULT_VARIANTS), metavar="KIND:FACTOR",
+                   help="cheaper LIGGGHTS settings (see neuraldem.bench.solver_variants)")
+    p.add_argument("--solver-sims", type=int, default=3, help="parameter sets each variant is run for")
+    p.add_argument("--reuse-solver", type=Path, default=None,
+                   help="take the LIGGGHTS points from an earlier speed_accuracy.json instead of running")
+    p.add_argument("--skip-solver", action="store_true", help="surrogate points only")
+    p.add_argument("--workdir", type=Path, default=None, help=f"solver runs (default <data dir>/bench/{NAME})")
+    p.add_argument("--out", type=Path, default=None, help=f"default results/bench/{NAME}.json (+ .png, .md)")
+    a = p.parse_args(argv)
+    checks.positive_int("repeats", a.repeats)
+    checks.positive_int("threads", a.threads)
+    variants = [SolverVariant.parse(s) for s in a.solver_variants]
+    runs, notes = collect_runs(a.runs, a.skip_unevaluated)
+    runs = runs_of_one_scene(runs, a.scene)
+    dataset = a.dataset or next((r.dataset for r in runs if (r.dataset / "manifest.json").is_file()),
+                                data_dir() / "datasets" / runs[0].data_name)
+    machine = machine_info()
+    warning = warn_if_busy(machine)
+    points = surrogate_points(runs, a.repeats, a.threads, a.dataset)
+    solver: list[dict[str, Any]] = []
+    reference: dict[str, Any] = {}
+    if a.reuse_solver is not None:
+        old = read_results(a.reuse_solver, NAME)["results"]
+        solver = [p for p in old["points"] if p["method"] != "surrogate"]
+        reference = old.get("reference") or {}
+        notes.append(f"LIGGGHTS points taken from {a.reuse_solver} (not re-run)")
+    elif not a.skip_solver:
+        solver = solver_points(dataset, variants, a.solver_sims, runs[0].split, a.workdir or default_workdir(NAME))
+        reference = reference_time(dataset, solver)
+    points += solver
+    results = {"scene": runs[0].data_name, "dataset": str(dataset), "quantities": HOPPER_ERRORS,
+               "points": points, "pareto_front": chart(points), "reference": reference,
+               "threads": {"surrogate_torch_threads": a.threads, "solver_threads": 1}, "notes": notes,
+               "warning": warning}
+    path = write_results(NAME, results, command=command_line(NAME, argv), path=a.out or default_path(NAME),
+                         machine=machine)
+    figure = plots.speed_accuracy_figure(results, path.with_suffix(".png"))
+    text = render_markdown(results)
+    path.with_suffix(".md").write_text(text)
+    print(text)
+    print(f"wrote {path}, {figure} and {path.with_suffix('.md')}")
+    return 0

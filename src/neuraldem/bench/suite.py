@@ -1,0 +1,102 @@
+"""Every hopper chart and table in one command, and redrawing them from their results files.
+
+`python -m neuraldem.bench all --runs DIR... --ckpt CKPT [--dataset DIR] [--no-solver] [--out-dir DIR]`
+runs hopper_speed, hopper_scaling, speed_accuracy and right_sizing in turn (each also runs on its own).
+With --no-solver nothing runs LIGGGHTS: solver costs come from the dataset manifest and the LIGGGHTS parts of
+earlier results in --out-dir (where there are none, the chart has no solver points).
+
+`python -m neuraldem.bench render [--out-dir DIR]` redraws every figure and table from the JSON files in
+--out-dir, measuring nothing (e.g. after a change of the plotting code).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from neuraldem.bench import plots
+from neuraldem.bench.report import read_results
+from neuraldem.errors import DataError
+from neuraldem.paths import results_dir
+
+
+def default_out_dir() -> Path:
+    return results_dir() / "bench"
+
+
+def plan(runs: list[Path], ckpt: Path, dataset: Path | None, out_dir: Path, no_solver: bool,
+         repeats: int, threads: int) -> list[tuple[str, list[str]]]:
+    """The benchmark commands `all` runs, in order (name, argv)."""
+    common = ["--repeats", str(repeats), "--threads", str(threads)]
+    data = ["--dataset", str(dataset)] if dataset else []
+    runs_args = ["--runs", *map(str, runs)]
+    speed = ["--ckpt", str(ckpt), *data, *common, "--out", str(out_dir / "hopper_speed.json")]
+    scaling = ["--ckpt", str(ckpt), *data, *common, "--out", str(out_dir / "hopper_scaling.json")]
+    accuracy = [*runs_args, *data, *common, "--out", str(out_dir / "speed_accuracy.json")]
+    if no_solver:
+        speed.append("--reuse-dataset")
+        scaling += _reuse_or_skip(out_dir / "hopper_scaling.json")
+        accuracy += _reuse_or_skip(out_dir / "speed_accuracy.json")
+    sizing = ["--from", str(out_dir / "speed_accuracy.json"), "--out", str(out_dir / "right_sizing.json")]
+    return [("hopper_speed", speed), ("hopper_scaling", scaling), ("speed_accuracy", accuracy),
+            ("right_sizing", sizing)]
+
+
+def _reuse_or_skip(previous: Path) -> list[str]:
+    return ["--reuse-solver", str(previous)] if previous.is_file() else ["--skip-solver"]
+
+
+def run_all(argv: list[str]) -> int:
+    from neuraldem.bench.__main__ import entry_point
+
+    p = argparse.ArgumentParser(prog="python -m neuraldem.bench all", description=__doc__.split("\n")[0])
+    p.add_argument("--runs", type=Path, nargs="+", required=True, help="folders holding evaluated training runs")
+    p.add_argument("--ckpt", type=Path, required=True, help="the hopper checkpoint timed against LIGGGHTS")
+    p.add_argument("--dataset", type=Path, default=None, help="dataset dir of the checkpoint's scene")
+    p.add_argument("--no-solver", action="store_true", help="run no LIGGGHTS (reuse recorded solver costs)")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--out-dir", type=Path, default=None, help="default results/bench")
+    a = p.parse_args(argv)
+    out_dir = a.out_dir or default_out_dir()
+    for name, args in plan(a.runs, a.ckpt, a.dataset, out_dir, a.no_solver, a.repeats, a.threads):
+        print(f"==> python -m neuraldem.bench {name} {' '.join(args)}", flush=True)
+        rc = entry_point(name)(args)
+        if rc != 0:
+            return rc
+    return 0
+
+
+def render(argv: list[str]) -> int:
+    from neuraldem.bench import hopper_speed, right_sizing, speed_accuracy
+
+    p = argparse.ArgumentParser(prog="python -m neuraldem.bench render", description="redraw from results")
+    p.add_argument("--out-dir", type=Path, default=None, help="default results/bench")
+    a = p.parse_args(argv)
+    out_dir = a.out_dir or default_out_dir()
+    written = []
+    for name in ("hopper_speed", "hopper_scaling", "speed_accuracy", "right_sizing"):
+        path = out_dir / f"{name}.json"
+        if not path.is_file():
+            continue
+        payload = read_results(path, name)
+        results = payload["results"]
+        if name == "hopper_speed":
+            written.append(_write(path.with_suffix(".md"), hopper_speed.render_markdown(results, payload["machine"])))
+        elif name == "hopper_scaling":
+            written.append(plots.scaling_figure(results, path.with_suffix(".png")))
+        elif name == "speed_accuracy":
+            written.append(plots.speed_accuracy_figure(results, path.with_suffix(".png")))
+            written.append(_write(path.with_suffix(".md"), speed_accuracy.render_markdown(results)))
+        else:
+            written.append(_write(path.with_suffix(".md"), right_sizing.render_markdown(results["picks"])))
+    if not written:
+        raise DataError(f"no benchmark results in {out_dir}: run `python -m neuraldem.bench all ...` first")
+    for path in written:
+        print(f"wrote {path}")
+    return 0
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
