@@ -1,6 +1,9 @@
 import json
 
-from neuraldem.bench.report import default_path, machine_info, write_results
+import pytest
+
+from neuraldem.bench.report import command_line, default_path, machine_info, read_results, warn_if_busy, write_results
+from neuraldem.errors import DataError
 from neuraldem.paths import results_dir
 
 
@@ -19,3 +22,27 @@ def test_write_results(tmp_path):
 def test_machine_info_describes_this_machine():
     info = machine_info()
     assert info["cpu_count"] >= 1 and info["torch"] and info["cpu_model"]
+
+
+def test_write_is_atomic_and_read_back(tmp_path):
+    path = write_results("demo", {"x": 1}, command="c", path=tmp_path / "demo.json", machine={})
+    assert read_results(path, "demo")["results"] == {"x": 1}
+    assert [p.name for p in tmp_path.iterdir()] == ["demo.json"]  # no temporary file left behind
+
+
+def test_read_results_errors(tmp_path):
+    with pytest.raises(DataError, match="no results at"):
+        read_results(tmp_path / "none.json", "demo")
+    (tmp_path / "bad.json").write_text("{")
+    with pytest.raises(DataError, match="not valid JSON"):
+        read_results(tmp_path / "bad.json", "demo")
+    path = write_results("other", {}, command="c", path=tmp_path / "other.json", machine={})
+    with pytest.raises(DataError, match="holds results of benchmark 'other', not 'demo'"):
+        read_results(path, "demo")
+
+
+def test_busy_machine_warning(capsys):
+    assert warn_if_busy({"load_average_1_5_15min": [0.1, 0.1, 0.1]}) is None
+    assert "quiet machine" in warn_if_busy({"load_average_1_5_15min": [1.9, 1.0, 1.0]})
+    assert "load average 1.90" in capsys.readouterr().err
+    assert command_line("x", ["--a", "b c"]) == "python -m neuraldem.bench x --a 'b c'"

@@ -58,6 +58,7 @@ from neuraldem.errors import ConfigError, DataError, SolverError
 from neuraldem.eval.hopper_predict import time_grid
 from neuraldem.paths import data_dir
 from neuraldem.sim.hopper import STATUS_FAILED, HopperRunResult, HopperScene
+from neuraldem.sim.liggghts import find_liggghts
 
 NAME = "hopper_scaling"
 DEFAULT_PARTICLES = (2000, 5000, 10000, 20000, 50000)
@@ -189,11 +190,14 @@ def main(argv: list[str]) -> int:
     params = {**DEFAULT_PARAMS, **parse_assignments(a.param, "--param", "alpha=30")}
     for key in params:
         checks.one_of("--param", key, DEFAULT_PARAMS)
-    checks.positive_int("steps", a.steps)
+    for key in ("steps", "token_queries", "threads", "repeats", "solver_repeats"):
+        checks.positive_int(key, getattr(a, key))
     checks.positive_int("full_up_to", a.full_up_to, allow_zero=True)
-    checks.positive_int("token_queries", a.token_queries)
-    checks.positive_int("threads", a.threads)
-    checks.positive_int("repeats", a.repeats)
+    for key in ("particles", "queries", "tokens"):
+        for v in getattr(a, key):
+            checks.positive_int(key, v)
+    if a.n_times is not None:
+        checks.positive_int("n_times", a.n_times)
     profile = None
     if (a.drain_time is None) != (a.remaining_fraction is None):
         raise ConfigError("--drain-time and --remaining-fraction go together (both describe the full drain): "
@@ -201,25 +205,28 @@ def main(argv: list[str]) -> int:
     if a.drain_time is not None:
         profile = DrainProfile(checks.positive("drain_time", a.drain_time),
                                checks.fraction("remaining_fraction", a.remaining_fraction), "command line")
-    machine = machine_info()
-    warning = warn_if_busy(machine)
-    dataset = a.dataset or data_dir() / "datasets" / "hopper_small"
+    # everything that can fail is checked before the first measurement
+    reused = reused_solver_part(a.reuse_solver) if a.reuse_solver is not None else None
     if a.ckpt is not None:
         surrogate, net_cfg = load_surrogate(a.ckpt), net_config_of(a.ckpt)
         dataset = a.dataset or data_dir() / "datasets" / surrogate.metadata["data_name"]
-        n_times = a.n_times or len(time_grid(surrogate.predictor.norm.horizon, _snapshot_interval(dataset)))
     else:
-        surrogate = untrained_surrogate(a.model, CONDITIONING)
-        net_cfg, n_times = a.model, a.n_times or 81
+        surrogate, net_cfg = untrained_surrogate(a.model, CONDITIONING), a.model
+        dataset = a.dataset or data_dir() / "datasets" / "hopper_small"
+    run_solver = reused is None and not a.skip_solver
+    if run_solver or a.ckpt is not None:
+        base, _ = dataset_scene(dataset)
+    if run_solver:
+        find_liggghts()
+    n_times = a.n_times or (len(time_grid(surrogate.predictor.norm.horizon, base.snapshot_interval))
+                            if a.ckpt is not None else 81)
+    machine = machine_info()
+    warning = warn_if_busy(machine)
     results: dict[str, Any] = {"warning": warning, "surrogate": surrogate_scaling(
         surrogate, net_cfg, a.queries, a.tokens, a.token_queries, n_times, a.repeats, a.threads)}
-    if a.reuse_solver is not None:
-        results["solver"] = read_results(a.reuse_solver, NAME)["results"].get("solver")
-        if results["solver"] is None:
-            raise DataError(f"{a.reuse_solver} has no LIGGGHTS part (it was run with --skip-solver): run "
-                            f"`python -m neuraldem.bench {NAME}` without --skip-solver once")
-        results["solver"]["reused_from"] = str(a.reuse_solver)
-    elif not a.skip_solver:
+    if reused is not None:
+        results["solver"] = reused
+    elif run_solver:
         results["solver"] = solver_scaling(dataset, a.particles, a.steps, a.full_up_to, params, profile,
                                            a.solver_repeats, a.workdir or default_workdir(NAME))
     path = write_results(NAME, results, command=command_line(NAME, argv), path=a.out or default_path(NAME),
@@ -230,9 +237,13 @@ def main(argv: list[str]) -> int:
     return 0
 
 
-def _snapshot_interval(dataset: Path) -> float:
-    scene, _ = dataset_scene(dataset)
-    return scene.snapshot_interval
+def reused_solver_part(path: Path) -> dict[str, Any]:
+    """The LIGGGHTS part of an earlier hopper_scaling.json (labelled as reused)."""
+    solver = read_results(path, NAME)["results"].get("solver")
+    if solver is None:
+        raise DataError(f"{path} has no LIGGGHTS part (it was run with --skip-solver): run "
+                        f"`python -m neuraldem.bench {NAME}` without --skip-solver once")
+    return {**solver, "reused_from": str(path)}
 
 
 def summary(results: dict[str, Any]) -> str:

@@ -31,8 +31,9 @@ from neuraldem.bench.report import (
 from neuraldem.bench.solver_variants import DEFAULT_VARIANTS, SolverVariant, score_variant
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock
 from neuraldem.config import checks
-from neuraldem.errors import ConfigError
+from neuraldem.errors import ConfigError, DataError
 from neuraldem.paths import data_dir
+from neuraldem.sim.liggghts import find_liggghts
 
 NAME = "speed_accuracy"
 
@@ -142,17 +143,28 @@ def main(argv: list[str]) -> int:
     runs = runs_of_one_scene(runs, a.scene)
     dataset = a.dataset or next((r.dataset for r in runs if (r.dataset / "manifest.json").is_file()),
                                 data_dir() / "datasets" / runs[0].data_name)
-    machine = machine_info()
-    warning = warn_if_busy(machine)
-    points = surrogate_points(runs, a.repeats, a.threads, a.dataset)
+    # everything that can fail is checked before the first measurement
     solver: list[dict[str, Any]] = []
     reference: dict[str, Any] = {}
+    run_solver = a.reuse_solver is None and not a.skip_solver
     if a.reuse_solver is not None:
         old = read_results(a.reuse_solver, NAME)["results"]
+        if old.get("scene") != runs[0].data_name:
+            raise DataError(f"--reuse-solver {a.reuse_solver} holds LIGGGHTS points of scene {old.get('scene')!r}, "
+                            f"the runs are of {runs[0].data_name!r}: pass results of the same scene")
         solver = [p for p in old["points"] if p["method"] != "surrogate"]
         reference = old.get("reference") or {}
         notes.append(f"LIGGGHTS points taken from {a.reuse_solver} (not re-run)")
-    elif not a.skip_solver:
+    if run_solver:
+        checks.positive_int("solver_sims", a.solver_sims)
+        base, _ = dataset_scene(dataset)
+        for v in variants:
+            v.apply(base)
+        find_liggghts()
+    machine = machine_info()
+    warning = warn_if_busy(machine)
+    points = surrogate_points(runs, a.repeats, a.threads, a.dataset)
+    if run_solver:
         solver = solver_points(dataset, variants, a.solver_sims, runs[0].split, a.workdir or default_workdir(NAME))
         reference = reference_time(dataset, solver)
     points += solver

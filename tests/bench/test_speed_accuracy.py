@@ -1,0 +1,84 @@
+"""The speed-accuracy chart: fronts per quantity, the scene check, and the command on real tiny runs."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from neuraldem.bench.__main__ import main as bench_main
+from neuraldem.bench.speed_accuracy import chart, render_markdown, runs_of_one_scene
+from neuraldem.errors import ConfigError
+
+
+def _point(method: str, label: str, t: float | None, drain: float, residual: float, outflow: float) -> dict:
+    return {"method": method, "label": label, "time_to_answer_s": t,
+            "errors": {"drainage_mae_pct_of_mean": drain, "residual_mae_pp": residual, "outflow_rel_err_pct": outflow}}
+
+
+def test_fronts_per_quantity():
+    points = [_point("surrogate", "small", 0.01, 20.0, 5.0, 30.0),
+              _point("surrogate", "big", 0.05, 10.0, 6.0, 30.0),
+              _point("liggghts", "fewer", 30.0, 15.0, 1.0, 10.0),
+              _point("liggghts", "dt x5", None, math.nan, math.nan, math.nan)]  # failed: never on a front
+    fronts = chart(points)
+    assert fronts == {"drainage_mae_pct_of_mean": [0, 1], "residual_mae_pp": [0, 2], "outflow_rel_err_pct": [0, 2]}
+    text = render_markdown({"points": points, "pareto_front": fronts, "reference": {}})
+    assert "| surrogate | small | 0.01 | 20.00 * | 5.00 * | 30.00 * |" in text
+    assert "| liggghts | dt x5 | - | failed | failed | failed |" in text
+
+
+def test_runs_of_several_scenes_need_a_choice():
+    class Run:
+        def __init__(self, name: str) -> None:
+            self.data_name = name
+
+    runs = [Run("hopper_small"), Run("hopper_tiny")]
+    with pytest.raises(ConfigError, match=r"several datasets \['hopper_small', 'hopper_tiny'\]: pick one with --scene"):
+        runs_of_one_scene(runs, None)
+    assert runs_of_one_scene(runs, "hopper_tiny") == [runs[1]]
+    with pytest.raises(ConfigError, match="no evaluated run of that dataset"):
+        runs_of_one_scene(runs, "fb_tiny")
+
+
+def test_surrogate_points_only(evaluated_runs: Path, tmp_path: Path):
+    out = tmp_path / "sa.json"
+    assert bench_main(["speed_accuracy", "--runs", str(evaluated_runs), "--skip-solver", "--repeats", "1",
+                       "--out", str(out)]) == 0
+    r = json.loads(out.read_text())["results"]
+    assert [p["label"] for p in r["points"]] == ["multirun/0", "tiny"]
+    assert all(p["time_to_answer_s"] > 0 and p["timing"]["repeats"] == 1 for p in r["points"])
+    assert set(r["pareto_front"]) == {"drainage_mae_pct_of_mean", "residual_mae_pp", "outflow_rel_err_pct"}
+    assert out.with_suffix(".png").is_file() and "Pareto front" in out.with_suffix(".md").read_text()
+
+
+@pytest.mark.solver
+def test_with_a_cheaper_solver_and_reuse(evaluated_runs: Path, tmp_path: Path):
+    out = tmp_path / "sa.json"
+    argv = ["speed_accuracy", "--runs", str(evaluated_runs / "tiny"), "--repeats", "1", "--solver-variants",
+            "fewer:0.5", "--solver-sims", "1", "--workdir", str(tmp_path / "w"), "--out", str(out)]
+    assert bench_main(argv) == 0
+    r = json.loads(out.read_text())["results"]
+    solver = [p for p in r["points"] if p["method"] == "liggghts"]
+    assert [p["variant"] for p in solver] == ["fewer:0.5"] and solver[0]["errors"]
+    assert r["reference"]["source"].startswith("dataset manifest")  # no same:1 variant was run
+    again = tmp_path / "again.json"
+    assert bench_main(["speed_accuracy", "--runs", str(evaluated_runs / "tiny"), "--repeats", "1",
+                       "--reuse-solver", str(out), "--out", str(again)]) == 0
+    r2 = json.loads(again.read_text())["results"]
+    assert [p["label"] for p in r2["points"] if p["method"] == "liggghts"] == ["LIGGGHTS fewer x0.5"]
+    assert any("not re-run" in n for n in r2["notes"])
+
+
+def test_bad_inputs_are_one_line(evaluated_runs: Path, tmp_path: Path, capsys: pytest.CaptureFixture):
+    out = ["--out", str(tmp_path / "x.json")]
+    assert bench_main(["speed_accuracy", "--runs", str(tmp_path), *out]) == 2
+    assert "no evaluated hopper run" in capsys.readouterr().err
+    assert bench_main(["speed_accuracy", "--runs", str(evaluated_runs), "--solver-variants", "finer:2", *out]) == 2
+    assert "KIND:FACTOR" in capsys.readouterr().err
+    assert bench_main(["speed_accuracy", "--runs", str(evaluated_runs), "--reuse-solver",
+                       str(tmp_path / "none.json"), *out]) == 2
+    assert "no results at" in capsys.readouterr().err
+    assert not (tmp_path / "x.json").exists()
