@@ -42,7 +42,7 @@ def test_ratios_from_known_timings(monkeypatch: pytest.MonkeyPatch):
 def test_reuse_dataset_takes_the_recorded_cost(tiny_checkpoint: Path, hopper_tiny_dataset: Path, tmp_path: Path):
     out = tmp_path / "speed.json"
     argv = ["hopper_speed", "--ckpt", str(tiny_checkpoint), "--dataset", str(hopper_tiny_dataset), "--reuse-dataset",
-            "--repeats", "1", "--reduced-queries", "25", "--out", str(out)]
+            "--repeats", "1", "--reduced-queries", "25", "--time-grid", "solver", "--out", str(out)]
     assert bench_main(argv) == 0
     data = json.loads(out.read_text())
     assert data["command"].startswith("python -m neuraldem.bench hopper_speed --ckpt")
@@ -58,6 +58,8 @@ def test_reuse_dataset_takes_the_recorded_cost(tiny_checkpoint: Path, hopper_tin
         assert row["speedup_cpu"] == pytest.approx(row["solver_cpu_s"] / row["surrogate_cpu_s"])
         assert row["solver_cpu_s"] > sim["median_cpu_s"]  # simulation + post-processing
     assert r["details"]["25 query points"]["question"]["n_points"] == 25
+    # --time-grid solver: the surrogate answers at exactly the stored run's snapshot times
+    assert r["details"]["25 query points"]["question"]["n_times"] == r["solver_trajectory"]["n_snapshots"]
     assert "LIGGGHTS serial" in out.with_suffix(".md").read_text()
 
 

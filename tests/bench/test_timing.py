@@ -5,7 +5,17 @@ from __future__ import annotations
 import pytest
 import torch
 
-from neuraldem.bench.timing import Clock, Sample, Timing, add, ratio, speed_ratio, time_call, torch_threads
+from neuraldem.bench.timing import (
+    Clock,
+    Sample,
+    Timing,
+    add,
+    ratio,
+    side_by_side,
+    speed_ratio,
+    time_call,
+    torch_threads,
+)
 from neuraldem.errors import ConfigError
 
 
@@ -60,3 +70,12 @@ def test_torch_threads_restores_the_setting():
     with torch_threads(1):
         assert torch.get_num_threads() == 1
     assert torch.get_num_threads() == before
+
+
+def test_side_by_side_adds_the_solver_parts():
+    sim = Timing([Sample(60.0, 50.0), Sample(62.0, 52.0), Sample(70.0, 51.0)])  # medians 62 / 51
+    post = Timing([Sample(2.0, 1.0)])
+    model = Timing([Sample(0.064, 0.053), Sample(0.1, 0.1), Sample(0.06, 0.05)])  # medians 0.064 / 0.053
+    row = side_by_side([sim, post], model, "all particle positions")
+    assert row["solver_wall_s"] == 64.0 and row["solver_cpu_s"] == 52.0
+    assert row["speedup_wall"] == pytest.approx(1000.0) and row["speedup_cpu"] == pytest.approx(52.0 / 0.053)

@@ -27,7 +27,7 @@ from neuraldem.bench.hopper_surrogate import (
     surrogate_dataset,
 )
 from neuraldem.bench.report import command_line, default_path, machine_info, warn_if_busy, write_results
-from neuraldem.bench.timing import SYSTEM_CLOCK, Clock, Sample, Timing, add, speed_ratio, time_call, torch_threads
+from neuraldem.bench.timing import SYSTEM_CLOCK, Clock, Sample, Timing, side_by_side, time_call, torch_threads
 from neuraldem.config import checks
 from neuraldem.data.hopper_fields import capped_exit_times, trajectory_fields_at
 from neuraldem.data.hopper_store import HopperFile
@@ -37,6 +37,8 @@ from neuraldem.paths import data_dir
 from neuraldem.sim.hopper import STATUS_FAILED, HopperScene, HopperTrajectory
 
 NAME = "hopper_speed"
+# the surrogate's time grid: up to its horizon (every run's length, conservative) or the stored run's own snapshots
+TIME_GRIDS = ("horizon", "solver")
 RECORDED = "dataset manifest: CPU/wall seconds recorded when the dataset was generated, not re-run"
 
 
@@ -79,16 +81,6 @@ def dem_fields(traj: HopperTrajectory, q: Question, radius: float) -> Any:
 
 # ---- side by side
 
-def side_by_side(solver_run: Timing, solver_post: Timing, surrogate: Timing, question: str) -> dict[str, Any]:
-    """One row: the solver's answer (simulation + post-processing) against the surrogate's, from medians."""
-    slow = add(solver_run.median, solver_post.median)
-    fast = surrogate.median
-    speedup = speed_ratio(slow, fast)
-    return {"question": question, "solver_wall_s": slow.wall_s, "solver_cpu_s": slow.cpu_s,
-            "surrogate_wall_s": fast.wall_s, "surrogate_cpu_s": fast.cpu_s,
-            "speedup_wall": speedup["wall"], "speedup_cpu": speedup["cpu"]}
-
-
 def measure(surrogate: Surrogate, questions: dict[str, Question], solver_run: Timing, traj: HopperTrajectory,
             radius: float, repeats: int, threads: int, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
     """Time the surrogate and the solver's post-processing on every question (same clock, same threads)
@@ -98,7 +90,7 @@ def measure(surrogate: Surrogate, questions: dict[str, Question], solver_run: Ti
         for label, q in questions.items():
             post, _ = time_call(lambda q=q: dem_fields(traj, q, radius), repeats, warmup=0, clock=clock)
             model, _ = time_call(lambda q=q: answer(surrogate, q), repeats, warmup=1, clock=clock)
-            rows.append(side_by_side(solver_run, post, model, label))
+            rows.append(side_by_side([solver_run, post], model, label))
             details[label] = {"question": q.describe(), "solver_postprocess": post.as_dict(),
                               "surrogate": model.as_dict()}
     return {"side_by_side": rows, "details": details, "solver_simulation": solver_run.as_dict(),
@@ -109,7 +101,11 @@ def measure(surrogate: Surrogate, questions: dict[str, Question], solver_run: Ti
 def render_markdown(results: dict[str, Any], machine: dict[str, Any]) -> str:
     source = results["solver_simulation"]["source"]
     threads = results["threads"]["surrogate_torch_threads"]
+    full = results["details"]["all particle positions"]["question"]
     lines = [f"Scene {results['scene']}, simulation {results['sim_id']}; solver timing: {source}.",
+             (f"Surrogate time grid: {results.get('time_grid', 'horizon')} ({full['n_times']} snapshot times up to "
+              f"{full['horizon_s']:g} s); the stored LIGGGHTS run has {results['solver_trajectory']['n_snapshots']} "
+              f"snapshots up to {results['solver_trajectory']['duration_s']:g} s."),
              (f"Machine: {machine.get('cpu_model')} ({machine.get('cpu_count')} cores); surrogate {threads} torch "
               f"thread(s), LIGGGHTS serial. Medians of {results['surrogate_repeats']} surrogate / "
               f"{results['solver_simulation']['repeats']} solver repeats."),
@@ -130,14 +126,18 @@ def _x(v: float | None) -> str:
 
 def run(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: int, solver_repeats: int,
         reuse_dataset: bool, reduced_queries: int, threads: int, workdir: Path, keep_runs: bool = False,
-        clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
+        time_grid: str = "horizon", clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
     checks.positive_int("repeats", repeats)
     checks.positive_int("reduced_queries", reduced_queries)
+    checks.one_of("time_grid", time_grid, TIME_GRIDS)
     surrogate = load_surrogate(ckpt)
     dataset_dir, m = surrogate_dataset(surrogate, dataset_dir, data_dir() / "datasets")
     scene, _ = dataset_scene(dataset_dir)
     rec = pick_record(m, surrogate.metadata["split"], sim_id)
     full = full_question(m, dataset_dir, rec, surrogate.predictor.norm)
+    if time_grid == "solver":
+        with HopperFile(Path(dataset_dir) / str(rec.file)) as f:
+            full = Question(rec, f.times, full.points)
     questions = {"all particle positions": full,
                  f"{min(reduced_queries, len(full.points))} query points": reduced_question(full, reduced_queries)}
     if reuse_dataset:
@@ -146,7 +146,7 @@ def run(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: int, 
         solver_run, traj = solver_timing_measured(scene, rec, solver_repeats, workdir, keep_runs)
     radius = float(surrogate.metadata["occupancy_radius_d"]) * scene.material.diameter
     results = measure(surrogate, questions, solver_run, traj, radius, repeats, threads, clock)
-    results.update(scene=surrogate.metadata["data_name"], sim_id=rec.sim_id, params=rec.params,
+    results.update(scene=surrogate.metadata["data_name"], sim_id=rec.sim_id, params=rec.params, time_grid=time_grid,
                    checkpoint=str(Path(ckpt).resolve()), dataset=str(dataset_dir), surrogate_repeats=repeats,
                    surrogate_parameters=surrogate.parameters, surrogate_load_s=surrogate.load_s,
                    solver_trajectory={"n_snapshots": len(traj.times), "duration_s": float(traj.times[-1]),
@@ -166,6 +166,9 @@ def main(argv: list[str]) -> int:
                    help="take LIGGGHTS's cost from the manifest instead of re-running (labelled in the output)")
     p.add_argument("--reduced-queries", type=int, default=1000, help="points of the reduced question")
     p.add_argument("--threads", type=int, default=1, help="torch threads of the surrogate")
+    p.add_argument("--time-grid", choices=TIME_GRIDS, default="horizon",
+                   help="surrogate times: every snapshot up to the model's horizon (default; more than a run "
+                        "stores), or exactly the stored run's snapshot times")
     p.add_argument("--workdir", type=Path, default=None, help=f"solver runs (default <data dir>/bench/{NAME})")
     p.add_argument("--keep-runs", action="store_true", help="keep the LIGGGHTS run folders")
     p.add_argument("--out", type=Path, default=None, help=f"default results/bench/{NAME}.json (+ .md beside it)")
@@ -175,7 +178,7 @@ def main(argv: list[str]) -> int:
     machine = machine_info()
     warning = warn_if_busy(machine)
     results = run(a.ckpt, a.dataset, a.sim, a.repeats, a.solver_repeats, a.reuse_dataset, a.reduced_queries,
-                  a.threads, a.workdir or default_workdir(NAME), a.keep_runs)
+                  a.threads, a.workdir or default_workdir(NAME), a.keep_runs, a.time_grid)
     results["warning"] = warning
     out = a.out or default_path(NAME)
     path = write_results(NAME, results, command=command_line(NAME, argv), path=out, machine=machine)

@@ -95,6 +95,17 @@ def speed_ratio(slow: Sample, fast: Sample) -> dict[str, float | None]:
     return {"wall": ratio(slow.wall_s, fast.wall_s), "cpu": ratio(slow.cpu_s, fast.cpu_s)}
 
 
+def side_by_side(solver_parts: list[Timing], surrogate: Timing, question: str) -> dict[str, Any]:
+    """One row of a solver-vs-surrogate table: the solver's answer (the sum of the medians of its parts, e.g.
+    simulation + post-processing) against the surrogate's median, with the speed-ups."""
+    slow = add(*(part.median for part in solver_parts))
+    fast = surrogate.median
+    speedup = speed_ratio(slow, fast)
+    return {"question": question, "solver_wall_s": slow.wall_s, "solver_cpu_s": slow.cpu_s,
+            "surrogate_wall_s": fast.wall_s, "surrogate_cpu_s": fast.cpu_s,
+            "speedup_wall": speedup["wall"], "speedup_cpu": speedup["cpu"]}
+
+
 @contextmanager
 def torch_threads(n: int) -> Iterator[int]:
     """Run a block with `n` torch threads (intra-op), restoring the previous setting afterwards."""

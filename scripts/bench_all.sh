@@ -1,0 +1,12 @@
+#!/usr/bin/env bash
+# Every hopper benchmark chart and table (docs/benchmarks.md), with the thread settings the numbers are quoted
+# at: torch and LIGGGHTS on one thread each, passive OpenMP waiting. Run it on a quiet machine.
+#   bash scripts/bench_all.sh --runs GRID_DIR --ckpt GRID_DIR/hopper_micro-random/checkpoints/last.ckpt [...]
+# Extra arguments go to `python -m neuraldem.bench all` (e.g. --no-solver, --repeats 5, --out-dir DIR).
+set -euo pipefail
+PY=${PYTHON:-python}
+export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 OMP_WAIT_POLICY=PASSIVE WANDB_MODE=offline
+load=$(cut -d' ' -f1 /proc/loadavg 2>/dev/null || echo 0)
+echo "1-minute load average before the benchmarks: $load (should be near 0)"
+"$PY" -m neuraldem.bench all "$@"
+echo "redraw the charts and tables without measuring: $PY -m neuraldem.bench render [--out-dir DIR]"
