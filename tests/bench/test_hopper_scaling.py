@@ -21,6 +21,7 @@ HAND_MADE = {
                   "by_tokens": [{"n_latent_tokens": k, "n_queries": 5000, "median_wall_s": 0.01 * k} for k in (8, 16)]},
 }
 HAND_MADE["solver"]["points"][1]["full_run_measured"] = {"loop_s": 90.0}
+HAND_MADE["solver"]["points"].append({"n_particles": 50000, "failed": "LIGGGHTS shortened run failed: test"})
 
 
 def test_scaling_plot_is_written(tmp_path: Path):

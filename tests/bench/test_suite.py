@@ -23,10 +23,12 @@ def test_plan_measures_everything_by_default(tmp_path: Path):
 
 def test_plan_without_solver_reuses_what_exists(tmp_path: Path):
     (tmp_path / "hopper_scaling.json").write_text("{}")
-    steps = dict(plan([Path("/runs")], Path("/c.ckpt"), Path("/d"), tmp_path, no_solver=True, repeats=3, threads=2))
+    steps = dict(plan([Path("/runs")], Path("/c.ckpt"), Path("/d"), tmp_path, no_solver=True, repeats=3, threads=2,
+                      skip_unevaluated=True))
     assert "--reuse-dataset" in steps["hopper_speed"]
     assert steps["hopper_scaling"][-2:] == ["--reuse-solver", str(tmp_path / "hopper_scaling.json")]
     assert steps["speed_accuracy"][-1] == "--skip-solver"  # nothing earlier to reuse
+    assert "--skip-unevaluated" in steps["speed_accuracy"]
     assert "/d" in steps["speed_accuracy"]
 
 

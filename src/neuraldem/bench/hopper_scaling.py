@@ -125,7 +125,12 @@ def solver_scaling(dataset_dir: Path, counts: list[int], steps: int, full_up_to:
                    profile: DrainProfile | None, repeats: int, workdir: Path) -> dict[str, Any]:
     base, _ = dataset_scene(dataset_dir)
     profile = profile or drain_profile_of_dataset(dataset_dir)
-    points = [solver_point(base, n, steps, params, profile, repeats, n <= full_up_to, workdir) for n in counts]
+    points = []
+    for n in counts:  # a count whose run fails is recorded and the sweep goes on (the failure is a result)
+        try:
+            points.append(solver_point(base, n, steps, params, profile, repeats, n <= full_up_to, workdir))
+        except SolverError as err:
+            points.append({"n_particles": n, "failed": str(err)})
     return {"dataset": str(dataset_dir), "base_particles": base.n_particles, "params": params,
             "drain_profile": profile.as_dict(), "threads": SOLVER_THREADS, "points": points,
             "clock": "LIGGGHTS loop time (wall clock of its run commands); process wall/CPU from the OS"}
@@ -251,6 +256,9 @@ def summary(results: dict[str, Any]) -> str:
     if "solver" in results:
         lines.append("LIGGGHTS (settle + N steps measured; full run extrapolated):")
         for pt in results["solver"]["points"]:
+            if "failed" in pt:
+                lines.append(f"  {pt['n_particles']:>7} particles: {pt['failed']}")
+                continue
             m, e = pt["measured"], pt["extrapolated"]
             line = (f"  {pt['n_particles']:>7} particles: {m['drain_particle_steps_per_s']:.3g} particle-steps/s, "
                     f"full run ~{e['full_run_s']:.1f} s (extrapolated)")

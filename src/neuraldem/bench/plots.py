@@ -20,12 +20,12 @@ def scaling_figure(results: dict[str, Any], path: Path) -> Path:
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.6))
     solver = results.get("solver")
     if solver:
-        pts = solver["points"]
+        pts = [p for p in solver["points"] if "failed" not in p]
         n = [p["n_particles"] for p in pts]
         left.plot(n, [p["extrapolated"]["full_run_s"] for p in pts], "o--", mfc="none", color="C0",
                   label="LIGGGHTS full run (settle measured, drain extrapolated)")
         left.plot(n, [p["measured"]["process_wall_s"] for p in pts], ".:", color="C0", alpha=0.6,
-                  label=f"LIGGGHTS measured: settle + 2 x {pts[0]['steps_per_drain_chunk']} steps")
+                  label=f"LIGGGHTS measured: settle + 2 x {pts[0]['steps_per_drain_chunk'] if pts else '?'} steps")
         full = [p for p in pts if "full_run_measured" in p]
         if full:
             left.plot([p["n_particles"] for p in full], [p["full_run_measured"]["loop_s"] for p in full], "s",
@@ -37,17 +37,25 @@ def scaling_figure(results: dict[str, Any], path: Path) -> Path:
                   label=f"surrogate, all {sur['n_times']} times at Q query points")
         left.axhline(q[0]["median_wall_s"], color="C1", ls=":", lw=1,
                      label=f"surrogate at fixed Q = {q[0]['n_queries']} (flat in particle count)")
+    failed = [p for p in (solver or {}).get("points", []) if "failed" in p]
+    if failed:
+        fig.text(0.01, 0.01, "LIGGGHTS failed at N = " + ", ".join(str(p["n_particles"]) for p in failed)
+                 + " (reasons in the JSON)", fontsize=7, va="bottom")
     left.set(xscale="log", yscale="log", xlabel="particles N (LIGGGHTS) / query points Q (surrogate)",
              ylabel="seconds per trajectory (wall)", title="cost per trajectory")
     left.legend(fontsize=7)
     left.grid(True, which="both", alpha=0.3)
     tok = sur["by_tokens"]
     if tok:
-        right.plot([r["n_latent_tokens"] for r in tok], [r["median_wall_s"] for r in tok], "^-", color="C1")
+        tokens = [r["n_latent_tokens"] for r in tok]
+        right.plot(tokens, [r["median_wall_s"] for r in tok], "^-", color="C1")
         right.set(title=f"surrogate at Q = {tok[0]['n_queries']} query points")
     right.set(xscale="log", yscale="log", xlabel="latent tokens per branch", ylabel="seconds per trajectory (wall)")
+    if tok:
+        right.set_xticks(tokens, [str(k) for k in tokens])
+        right.xaxis.set_minor_formatter(NullFormatter())
     right.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.04 if failed else 0, 1, 1))
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path

@@ -25,7 +25,7 @@ def default_out_dir() -> Path:
 
 
 def plan(runs: list[Path], ckpt: Path, dataset: Path | None, out_dir: Path, no_solver: bool,
-         repeats: int, threads: int) -> list[tuple[str, list[str]]]:
+         repeats: int, threads: int, skip_unevaluated: bool = False) -> list[tuple[str, list[str]]]:
     """The benchmark commands `all` runs, in order (name, argv)."""
     common = ["--repeats", str(repeats), "--threads", str(threads)]
     data = ["--dataset", str(dataset)] if dataset else []
@@ -33,6 +33,8 @@ def plan(runs: list[Path], ckpt: Path, dataset: Path | None, out_dir: Path, no_s
     speed = ["--ckpt", str(ckpt), *data, *common, "--out", str(out_dir / "hopper_speed.json")]
     scaling = ["--ckpt", str(ckpt), *data, *common, "--out", str(out_dir / "hopper_scaling.json")]
     accuracy = [*runs_args, *data, *common, "--out", str(out_dir / "speed_accuracy.json")]
+    if skip_unevaluated:
+        accuracy.append("--skip-unevaluated")
     if no_solver:
         speed.append("--reuse-dataset")
         scaling += _reuse_or_skip(out_dir / "hopper_scaling.json")
@@ -54,12 +56,14 @@ def run_all(argv: list[str]) -> int:
     p.add_argument("--ckpt", type=Path, required=True, help="the hopper checkpoint timed against LIGGGHTS")
     p.add_argument("--dataset", type=Path, default=None, help="dataset dir of the checkpoint's scene")
     p.add_argument("--no-solver", action="store_true", help="run no LIGGGHTS (reuse recorded solver costs)")
+    p.add_argument("--skip-unevaluated", action="store_true", help="leave out runs without evaluation/metrics.json")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--out-dir", type=Path, default=None, help="default results/bench")
     a = p.parse_args(argv)
     out_dir = a.out_dir or default_out_dir()
-    for name, args in plan(a.runs, a.ckpt, a.dataset, out_dir, a.no_solver, a.repeats, a.threads):
+    for name, args in plan(a.runs, a.ckpt, a.dataset, out_dir, a.no_solver, a.repeats, a.threads,
+                           a.skip_unevaluated):
         print(f"==> python -m neuraldem.bench {name} {' '.join(args)}", flush=True)
         rc = entry_point(name)(args)
         if rc != 0:
