@@ -24,3 +24,8 @@ class DataError(NeuraldemError):
 
 class SolverError(NeuraldemError):
     """A solver (LIGGGHTS, OpenFOAM) is missing, misconfigured, or a run failed."""
+
+
+class SolverInterrupted(NeuraldemError):
+    """A solver process was stopped by a signal from outside (kill, shutdown, OOM killer): the simulation is
+    unfinished, not failed, so it stays pending and the next run of the same command resumes it."""

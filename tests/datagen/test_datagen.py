@@ -80,6 +80,23 @@ def test_failed_run_is_recorded_and_excluded(tmp_path: Path):
     assert manifest(tmp_path).record("sim_0001").status == "ok"
 
 
+def test_solver_killed_from_outside_leaves_the_simulation_pending(tmp_path: Path):
+    # a stand-in "solver" (test double) that is killed by SIGTERM for sim_0001, the real LIGGGHTS otherwise
+    fake = tmp_path / "liggghts-killed"
+    fake.write_text('#!/bin/sh\ncase "$PWD" in *sim_0001*) kill -TERM $$;; esac\nexec liggghts "$@"\n')
+    fake.chmod(0o755)
+    proc = datagen(tmp_path, "n_sims=3", "workers=1", env={"NEURALDEM_LIGGGHTS": str(fake)})
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 2 and "Traceback" not in out, out
+    assert "stopped by SIGTERM from outside" in out and "run the same command again" in out
+    status = {r.sim_id: r.status for r in manifest(tmp_path).simulations}
+    # the interrupted one is unfinished, not failed; one the worker had already taken up may finish
+    assert status["sim_0000"] == "ok" and status["sim_0001"] == "pending" and status["sim_0002"] in ("pending", "ok")
+    rerun = datagen(tmp_path, "n_sims=3", "workers=1")
+    assert rerun.returncode == 0 and "to run" in rerun.stdout + rerun.stderr
+    assert {r.status for r in manifest(tmp_path).simulations} == {"ok"}
+
+
 def test_extension_keeps_existing_and_changed_scene_is_refused(tmp_path: Path):
     assert datagen(tmp_path, "n_sims=1").returncode == 0
     params0 = manifest(tmp_path).simulations[0].params

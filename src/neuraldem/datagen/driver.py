@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import TMP_SUFFIX, sha256
-from neuraldem.errors import DataError, NeuraldemError
+from neuraldem.errors import DataError, NeuraldemError, SolverInterrupted
 
 log = logging.getLogger(__name__)
 
@@ -143,13 +143,22 @@ def generate(pipe: Pipeline, opts: DatagenOptions) -> Manifest:
     counts = Counter(r.status for r in m.simulations[: opts.n_sims] if r not in todo)
     bar = tqdm(total=opts.n_sims, initial=done, desc=pipe.name, unit="sim", disable=not opts.progress,
                dynamic_ncols=True)
+    interrupted: SolverInterrupted | None = None
     with ThreadPoolExecutor(max_workers=opts.workers) as pool:
         pending: dict[Future[SimRecord], SimRecord] = {pool.submit(_run_safely, pipe.run, r): r for r in todo}
         while pending:
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)
             for fut in finished:
                 old = pending.pop(fut)
-                new = fut.result()
+                if fut.cancelled():
+                    continue
+                try:
+                    new = fut.result()
+                except SolverInterrupted as err:  # stays pending; queued ones never start, running ones finish
+                    interrupted = interrupted or err
+                    for queued in pending:
+                        queued.cancel()
+                    continue
                 m.simulations[m.simulations.index(old)] = new
                 counts[new.status] += 1
                 m.splits = pipe.splits(m)
@@ -159,13 +168,18 @@ def generate(pipe: Pipeline, opts: DatagenOptions) -> Manifest:
                 if new.status != "ok":
                     bar.write(f"{new.sim_id}: {new.status}: {new.reason}")
     bar.close()
+    if interrupted is not None:
+        raise interrupted
     return m
 
 
 def _run_safely(fn: Callable[[SimRecord], SimRecord], rec: SimRecord) -> SimRecord:
-    """A simulation that breaks in an unexpected way is recorded as failed; the others go on."""
+    """A simulation that breaks in an unexpected way is recorded as failed; the others go on. A solver
+    killed from outside is not a failure: it stops the job and the simulation stays pending."""
     try:
         return fn(rec)
+    except SolverInterrupted:
+        raise  # killed from outside: unfinished, stays pending, the job stops
     except NeuraldemError as err:
         return _failed(rec, str(err))
     except Exception as err:  # noqa: BLE001 - recorded with its type, the job goes on

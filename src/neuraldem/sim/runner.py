@@ -7,12 +7,13 @@ Independent runs go side by side (one per core); MPI on a 2-core machine only bu
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from neuraldem.errors import SolverError
+from neuraldem.errors import SolverError, SolverInterrupted
 from neuraldem.sim.liggghts import find_liggghts, solver_env
 
 # LIGGGHTS prints its seeds check, mesh and insertion errors as "ERROR: ..." lines.
@@ -59,6 +60,11 @@ class ProcessResult:
     timed_out: bool
 
 
+# signals that stop a healthy solver from outside (kill, Ctrl-C, hang-up, OOM killer); a solver that crashes
+# by itself dies of SIGSEGV, SIGFPE, SIGABRT, ... and that is a failed run
+OUTSIDE_STOP_SIGNALS = {signal.SIGTERM, signal.SIGINT, signal.SIGKILL, signal.SIGHUP}
+
+
 def run_process(cmd: list[str], workdir: Path, env: dict[str, str], output: Path,
                 timeout_s: float | None = None) -> ProcessResult:
     """Run one solver process in `workdir` with stdout and stderr going to `output`.
@@ -83,6 +89,11 @@ def run_process(cmd: list[str], workdir: Path, env: dict[str, str], output: Path
                 break
             time.sleep(0.05)
     proc.returncode = os.waitstatus_to_exitcode(status)
+    if not timed_out and -proc.returncode in OUTSIDE_STOP_SIGNALS:
+        name = signal.Signals(-proc.returncode).name
+        raise SolverInterrupted(f"{Path(cmd[0]).name} in {workdir} was stopped by {name} from outside",
+                                "the simulation is left unfinished (not failed); run the same command again "
+                                "to resume it")
     return ProcessResult(returncode=proc.returncode, wall_s=time.perf_counter() - t0,
                          cpu_s=usage.ru_utime + usage.ru_stime, max_rss_mb=usage.ru_maxrss / 1024.0,
                          timed_out=timed_out)
