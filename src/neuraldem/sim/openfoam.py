@@ -103,6 +103,9 @@ def write_foam_file(path: Path, cls: str, obj: str, body: str, location: str | N
 _ERROR_MARKERS = ("--> FOAM FATAL IO ERROR", "--> FOAM FATAL ERROR", "Floating point exception",
                   "Segmentation fault", "sigFpe", "sigSegv", "bad_alloc")
 
+# start-up lines of every run that contain a marker without being an error
+_BANNERS = ("trapFpe:",)
+
 
 @dataclass
 class FoamRun:
@@ -133,7 +136,7 @@ def _error_detail(log: str) -> str | None:
     lines = log.splitlines()
     for marker in _ERROR_MARKERS:
         for i, line in enumerate(lines):
-            if marker in line:
+            if marker in line and not line.startswith(_BANNERS):
                 if marker.startswith("-->"):  # the message is on the next non-empty lines
                     following = lines[i + 1:i + 4]
                     detail = " ".join(x.strip() for x in following if x.strip() and not x.startswith("    From"))
