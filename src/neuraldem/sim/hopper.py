@@ -278,8 +278,10 @@ def run_hopper(scene: HopperScene, alpha: float, mu_s: float, mu_r: float, workd
     n_inserted = _log_int(run.log, "NEURALDEM_INSERTED")
     open_step = _log_int(run.log, "NEURALDEM_OPEN_STEP")
     if n_inserted != scene.n_particles:
-        return HopperRunResult(STATUS_FAILED, f"inserted {n_inserted} of {scene.n_particles} particles "
-                               "(raise insertion space: lower insertion_fraction)", run, None, diag)
+        return HopperRunResult(STATUS_FAILED, f"{n_inserted} of {scene.n_particles} particles in the hopper "
+                               "after filling: either the insertion region was too small (lower "
+                               f"insertion_fraction) or particles flew out (is dt = {material.dt:g} s stable "
+                               "for this stiffness?)", run, None, diag)
     traj = trajectory_from_files(workdir / "dump.txt", workdir / "exits.txt", material.dt, open_step, geom,
                                  n_inserted)
     counts = [n_inserted] + [int(line.split()[2]) for line in run.log.splitlines()
