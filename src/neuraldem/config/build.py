@@ -6,7 +6,7 @@ from typing import Any
 
 import lightning as L
 from hydra.utils import instantiate
-from lightning.pytorch.callbacks import LearningRateMonitor
+from lightning.pytorch.callbacks import LearningRateMonitor, ProgressBar
 from omegaconf import DictConfig
 
 from neuraldem.config import checks
@@ -42,8 +42,13 @@ def check_trainer(cfg: DictConfig) -> None:
 
 def build_trainer(cfg: DictConfig, callbacks: list[Any], loggers: list[Any]) -> L.Trainer:
     check_trainer(cfg)
+    # the progress bar is the `callbacks.progress` entry; with it set to null there is none (Lightning would
+    # otherwise add its default bar, which fills the logs of background runs)
+    if not cfg.get("enable_progress_bar", True):  # switched off in the trainer config: no bar either way
+        callbacks = [cb for cb in callbacks if not isinstance(cb, ProgressBar)]
+    has_bar = any(isinstance(cb, ProgressBar) for cb in callbacks)
     try:
-        return instantiate(cfg, callbacks=callbacks, logger=loggers or False)
+        return instantiate(cfg, callbacks=callbacks, logger=loggers or False, enable_progress_bar=has_bar)
     except Exception as err:  # Lightning's own validation (MisconfigurationException, ValueError, ...)
         msg = str(getattr(err, "__cause__", None) or err).strip().splitlines()[0]
         raise ConfigError(f"invalid trainer config: {msg}") from None

@@ -1,0 +1,29 @@
+"""The trainer has exactly the progress bar the config asks for: `callbacks.progress` (or none when it is null
+or when `trainer.enable_progress_bar=false`), never Lightning's default one filling background logs."""
+
+from __future__ import annotations
+
+from lightning.pytorch.callbacks import TQDMProgressBar
+from omegaconf import OmegaConf
+
+from neuraldem.config.build import build_trainer
+
+TRAINER = {"_target_": "lightning.pytorch.Trainer", "accelerator": "cpu", "devices": 1, "max_steps": 1,
+           "logger": False, "enable_checkpointing": False}
+
+
+def test_no_progress_callback_means_no_bar(tmp_path):
+    trainer = build_trainer(OmegaConf.create({**TRAINER, "default_root_dir": str(tmp_path)}), [], [])
+    assert trainer.progress_bar_callback is None
+
+
+def test_the_configured_bar_is_used(tmp_path):
+    bar = TQDMProgressBar(refresh_rate=5)
+    trainer = build_trainer(OmegaConf.create({**TRAINER, "default_root_dir": str(tmp_path)}), [bar], [])
+    assert trainer.progress_bar_callback is bar
+
+
+def test_trainer_switch_wins_over_the_callback(tmp_path):
+    cfg = OmegaConf.create({**TRAINER, "default_root_dir": str(tmp_path), "enable_progress_bar": False})
+    trainer = build_trainer(cfg, [TQDMProgressBar()], [])
+    assert trainer.progress_bar_callback is None
