@@ -22,7 +22,8 @@ from neuraldem.data.fb_datamodule import FluidizedBedDataModule
 from neuraldem.data.fb_normalization import FbNormalizer
 from neuraldem.errors import ConfigError
 from neuraldem.lit.fb_autoregressive import advance, grid_queries
-from neuraldem.lit.optim import lion_warmup_cosine, optimizer_settings, plain
+from neuraldem.lit.module_setup import loss_weight_settings, net_config_and_metadata
+from neuraldem.lit.optim import lion_warmup_cosine, optimizer_settings
 from neuraldem.models.modules.patch_embedding import check_patch_size
 from neuraldem.models.multi_branch_operator import BRANCHES, OperatorInputs
 
@@ -33,22 +34,12 @@ class FluidizedBedModule(L.LightningModule):
                  loss_weights: DictConfig | dict | None = None, chunk_size: int | None = None,
                  metadata: dict[str, Any] | None = None):
         super().__init__()
-        net_cfg = OmegaConf.create(net if not isinstance(net, DictConfig) else OmegaConf.to_container(net))
-        if metadata is None:  # training: the data decides what the model is conditioned on
-            if datamodule is None:
-                raise ValueError("FluidizedBedModule needs a datamodule (training) or metadata (a checkpoint)")
-            datamodule.prepare_manifest()
-            datamodule.setup("fit")
-            metadata = datamodule.checkpoint_metadata()
-        net_cfg.n_scalars = len(metadata["conditioning"])
+        net_cfg, metadata = net_config_and_metadata("FluidizedBedModule", net, datamodule, metadata)
         self.metadata = metadata
         self.norm = FbNormalizer.from_dict(metadata["normalizer"])
         check_fits_data(net_cfg, self.norm, metadata.get("particles_per_sample"))
         opt, sched = optimizer_settings(optimizer, scheduler)
-        weights = dict.fromkeys(BRANCHES, 1.0) | plain(loss_weights)
-        for k, v in weights.items():
-            checks.one_of("model.loss_weights key", k, BRANCHES)
-            checks.number(f"model.loss_weights.{k}", v, lo=0.0)
+        weights = loss_weight_settings(loss_weights, BRANCHES)
         if chunk_size is not None:
             checks.positive_int("model.chunk_size", chunk_size)
         self.opt_cfg, self.sched_cfg, self.loss_weights = opt, sched, weights

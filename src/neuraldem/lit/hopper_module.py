@@ -15,9 +15,9 @@ import torch.nn.functional as F
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from neuraldem.config import checks
 from neuraldem.data.hopper_datamodule import HopperDataModule
-from neuraldem.lit.optim import lion_warmup_cosine, optimizer_settings, plain
+from neuraldem.lit.module_setup import loss_weight_settings, net_config_and_metadata
+from neuraldem.lit.optim import lion_warmup_cosine, optimizer_settings
 
 LOSSES = ("occupancy", "transport", "residence")
 
@@ -28,20 +28,10 @@ class HopperModule(L.LightningModule):
                  loss_weights: DictConfig | dict | None = None, chunk_size: int | None = None,
                  metadata: dict[str, Any] | None = None):
         super().__init__()
-        net_cfg = OmegaConf.create(net if not isinstance(net, DictConfig) else OmegaConf.to_container(net))
-        if metadata is None:  # training: the data decides what the model is conditioned on
-            if datamodule is None:
-                raise ValueError("HopperModule needs a datamodule (training) or metadata (a checkpoint)")
-            datamodule.prepare_manifest()
-            datamodule.setup("fit")
-            metadata = datamodule.checkpoint_metadata()
-        net_cfg.n_scalars = len(metadata["conditioning"])
+        net_cfg, metadata = net_config_and_metadata("HopperModule", net, datamodule, metadata)
         self.metadata = metadata
         opt, sched = optimizer_settings(optimizer, scheduler)
-        weights = dict.fromkeys(LOSSES, 1.0) | plain(loss_weights)
-        for k, v in weights.items():
-            checks.one_of("model.loss_weights", k, LOSSES)
-            checks.number(f"model.loss_weights.{k}", v, lo=0.0)
+        weights = loss_weight_settings(loss_weights, LOSSES)
         self.opt_cfg, self.sched_cfg, self.loss_weights = opt, sched, weights
         self.chunk_size = chunk_size
         self.save_hyperparameters({"net": OmegaConf.to_container(net_cfg), "optimizer": opt, "scheduler": sched,
