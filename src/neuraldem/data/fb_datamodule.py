@@ -19,18 +19,18 @@ across these options.
 from __future__ import annotations
 
 import logging
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 import lightning as L
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader
 
 from neuraldem.config import checks
 from neuraldem.data.fb_normalization import FbNormalizer
 from neuraldem.data.fb_store import KIND, FbFile
+from neuraldem.data.file_samples import FileSamples
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
 from neuraldem.errors import ConfigError, DataError
 
@@ -54,7 +54,7 @@ def mixing_input(norm: FbNormalizer, mixing: np.ndarray) -> np.ndarray:
     return np.moveaxis(norm.field("mixing", mixing), -1, 0)
 
 
-class FbSamples(Dataset):
+class FbSamples(FileSamples):
     """All (trajectory, t) samples with t + steps inside the trajectory (every `time_stride`-th t)."""
 
     def __init__(self, dataset_dir: Path, records: list[SimRecord], norm: FbNormalizer, steps: int,
@@ -66,34 +66,18 @@ class FbSamples(Dataset):
         self.steps = steps
         self.n_particles = particles_per_sample
         self.noise = input_noise
-        self.random = random
-        self.seed = seed
         self.items = []
         for s, rec in enumerate(records):
             with FbFile(self.dir / str(rec.file), validate=False) as f:
                 n_snapshots = f.n_snapshots
             self.items += [(s, t) for t in range(0, n_snapshots - steps, time_stride)]
-        self._open = lru_cache(maxsize=64)(self._open_file)
+        super().__init__(random, seed)
 
     def __len__(self) -> int:
         return len(self.items)
 
     def _open_file(self, s: int) -> FbFile:
         return FbFile(self.dir / str(self.records[s].file), validate=False)  # validated in setup()
-
-    def __getstate__(self) -> dict[str, Any]:  # DataLoader workers reopen files themselves
-        state = dict(self.__dict__)
-        state.pop("_open")
-        return state
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-        self._open = lru_cache(maxsize=64)(self._open_file)
-
-    def _rng(self, i: int) -> np.random.Generator:
-        if self.random:
-            return np.random.default_rng(int(torch.randint(0, 2**62, ()).item()))
-        return np.random.default_rng([self.seed, i])
 
     def _pick(self, rng: np.random.Generator, ok: np.ndarray) -> np.ndarray:
         """Indices of the particles in a sample: all present ones, or `particles_per_sample` of them."""

@@ -11,7 +11,6 @@ not change), so the model is asked about one fixed time range.
 
 from __future__ import annotations
 
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -19,9 +18,10 @@ import lightning as L
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader
 
 from neuraldem.config import checks
+from neuraldem.data.file_samples import FileSamples
 from neuraldem.data.hopper_fields import capped_exit_times
 from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
@@ -32,7 +32,7 @@ CONDITIONING_NAMES = ("t", "alpha", "mu_s", "mu_r", "theta", "repose")
 SPLITS = ("random", "band")
 
 
-class HopperSnapshots(Dataset):
+class HopperSnapshots(FileSamples):
     """All (simulation, snapshot) pairs of some simulations, on the horizon's time grid."""
 
     def __init__(self, dataset_dir: Path, records: list[SimRecord], conditioning: list[str],
@@ -46,11 +46,9 @@ class HopperSnapshots(Dataset):
         self.n_queries = n_queries
         self.n_negative = int(round(negative_fraction * n_queries))
         self.radius = occupancy_radius
-        self.random_queries = random_queries
-        self.seed = seed
         n_grid = int(round(norm.horizon / snapshot_interval)) + 1
         self.items = [(s, k) for s in range(len(records)) for k in range(0, n_grid, time_stride)]
-        self._open = lru_cache(maxsize=64)(self._open_file)
+        super().__init__(random_queries, seed)
 
     def __len__(self) -> int:
         return len(self.items)
@@ -58,20 +56,6 @@ class HopperSnapshots(Dataset):
     def _open_file(self, s: int) -> tuple[HopperFile, np.ndarray, np.ndarray]:
         f = HopperFile(self.dir / str(self.records[s].file), validate=False)  # validated in setup()
         return f, f.initial_positions(), capped_exit_times(f.exit_times, self.norm.horizon)
-
-    def __getstate__(self) -> dict[str, Any]:  # DataLoader workers reopen files themselves
-        state = dict(self.__dict__)
-        state.pop("_open")
-        return state
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-        self._open = lru_cache(maxsize=64)(self._open_file)
-
-    def _rng(self, i: int) -> np.random.Generator:
-        if self.random_queries:
-            return np.random.default_rng(int(torch.randint(0, 2**62, ()).item()))
-        return np.random.default_rng([self.seed, i])
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         s, k = self.items[i]
