@@ -48,7 +48,7 @@ class Pipeline(Protocol):
     def incomplete(self, record: SimRecord) -> bool:
         """Scene-specific work still missing for a finished simulation (e.g. its characterization)."""
 
-    def run_order(self, todo: list[SimRecord]) -> list[SimRecord]:
+    def run_order(self, todo: list[SimRecord], manifest: Manifest) -> list[SimRecord]:
         """The order in which the pending simulations run (so that a partly generated set is useful)."""
 
     def run(self, record: SimRecord) -> SimRecord:
@@ -134,7 +134,7 @@ def generate(pipe: Pipeline, opts: DatagenOptions) -> Manifest:
     for rec in todo:
         if rec.status == "failed":  # retried from scratch
             rec.status, rec.reason = "pending", ""
-    todo = pipe.run_order(todo)
+    todo = pipe.run_order(todo, m)
     done = opts.n_sims - len(todo)
     m.splits = pipe.splits(m)
     m.save(pipe.dataset_dir)

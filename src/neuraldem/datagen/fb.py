@@ -211,17 +211,20 @@ class FluidizedBedPipeline:
     def incomplete(self, record: SimRecord) -> bool:
         return False
 
-    def run_order(self, todo: list[SimRecord]) -> list[SimRecord]:
-        """The table is sorted by velocity; run it so that any finished part spans the whole range: first
-        packing of every velocity in a coarse-to-fine order, then the further packings, the long test
-        trajectories last (they cost ten short ones each)."""
-        return sorted(todo, key=self._run_rank)
+    def run_order(self, todo: list[SimRecord], m: Manifest) -> list[SimRecord]:
+        """The table is sorted by velocity; run it so that any finished part can be trained and evaluated:
+        first packing of every velocity, the held-out (test) velocities first and the others in a
+        coarse-to-fine order over the range, then the further packings, the long test trajectories last
+        (they cost ten short ones each)."""
+        held_out = set(self.velocity_parts(m).get("test", []))
+        return sorted(todo, key=lambda rec: self._run_rank(rec, held_out))
 
-    def _run_rank(self, rec: SimRecord) -> tuple[int, int, int]:
+    def _run_rank(self, rec: SimRecord, held_out: set[str]) -> tuple[int, int, int, int]:
         if rec.params["duration"] > self.duration:
-            return (1, 0, rec.index)
+            return (1, 0, 0, rec.index)
         velocity_slot = (rec.index // self.packings) % self.n_velocities
-        return (0, int(rec.params["packing"]), coarse_to_fine_rank(velocity_slot, self.n_velocities))
+        return (0, int(rec.params["packing"]), 0 if _velocity_key(rec) in held_out else 1,
+                coarse_to_fine_rank(velocity_slot, self.n_velocities))
 
     def parameter_sequence(self, count: int) -> list[dict[str, float]]:
         """The first `count` entries of the deterministic parameter table (module docstring)."""
@@ -277,12 +280,7 @@ class FluidizedBedPipeline:
         usable = m.usable()
         if not usable:
             return {}
-        s = self.cfg.splits
-        seed = checks.positive_int("data.splits.seed", s.seed, allow_zero=True)
-        fractions = {k: checks.fraction(f"data.splits.velocity.{k}", float(v)) for k, v in s.velocity.items()}
-        regular = [r for r in m.simulations if not self.is_long(r)]
-        velocities = sorted({_velocity_key(r) for r in regular})
-        parts = random_split(velocities, fractions, seed)
+        parts = self.velocity_parts(m)
         part_of = {v: part for part, vs in parts.items() for v in vs}
         out: dict[str, dict[str, list[str]]] = {"velocity": {"train": [], "val": [], "test": []}}
         for r in usable:
@@ -291,6 +289,14 @@ class FluidizedBedPipeline:
         out["long"] = {"train": [], "val": [], "test": sorted(r.sim_id for r in usable if self.is_long(r))}
         m.split_info["velocity"] = {part: [float(v) for v in vs] for part, vs in parts.items()}
         return out
+
+    def velocity_parts(self, m: Manifest) -> dict[str, list[str]]:
+        """Whole velocities per part (keys as in _velocity_key), from the full table, finished or not."""
+        s = self.cfg.splits
+        seed = checks.positive_int("data.splits.seed", s.seed, allow_zero=True)
+        fractions = {k: checks.fraction(f"data.splits.velocity.{k}", float(v)) for k, v in s.velocity.items()}
+        regular = [r for r in m.simulations if not self.is_long(r)]
+        return random_split(sorted({_velocity_key(r) for r in regular}), fractions, seed)
 
     def is_long(self, rec: SimRecord) -> bool:
         return bool(self.long_velocities) and rec.params.get("duration", 0.0) > self.duration + 1e-9

@@ -133,7 +133,7 @@ class HopperPipeline:
     def incomplete(self, rec: SimRecord) -> bool:
         return self.characterization_enabled and not rec.macro
 
-    def run_order(self, todo: list[SimRecord]) -> list[SimRecord]:
+    def run_order(self, todo: list[SimRecord], manifest: Manifest) -> list[SimRecord]:
         return todo  # a Latin hypercube table: any prefix already spreads over the ranges
 
     def solver_record(self) -> dict[str, str]:
