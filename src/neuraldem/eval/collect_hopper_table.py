@@ -8,30 +8,16 @@ split with one row per conditioning, plus a JSON file with the same numbers next
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from neuraldem.cli import report_user_errors
 from neuraldem.data.schema import atomic_write_json
-from neuraldem.errors import DataError
 from neuraldem.eval.hopper_report import TABLE_HEADER
+from neuraldem.eval.run_results import find_results
 
 ROW_ORDER = (["t", "alpha", "mu_s", "mu_r"], ["t", "alpha", "theta"], ["t", "alpha", "repose"],
              ["t", "alpha", "theta", "repose"], ["t", "alpha", "mu_s", "mu_r", "theta", "repose"])
-
-
-def find_results(folders: list[Path]) -> list[dict]:
-    found = []
-    for folder in folders:
-        for path in sorted(Path(folder).rglob("evaluation/metrics.json")):
-            result = json.loads(path.read_text())
-            result["path"] = str(path)
-            found.append(result)
-    if not found:
-        raise DataError(f"no evaluation/metrics.json under {[str(f) for f in folders]}: train with "
-                        "evaluate=true (the hopper experiments do) or run python -m neuraldem.evaluate")
-    return found
 
 
 def order_key(result: dict) -> tuple[int, str]:

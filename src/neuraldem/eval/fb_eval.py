@@ -20,7 +20,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -251,11 +251,13 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     result = {
         "checkpoint": str(Path(ckpt).resolve()), "dataset": str(dataset_dir), "split": split, "part": part,
         "trained_velocity_range": [norm.velocity_lo, norm.velocity_hi], "dt": norm.dt,
+        "training": {"input_noise": meta.get("input_noise", 0.0), "push_forward_steps": meta.get("push_forward_steps", 1),
+                     "parameters": sum(p.numel() for p in module.parameters())},
         "training_horizon_steps": norm.horizon_steps, "horizons": horizons, "rollout_steps": steps,
         "limits": vars(limits or DivergenceLimits()), "metric_settings": settings,
         "aggregate": aggregate(results), "trajectories": results,
         "machine": machine_info(), "command": " ".join(sys.argv),
-        "date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "date_utc": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     atomic_write_json(out_dir / "metrics.json", _jsonable(result))
     (out_dir / "report.md").write_text(markdown_report(result))

@@ -1,0 +1,88 @@
+"""`python -m neuraldem.eval.collect_fb_table RUNS_DIR... --out FILE.md`: fluidized-bed runs side by side.
+
+Finds every `evaluation/metrics.json` of a fluidized-bed model under the given folders (e.g. the runs of
+`scripts/fb_ablation.sh`) and writes one summary row per run (its stability options, size, accuracy, mass
+drift and stability at each horizon) and one row per run and held-out velocity, plus a JSON file with the same
+numbers next to the markdown.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from neuraldem.cli import report_user_errors
+from neuraldem.data.schema import atomic_write_json
+from neuraldem.errors import DataError
+from neuraldem.eval.run_results import find_results
+
+
+def run_name(result: dict) -> str:
+    """The run's folder name (<run>/evaluation/metrics.json)."""
+    return Path(result["path"]).parent.parent.name
+
+
+def _f(v: float | None, fmt: str) -> str:
+    return "n/a" if v is None else format(v, fmt)
+
+
+def render(results: list[dict]) -> str:
+    first = results[0]
+    mults = first["horizons"]
+    lines = [(f"Rollouts of {first['rollout_steps']} steps ({max(mults)}x the training horizon of "
+             f"{first['training_horizon_steps']} steps) from the first snapshot of each held-out trajectory; "
+             "statistics over the steps the CFD-DEM trajectory has, mass drift over the whole rollout."), "",
+             "| run | params | input noise | push-forward k | rel. L2 mean solid fraction | (whole rollout) "
+             "| rel. L2 mean fluid speed | max abs mass drift [%] | Lacey MAE | "
+             + " | ".join(f"stable {m}x" for m in mults) + " |",
+             "|---|---|---|---|---|---|---|---|---|" + "---|" * len(mults)]
+    for r in results:
+        a, t, n = r["aggregate"], r.get("training", {}), r["aggregate"]["n_trajectories"]
+        lines.append(f"| {run_name(r)} | {t.get('parameters', 0) / 1e6:.2f}M | {t.get('input_noise', 'n/a')} | "
+                     f"{t.get('push_forward_steps', 'n/a')} | {_f(a['solid_fraction_mean_rel_l2'], '.3f')} | "
+                     f"{_f(a['solid_fraction_mean_rel_l2_full'], '.3f')} | {_f(a['fluid_speed_mean_rel_l2'], '.3f')} "
+                     f"| {_f(a['mass_max_abs_drift_pct'], '.2f')} | {_f(a['lacey_mae'], '.3f')} | "
+                     + " | ".join(f"{a[f'stable_at_{m}x']}/{n}" for m in mults) + " |")
+    lines += ["", ("| run | U0 [m/s] | rel. L2 mean solid fraction | rel. L2 std solid fraction | mass drift [%] "
+              "| Lacey MAE | Lacey final pred / CFD-DEM | bed height [mm] pred / CFD-DEM | steps until divergence |"),
+              "|---|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        for x in r["trajectories"]:
+            s, lc, bh = x["stability"], x["lacey"], x["bed_height"]
+            div = "none" if s["steps_to_divergence"] is None else str(s["steps_to_divergence"])
+            lines.append(f"| {run_name(r)} | {x['inlet_velocity']:.3f}{' (extrapolated)' if x.get('extrapolation') else ''} "
+                         f"| {_f(x['rel_l2']['solid_fraction_mean'], '.3f')} | {_f(x['rel_l2']['solid_fraction_std'], '.3f')} "
+                         f"| {x['mass']['drift_pct']:+.2f} | {_f(lc['mae'], '.3f')} | "
+                         f"{_f(lc['final_pred'], '.2f')} / {_f(lc['final_truth'], '.2f')} | "
+                         f"{_f(1000 * bh['mean_pred'], '.1f')} / {_f(1000 * bh['mean_truth'], '.1f')} | {div} |")
+    m = first["machine"]
+    lines += ["", f"Machine: {m.get('cpu_model', '')}; evaluated {first['date_utc']}.", ""]
+    return "\n".join(lines)
+
+
+@report_user_errors
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m neuraldem.eval.collect_fb_table", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("folders", type=Path, nargs="+")
+    p.add_argument("--out", type=Path, required=True,
+                   help="markdown file (a .json with the same numbers is written beside it)")
+    a = p.parse_args(argv)
+    results = [r for r in find_results(a.folders) if "trained_velocity_range" in r]
+    if not results:
+        raise DataError(f"no fluidized-bed evaluation under {[str(f) for f in a.folders]} (only other kinds): "
+                        "train with experiment=fb (evaluate=true) or run python -m neuraldem.evaluate ckpt=...")
+    text = render(results)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(text)
+    atomic_write_json(a.out.with_suffix(".json"), [
+        {"run": run_name(r), **{k: r.get(k) for k in ("training", "aggregate", "trajectories", "checkpoint",
+                                                       "dataset", "machine", "command", "date_utc", "path")}}
+        for r in results])
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
