@@ -136,8 +136,10 @@ def fb_speed_figure(results: dict[str, Any], path: Path) -> Path:
         right.axvline(target, color="k", ls="--", lw=1, label=f"target {target:g}x")
     right.set_yticks(list(y), [f"{r['solver']}\nvs surrogate, {r['surrogate_threads']} thread(s)" for r in rows],
                      fontsize=7)
-    right.set(xscale="log", xlabel="speed-up (solver / surrogate, medians)",
+    top = max([v for r in rows for v in (r["speedup_wall"], r["speedup_cpu"]) if v] + [target or 1.0, 1.0])
+    right.set(xscale="log", xlim=(1.0, 8 * top), xlabel="speed-up (solver / surrogate, medians; bars from 1x)",
               title=f"{results['scene']}, U0 = {results['inlet_velocity']:g} m/s")
+    right.invert_yaxis()  # rows in the order of the table
     right.legend(fontsize=8)
     right.grid(True, axis="x", which="both", alpha=0.3)
     fig.tight_layout()
@@ -169,10 +171,12 @@ def fb_stability_figure(results: dict[str, Any], path: Path) -> Path:
         top.plot(v, [p["steps_stable"] for p in pts], "-", color=color, alpha=0.6)
         ok = [p for p in pts if not p["failed"]]
         bad = [p for p in pts if p["failed"]]
-        top.plot([p["inlet_velocity"] for p in ok], [p["steps_stable"] for p in ok], "o", mfc="none", color=color,
-                 label=f"{s['label']}: stable")
-        top.plot([p["inlet_velocity"] for p in bad], [p["steps_to_failure"] for p in bad], "x", color=color, ms=8,
-                 label=f"{s['label']}: failed ({s['n_failed']})")
+        if ok:
+            top.plot([p["inlet_velocity"] for p in ok], [p["steps_stable"] for p in ok], "o", mfc="none",
+                     color=color, label=f"{s['label']}: stable ({len(ok)})")
+        if bad:
+            top.plot([p["inlet_velocity"] for p in bad], [p["steps_to_failure"] for p in bad], "x", color=color,
+                     ms=8, label=f"{s['label']}: failed ({len(bad)})")
         bottom.plot(v, [p["drift_pct_end"] for p in pts], "o-", color=color, label=s["label"])
     steps = results["steps"]
     top.axhline(steps, color="k", ls=":", lw=1, label=f"requested {steps} steps")
@@ -182,7 +186,7 @@ def fb_stability_figure(results: dict[str, Any], path: Path) -> Path:
     top.set(ylabel="steps until failure", ylim=(0, 1.08 * steps),
             title="rollout stability: divergence or solid-volume drift beyond "
                   f"{results['drift_limit_pct']:g} %")
-    top.legend(fontsize=7, loc="lower left")
+    top.legend(fontsize=7)
     limit = results["drift_limit_pct"]
     for sign in (1, -1):
         bottom.axhline(sign * limit, color="C3", ls="--", lw=1, label="drift limit" if sign > 0 else None)
