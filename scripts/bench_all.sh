@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# Every hopper benchmark chart and table (docs/benchmarks.md), with the thread settings the numbers are quoted
-# at: torch and LIGGGHTS on one thread each, passive OpenMP waiting. Run it on a quiet machine.
+# Every benchmark chart and table (docs/benchmarks.md), with the thread settings the numbers are quoted at:
+# torch, LIGGGHTS and DPMFoam on one thread each (fb_speed also times the rollout on every core), passive
+# OpenMP waiting. Run it on a quiet machine.
 #   bash scripts/bench_all.sh --runs GRID_DIR --ckpt GRID_DIR/hopper_micro-random/checkpoints/last.ckpt [...]
+#   ... --fb-ckpt FB_RUN/checkpoints/last.ckpt [FB_ABLATION/checkpoints/last.ckpt ...]   (the fluidized bed)
 # Extra arguments go to `python -m neuraldem.bench all` (e.g. --no-solver, --repeats 5, --out-dir DIR).
 set -euo pipefail
 PY=${PYTHON:-python}

@@ -1,15 +1,18 @@
-"""`all` runs the four hopper benchmarks with consistent options; `render` redraws from results files."""
+"""`all` runs the hopper benchmarks and, with --fb-ckpt, the fluidized bed's, with consistent options; `render`
+redraws from results files."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
 
-from neuraldem.bench import hopper_scaling
+from neuraldem.bench import hopper_scaling, suite
 from neuraldem.bench.__main__ import main as bench_main
 from neuraldem.bench.report import write_results
 from neuraldem.bench.suite import plan
+from neuraldem.errors import ConfigError
 from tests.bench.test_hopper_scaling import HAND_MADE
 
 
@@ -58,3 +61,73 @@ def test_render_from_a_results_file(tmp_path: Path):
 def test_render_with_nothing_to_render(tmp_path: Path, capsys: pytest.CaptureFixture):
     assert bench_main(["render", "--out-dir", str(tmp_path)]) == 2
     assert "no benchmark results in" in capsys.readouterr().err
+
+
+def test_plan_with_fluidized_bed_checkpoints(tmp_path: Path):
+    fb = [Path("/fb/a.ckpt"), Path("/fb/b.ckpt")]
+    steps = dict(plan([Path("/runs")], Path("/c.ckpt"), None, tmp_path, no_solver=False, repeats=4, threads=1,
+                      fb_ckpts=fb, fb_dataset=Path("/fbd"), fb_labels=["model", "no noise"]))
+    assert list(steps)[-2:] == ["fb_speed", "fb_stability"] and "hopper_speed" in steps
+    speed, stability = steps["fb_speed"], steps["fb_stability"]
+    assert speed[:2] == ["--ckpt", "/fb/a.ckpt"] and "--reuse-dataset" not in speed  # the first is timed
+    assert speed[speed.index("--repeats") + 1] == "4" and "--threads" not in speed  # 1 and all threads itself
+    assert stability[:3] == ["--ckpt", "/fb/a.ckpt", "/fb/b.ckpt"]  # all go into the map
+    assert stability[stability.index("--labels") + 1:][:2] == ["model", "no noise"]
+    assert "/fbd" in speed and "/fbd" in stability
+    assert stability[-2:] == ["--out", str(tmp_path / "fb_stability.json")]
+    only_fb = dict(plan(None, None, None, tmp_path, no_solver=True, repeats=3, threads=1, fb_ckpts=fb[:1]))
+    assert list(only_fb) == ["fb_speed", "fb_stability"] and "--reuse-dataset" in only_fb["fb_speed"]
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"runs": [Path("/runs")], "ckpt": None}, "--runs and --ckpt go together"),
+    ({"runs": None, "ckpt": None}, "nothing to run: give --runs DIR --ckpt CKPT"),
+    ({"runs": None, "ckpt": None, "fb_ckpts": [Path("/a")], "fb_labels": ["x", "y"]},
+     "--fb-labels: 2 label(s) for 1 --fb-ckpt"),
+])
+def test_plan_refuses_incomplete_options(tmp_path: Path, kwargs, message):
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        plan(dataset=None, out_dir=tmp_path, no_solver=False, repeats=1, threads=1, **kwargs)
+
+
+def test_all_with_only_a_fluidized_bed_checkpoint(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    called = []
+    monkeypatch.setattr("neuraldem.bench.__main__.entry_point",
+                        lambda name: (lambda args: called.append((name, args)) or 0))
+    assert suite.run_all(["--fb-ckpt", "/fb/a.ckpt", "--no-solver", "--out-dir", str(tmp_path)]) == 0
+    assert [name for name, _ in called] == ["fb_speed", "fb_stability"]
+    with pytest.raises(ConfigError, match="nothing to run"):
+        suite.run_all(["--out-dir", str(tmp_path)])
+
+
+def test_render_fluidized_bed_results(tmp_path: Path):
+    write_results("fb_speed", FB_SPEED, command="test", path=tmp_path / "fb_speed.json", machine={"cpu_model": "X"})
+    write_results("fb_stability", FB_STABILITY, command="test", path=tmp_path / "fb_stability.json", machine={})
+    assert bench_main(["render", "--out-dir", str(tmp_path)]) == 0
+    assert (tmp_path / "fb_speed.png").is_file() and (tmp_path / "fb_stability.png").is_file()
+    md = (tmp_path / "fb_speed.md").read_text()
+    assert "| DPMFoam, measured | 1 | 170.0 | 160.0 | 1.000 | 0.800 | 170x | 200x |" in md
+
+
+def _timing(wall: float, cpu: float, **notes) -> dict:
+    return {"median_wall_s": wall, "median_cpu_s": cpu, "repeats": 1, "wall_s": [wall], "cpu_s": [cpu], **notes}
+
+
+FB_SPEED = {
+    "scene": "fb_small", "sim_id": "sim_0003", "inlet_velocity": 1.5, "n_particles": 1000, "cells": [12, 1, 30],
+    "dt": 0.01, "surrogate_load_s": 0.3, "target_speedup": 100.0,
+    "solver": {"DPMFoam, measured": _timing(170.0, 160.0, source="measured", simulated_s=0.3, spinup_s=0.2,
+                                            stored_s=0.1)},
+    "surrogate": {"1": _timing(1.0, 0.8, source="measured", steps_computed=300, diverged_at=None)},
+    "side_by_side": [{"solver": "DPMFoam, measured", "surrogate_threads": 1, "solver_wall_s": 170.0,
+                      "solver_cpu_s": 160.0, "surrogate_wall_s": 1.0, "surrogate_cpu_s": 0.8, "speedup_wall": 170.0,
+                      "speedup_cpu": 200.0}],
+}
+FB_STABILITY = {
+    "velocities": [1.0, 1.5], "steps": 100, "drift_limit_pct": 5.0,
+    "series": [{"label": "m", "trained_velocity_range": [1.2, 1.6], "training_horizon_steps": 30, "n_failed": 1,
+                "points": [{"inlet_velocity": 1.0, "failed": True, "steps_to_failure": 40, "steps_stable": 40,
+                            "drift_pct_end": -7.0},
+                           {"inlet_velocity": 1.5, "failed": False, "steps_to_failure": None, "steps_stable": 100,
+                            "drift_pct_end": 0.5}]}],
+}

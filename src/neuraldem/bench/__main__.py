@@ -19,7 +19,11 @@ BENCHMARKS = {
                        "time to answer vs error: surrogate runs and cheaper LIGGGHTS settings, Pareto front"),
     "right_sizing": ("neuraldem.bench.right_sizing",
                      "the smallest model within 10 % of the best accuracy, per task, with its speed"),
-    "all": ("neuraldem.bench.suite:run_all", "every hopper benchmark above, in one command"),
+    "fb_speed": ("neuraldem.bench.fb_speed",
+                 "DPMFoam vs the fluidized-bed rollout per simulated second, side by side (speed-up ratios)"),
+    "fb_stability": ("neuraldem.bench.fb_stability",
+                     "fluidized-bed stability map: steps to divergence / solid-volume drift across velocities"),
+    "all": ("neuraldem.bench.suite:run_all", "the hopper benchmarks above, and the fluidized bed's with --fb-ckpt"),
     "render": ("neuraldem.bench.suite:render", "redraw every figure and table from the results files"),
 }
 
@@ -33,11 +37,12 @@ def entry_point(name: str):
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0] in ("-h", "--help"):
-        print("usage: python -m neuraldem.bench NAME [args]   (NAME --help for its options)\n\nbenchmarks:")
+        print("usage: python -m neuraldem.bench NAME [args]   (NAME --help for its options; fb-speed = fb_speed)"
+              "\n\nbenchmarks:")
         for name, (_, description) in BENCHMARKS.items():
             print(f"  {name:<14} {description}")
         return 0
-    name, args = argv[0], argv[1:]
+    name, args = argv[0].replace("-", "_"), argv[1:]  # fb-speed and fb_speed are the same benchmark
     if name not in BENCHMARKS:
         print(f"error: unknown benchmark {name!r}; choose one of {sorted(BENCHMARKS)}", file=sys.stderr)
         return 2

@@ -105,3 +105,96 @@ def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path:
 
 def _finite(v: Any) -> bool:
     return isinstance(v, (int, float)) and math.isfinite(v)
+
+
+def fb_speed_figure(results: dict[str, Any], path: Path) -> Path:
+    """Left: seconds per simulated second (wall and CPU, log scale) of DPMFoam and of the surrogate at each
+    thread setting. Right: the speed-ups solver / surrogate of every pairing, with the issue's target."""
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.6), gridspec_kw={"width_ratios": [1, 1.3]})
+    entries = [(label, s) for label, s in results["solver"].items()]
+    entries += [(f"surrogate, {t} thread(s)", s) for t, s in results["surrogate"].items()]
+    x = range(len(entries))
+    for offset, key, name, color in ((-0.2, "median_wall_s", "wall", "C0"), (0.2, "median_cpu_s", "CPU", "C1")):
+        values = [s[key] for _, s in entries]
+        left.bar([i + offset for i in x], values, width=0.4, color=color, label=name)
+        for i, v in zip(x, values):
+            left.annotate(f"{v:.3g}", (i + offset, v), ha="center", va="bottom", fontsize=7)
+    left.set_xticks(list(x), [label.replace(", ", "\n") for label, _ in entries], fontsize=8)
+    left.set(yscale="log", ylabel="seconds per simulated second", title="cost of one simulated second")
+    left.legend(fontsize=8)
+    left.grid(True, axis="y", which="both", alpha=0.3)
+    rows = results["side_by_side"]
+    y = range(len(rows))
+    for offset, key, name, color in ((-0.2, "speedup_wall", "wall", "C0"), (0.2, "speedup_cpu", "CPU", "C1")):
+        values = [r[key] or 0.0 for r in rows]
+        right.barh([i + offset for i in y], values, height=0.4, color=color, label=name)
+        for i, v in zip(y, values):
+            right.annotate(f"{v:,.0f}x", (v, i + offset), va="center", fontsize=7, xytext=(3, 0),
+                           textcoords="offset points")
+    target = results.get("target_speedup")
+    if target:
+        right.axvline(target, color="k", ls="--", lw=1, label=f"target {target:g}x")
+    right.set_yticks(list(y), [f"{r['solver']}\nvs surrogate, {r['surrogate_threads']} thread(s)" for r in rows],
+                     fontsize=7)
+    top = max([v for r in rows for v in (r["speedup_wall"], r["speedup_cpu"]) if v] + [target or 1.0, 1.0])
+    right.set(xscale="log", xlim=(1.0, 8 * top), xlabel="speed-up (solver / surrogate, medians; bars from 1x)",
+              title=f"{results['scene']}, U0 = {results['inlet_velocity']:g} m/s")
+    right.invert_yaxis()  # rows in the order of the table
+    right.legend(fontsize=8)
+    right.grid(True, axis="x", which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def fb_stability_figure(results: dict[str, Any], path: Path) -> Path:
+    """Stability map, velocity on x. Top: steps until failure (divergence or drift beyond the limit; open
+    markers: no failure within the requested steps). Bottom: solid-volume drift at the end or at the last
+    state before divergence. Trained velocity ranges shaded."""
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    ranges = {tuple(s["trained_velocity_range"]) for s in results["series"]}
+    for k, s in enumerate(results["series"]):
+        color = f"C{k}"
+        lo, hi = s["trained_velocity_range"]
+        label = "trained range" if len(ranges) == 1 else f"trained range ({s['label']})"
+        if k == 0 or len(ranges) > 1:
+            for ax in (top, bottom):
+                if hi > lo:
+                    ax.axvspan(lo, hi, color="0.5" if len(ranges) == 1 else color, alpha=0.15,
+                               label=label if ax is top else None)
+                else:
+                    ax.axvline(lo, color="0.5" if len(ranges) == 1 else color, lw=4, alpha=0.3,
+                               label=label if ax is top else None)
+        pts = s["points"]
+        v = [p["inlet_velocity"] for p in pts]
+        top.plot(v, [p["steps_stable"] for p in pts], "-", color=color, alpha=0.6)
+        ok = [p for p in pts if not p["failed"]]
+        bad = [p for p in pts if p["failed"]]
+        if ok:
+            top.plot([p["inlet_velocity"] for p in ok], [p["steps_stable"] for p in ok], "o", mfc="none",
+                     color=color, label=f"{s['label']}: stable ({len(ok)})")
+        if bad:
+            top.plot([p["inlet_velocity"] for p in bad], [p["steps_to_failure"] for p in bad], "x", color=color,
+                     ms=8, label=f"{s['label']}: failed ({len(bad)})")
+        bottom.plot(v, [p["drift_pct_end"] for p in pts], "o-", color=color, label=s["label"])
+    steps = results["steps"]
+    top.axhline(steps, color="k", ls=":", lw=1, label=f"requested {steps} steps")
+    horizon = results["series"][0]["training_horizon_steps"]
+    if horizon < steps:
+        top.axhline(horizon, color="k", ls="--", lw=0.8, alpha=0.5, label=f"training horizon {horizon} steps")
+    top.set(ylabel="steps until failure", ylim=(0, 1.08 * steps),
+            title="rollout stability: divergence or solid-volume drift beyond "
+                  f"{results['drift_limit_pct']:g} %")
+    top.legend(fontsize=7)
+    limit = results["drift_limit_pct"]
+    for sign in (1, -1):
+        bottom.axhline(sign * limit, color="C3", ls="--", lw=1, label="drift limit" if sign > 0 else None)
+    bottom.set(xlabel="inlet velocity U0 [m/s]", ylabel="solid volume drift [%]\n(end, or before divergence)")
+    bottom.legend(fontsize=7)
+    for ax in (top, bottom):
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from neuraldem.data.schema import atomic_write_json
-from neuraldem.errors import DataError
+from neuraldem.errors import ConfigError, DataError
 from neuraldem.machine import machine_info
 from neuraldem.paths import results_dir
 
@@ -36,6 +36,20 @@ def write_results(name: str, results: Any, *, command: str, path: Path | None = 
     }
     atomic_write_json(path, payload)
     return path
+
+
+def resolve_out(out: Path | None, name: str) -> Path:
+    """Where benchmark `name` writes its JSON: `--out` as a .json file, or a folder (existing, or named without
+    a suffix) to hold NAME.json; default results/bench/NAME.json. Figures and tables go beside the JSON."""
+    if out is None:
+        return default_path(name)
+    out = Path(out)
+    if out.is_dir() or not out.suffix:
+        return out / f"{name}.json"
+    if out.suffix != ".json":
+        raise ConfigError(f"--out={out} is invalid: pass a .json file or a folder (figures are written beside the "
+                          f"JSON), e.g. --out results/bench/{name}.json")
+    return out
 
 
 def command_line(name: str, argv: list[str]) -> str:

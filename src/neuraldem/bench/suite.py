@@ -1,9 +1,11 @@
-"""Every hopper chart and table in one command, and redrawing them from their results files.
+"""Every chart and table in one command, and redrawing them from their results files.
 
-`python -m neuraldem.bench all --runs DIR... --ckpt CKPT [--dataset DIR] [--no-solver] [--out-dir DIR]`
-runs hopper_speed, hopper_scaling, speed_accuracy and right_sizing in turn (each also runs on its own).
-With --no-solver nothing runs LIGGGHTS: solver costs come from the dataset manifest and the LIGGGHTS parts of
-earlier results in --out-dir (where there are none, the chart has no solver points).
+`python -m neuraldem.bench all --runs DIR... --ckpt CKPT [--dataset DIR] [--fb-ckpt CKPT...] [--fb-dataset DIR]
+[--no-solver] [--out-dir DIR]` runs hopper_speed, hopper_scaling, speed_accuracy and right_sizing in turn
+(with --runs and --ckpt), then fb_speed (the first --fb-ckpt against DPMFoam) and fb_stability (every
+--fb-ckpt, one series each) (with --fb-ckpt); each also runs on its own. With --no-solver nothing runs
+LIGGGHTS or DPMFoam: solver costs come from the dataset manifests and the LIGGGHTS parts of earlier results
+in --out-dir (where there are none, the chart has no solver points).
 
 `python -m neuraldem.bench render [--out-dir DIR]` redraws every figure and table from the JSON files in
 --out-dir, measuring nothing (e.g. after a change of the plotting code).
@@ -16,7 +18,7 @@ from pathlib import Path
 
 from neuraldem.bench import plots
 from neuraldem.bench.report import read_results
-from neuraldem.errors import DataError
+from neuraldem.errors import ConfigError, DataError
 from neuraldem.paths import results_dir
 
 
@@ -24,9 +26,36 @@ def default_out_dir() -> Path:
     return results_dir() / "bench"
 
 
-def plan(runs: list[Path], ckpt: Path, dataset: Path | None, out_dir: Path, no_solver: bool,
-         repeats: int, threads: int, skip_unevaluated: bool = False) -> list[tuple[str, list[str]]]:
-    """The benchmark commands `all` runs, in order (name, argv)."""
+def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_dir: Path, no_solver: bool,
+         repeats: int, threads: int, skip_unevaluated: bool = False, fb_ckpts: list[Path] | None = None,
+         fb_dataset: Path | None = None, fb_labels: list[str] | None = None) -> list[tuple[str, list[str]]]:
+    """The benchmark commands `all` runs, in order (name, argv): the hopper's with `runs` and `ckpt`, the
+    fluidized bed's with `fb_ckpts`."""
+    if bool(runs) != (ckpt is not None):
+        raise ConfigError("--runs and --ckpt go together (the hopper benchmarks need both): give both, or "
+                          "neither and --fb-ckpt for the fluidized-bed benchmarks alone")
+    if not runs and not fb_ckpts:
+        raise ConfigError("nothing to run: give --runs DIR --ckpt CKPT (hopper) and/or --fb-ckpt CKPT "
+                          "(fluidized bed)")
+    steps = _hopper_plan(runs, ckpt, dataset, out_dir, no_solver, repeats, threads, skip_unevaluated) if runs else []
+    if fb_ckpts:
+        fb_data = ["--dataset", str(fb_dataset)] if fb_dataset else []
+        # fb_speed times the surrogate on 1 thread and on every core by itself; --threads is the hopper's
+        speed = ["--ckpt", str(fb_ckpts[0]), *fb_data, "--repeats", str(repeats), "--out",
+                 str(out_dir / "fb_speed.json")]
+        if no_solver:
+            speed.append("--reuse-dataset")
+        if fb_labels and len(fb_labels) != len(fb_ckpts):
+            raise ConfigError(f"--fb-labels: {len(fb_labels)} label(s) for {len(fb_ckpts)} --fb-ckpt checkpoint(s): "
+                              "give one label per checkpoint, or none (the run folder names are used)")
+        labels = ["--labels", *fb_labels] if fb_labels else []
+        stability = ["--ckpt", *map(str, fb_ckpts), *labels, *fb_data, "--out", str(out_dir / "fb_stability.json")]
+        steps += [("fb_speed", speed), ("fb_stability", stability)]
+    return steps
+
+
+def _hopper_plan(runs: list[Path], ckpt: Path, dataset: Path | None, out_dir: Path, no_solver: bool,
+                 repeats: int, threads: int, skip_unevaluated: bool) -> list[tuple[str, list[str]]]:
     common = ["--repeats", str(repeats), "--threads", str(threads)]
     data = ["--dataset", str(dataset)] if dataset else []
     runs_args = ["--runs", *map(str, runs)]
@@ -52,10 +81,15 @@ def run_all(argv: list[str]) -> int:
     from neuraldem.bench.__main__ import entry_point
 
     p = argparse.ArgumentParser(prog="python -m neuraldem.bench all", description=__doc__.split("\n")[0])
-    p.add_argument("--runs", type=Path, nargs="+", required=True, help="folders holding evaluated training runs")
-    p.add_argument("--ckpt", type=Path, required=True, help="the hopper checkpoint timed against LIGGGHTS")
-    p.add_argument("--dataset", type=Path, default=None, help="dataset dir of the checkpoint's scene")
-    p.add_argument("--no-solver", action="store_true", help="run no LIGGGHTS (reuse recorded solver costs)")
+    p.add_argument("--runs", type=Path, nargs="+", default=None, help="folders holding evaluated hopper runs")
+    p.add_argument("--ckpt", type=Path, default=None, help="the hopper checkpoint timed against LIGGGHTS")
+    p.add_argument("--dataset", type=Path, default=None, help="dataset dir of the hopper checkpoint's scene")
+    p.add_argument("--fb-ckpt", type=Path, nargs="+", default=None,
+                   help="fluidized-bed checkpoints: the first is timed against DPMFoam, all go into the stability map")
+    p.add_argument("--fb-labels", nargs="+", default=None, help="their names in the stability map (one per --fb-ckpt)")
+    p.add_argument("--fb-dataset", type=Path, default=None, help="dataset dir of the fluidized-bed checkpoints' scene")
+    p.add_argument("--no-solver", action="store_true",
+                   help="run no LIGGGHTS or DPMFoam (reuse recorded solver costs)")
     p.add_argument("--skip-unevaluated", action="store_true", help="leave out runs without evaluation/metrics.json")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--threads", type=int, default=1)
@@ -63,7 +97,7 @@ def run_all(argv: list[str]) -> int:
     a = p.parse_args(argv)
     out_dir = a.out_dir or default_out_dir()
     for name, args in plan(a.runs, a.ckpt, a.dataset, out_dir, a.no_solver, a.repeats, a.threads,
-                           a.skip_unevaluated):
+                           a.skip_unevaluated, a.fb_ckpt, a.fb_dataset, a.fb_labels):
         print(f"==> python -m neuraldem.bench {name} {' '.join(args)}", flush=True)
         rc = entry_point(name)(args)
         if rc != 0:
@@ -72,14 +106,14 @@ def run_all(argv: list[str]) -> int:
 
 
 def render(argv: list[str]) -> int:
-    from neuraldem.bench import hopper_speed, right_sizing, speed_accuracy
+    from neuraldem.bench import fb_speed, hopper_speed, right_sizing, speed_accuracy
 
     p = argparse.ArgumentParser(prog="python -m neuraldem.bench render", description="redraw from results")
     p.add_argument("--out-dir", type=Path, default=None, help="default results/bench")
     a = p.parse_args(argv)
     out_dir = a.out_dir or default_out_dir()
     written = []
-    for name in ("hopper_speed", "hopper_scaling", "speed_accuracy", "right_sizing"):
+    for name in ("hopper_speed", "hopper_scaling", "speed_accuracy", "right_sizing", "fb_speed", "fb_stability"):
         path = out_dir / f"{name}.json"
         if not path.is_file():
             continue
@@ -89,6 +123,11 @@ def render(argv: list[str]) -> int:
             written.append(_write(path.with_suffix(".md"), hopper_speed.render_markdown(results, payload["machine"])))
         elif name == "hopper_scaling":
             written.append(plots.scaling_figure(results, path.with_suffix(".png")))
+        elif name == "fb_speed":
+            written.append(_write(path.with_suffix(".md"), fb_speed.render_markdown(results, payload["machine"])))
+            written.append(plots.fb_speed_figure(results, path.with_suffix(".png")))
+        elif name == "fb_stability":
+            written.append(plots.fb_stability_figure(results, path.with_suffix(".png")))
         elif name == "speed_accuracy":
             written.append(plots.speed_accuracy_figure(results, path.with_suffix(".png")))
             written.append(_write(path.with_suffix(".md"), speed_accuracy.render_markdown(results)))

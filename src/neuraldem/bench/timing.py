@@ -56,6 +56,12 @@ class Timing:
         return Sample(statistics.median(s.wall_s for s in self.samples),
                       statistics.median(s.cpu_s for s in self.samples))
 
+    def scaled(self, factor: float, **notes: Any) -> Timing:
+        """The same repeats in another unit (e.g. seconds per simulated second: factor = 1 / simulated s)."""
+        checks.positive("factor", factor)
+        return Timing([Sample(s.wall_s * factor, s.cpu_s * factor) for s in self.samples], self.source,
+                      {**self.notes, **notes})
+
     def as_dict(self) -> dict[str, Any]:
         m = self.median
         return {"median_wall_s": m.wall_s, "median_cpu_s": m.cpu_s,

@@ -247,7 +247,7 @@ class FluidizedBedPipeline:
 
     # ---- one simulation
     def packing_seed(self, rec: SimRecord) -> int:
-        return int(np.random.SeedSequence([self.seed, rec.index]).generate_state(1)[0])
+        return packing_seed(self.seed, rec.index)
 
     def run(self, rec: SimRecord) -> SimRecord:
         workdir = self.dataset_dir / "runs" / rec.sim_id
@@ -300,6 +300,12 @@ class FluidizedBedPipeline:
 
     def is_long(self, rec: SimRecord) -> bool:
         return bool(self.long_velocities) and rec.params.get("duration", 0.0) > self.duration + 1e-9
+
+
+def packing_seed(table_seed: int, index: int) -> int:
+    """The start-packing seed of record `index` of a table drawn with `data.parameters.seed` = `table_seed`
+    (a benchmark re-running a dataset's trajectory takes it from the manifest: `parameters.seed`)."""
+    return int(np.random.SeedSequence([table_seed, index]).generate_state(1)[0])
 
 
 def _velocity_key(rec: SimRecord) -> str:

@@ -748,7 +748,9 @@ def _cost(workdir: Path, sim_time: float) -> dict[str, float]:
     attempts = json.loads(path.read_text()) if path.is_file() else []
     cpu = float(sum(a["cpu_s"] for a in attempts))
     solver_cpu = float(sum(a["cpu_s"] for a in attempts if a["app"] == "DPMFoam"))
+    solver_wall = float(sum(a["wall_s"] for a in attempts if a["app"] == "DPMFoam"))
     return {"cpu_s": cpu, "solver_cpu_s": solver_cpu, "wall_s": float(sum(a["wall_s"] for a in attempts)),
+            "solver_wall_s": solver_wall,
             "simulated_s": float(sim_time), "cpu_s_per_simulated_s": solver_cpu / sim_time,
             "attempts": float(sum(1 for a in attempts if a["app"] == "DPMFoam")),
             "max_rss_mb": float(max((a["max_rss_mb"] for a in attempts), default=0.0)),
