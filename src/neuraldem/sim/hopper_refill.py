@@ -348,8 +348,14 @@ def run_refill(scene: HopperScene, settings: RefillSettings, alpha: float, mu_s:
     n_exited = int(np.isfinite(traj.exit_times).sum())
     levels = fill_levels(traj)
     after_first = levels[traj.times >= settings.interval]
-    diag.update(ended_by=ended_by, n_exited=n_exited, n_refilled=int(added.sum()),
-                n_lost=int(n_inserted + added.sum() - final_count - n_exited),
+    # lost = gone from the last snapshot without an exit time, or inserted and never seen in a snapshot (the
+    # count printed at the end may still hold a particle below the sink that LIGGGHTS deletes a few steps on)
+    in_last = np.zeros(traj.n_particles, dtype=bool)
+    in_last[traj.frame(traj.n_snapshots - 1)[0]] = True
+    vanished = int(np.sum(~in_last & ~np.isfinite(traj.exit_times)))
+    unseen = int(added.sum()) - int(np.sum(traj.insert_times > 0))
+    diag.update(ended_by=ended_by, n_exited=n_exited, n_refilled=int(added.sum()), n_lost=vanished + unseen,
+                final_count=final_count,
                 level_min=float(after_first.min()) if after_first.size else float("nan"),
                 level_max=float(after_first.max()) if after_first.size else float("nan"),
                 particle_steps=_particle_steps(run.log))
