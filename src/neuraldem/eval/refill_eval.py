@@ -189,8 +189,9 @@ def evaluate_refill_sim(rec: SimRecord, f: RefillFile, model: ModelRefillQuery, 
 
 def aggregate_refill(evals: list[RefillSimEvaluation]) -> dict[str, float]:
     def mean(key: str) -> float:
-        vals = [e.as_dict()[key] for e in evals]
-        return float(np.nanmean(vals)) if vals else float("nan")
+        vals = np.array([e.as_dict()[key] for e in evals], dtype=np.float64)
+        vals = vals[np.isfinite(vals)]
+        return float(vals.mean()) if vals.size else float("nan")
 
     return {"n_sims": len(evals), "layer_fraction_error": mean("layer_fraction_error"),
             "label_agreement": mean("label_agreement"), "transport_mse": mean("transport_mse"),
