@@ -69,3 +69,18 @@ def test_ids_and_insertion_times_are_consistent(hopper_refill_tiny_dataset: Path
         present_end = tr.frame(len(tr.times) - 1)[0]
         assert len(present_end) + left.sum() == tr.n_particles - int(np.isin(np.flatnonzero(left), present_end).sum())
         assert rec.diagnostics["n_lost"] == 0
+
+
+@pytest.mark.parametrize(("override", "message"), [
+    ("data.refill.interval=0.00015", "data.refill.interval=0.00015 is invalid: must be a multiple of"),
+    ("data.refill.level_band=[1.1,1.2]", "data.refill.level_band=[1.1, 1.2] is invalid: needs 0 < lo < 1 <= hi"),
+    ("+data.refill.rate=3", "unknown key(s) ['rate'] in data.refill"),
+])
+def test_bad_refill_values_end_in_one_line(tmp_path: Path, override: str, message: str):
+    from tests.helpers import run_module
+
+    proc = run_module("neuraldem.datagen", "data=hopper_refill_tiny", "n_sims=1", "progress=false", override,
+                      env={"NEURALDEM_DATA": str(tmp_path)})
+    assert proc.returncode == 2, proc.stderr
+    assert message in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "datasets" / "hopper_refill_tiny" / "sims").exists()  # refused before any run
