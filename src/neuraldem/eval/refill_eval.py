@@ -77,6 +77,8 @@ class ModelRefillQuery:
         return occ, transport, residence
 
     def __call__(self, k: int, t: float, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # the aggregation asks about the model's own predicted reference positions: keep them in the box
+        points = np.clip(np.asarray(points, dtype=np.float64).reshape(-1, 3), self.norm.box_lo, self.norm.box_hi)
         occ, transport, residence = self.fields(t, float(self.resets[k]), points)
         off = occ < self.threshold
         residence = np.clip(residence, 0.0, t - float(self.resets[k]))

@@ -25,6 +25,7 @@ def _slice_scatter(ax: Any, points: np.ndarray, labels: np.ndarray, n_layers: in
     ax.scatter(p[lab == NEW, 0], p[lab == NEW, 2], c="0.6", s=12, label="refilled since t_ref")
     ax.scatter(p[lab == EMPTY, 0], p[lab == EMPTY, 2], facecolors="none", edgecolors="0.85", s=12)
     ax.set_aspect("equal")
+    ax.locator_params(axis="x", nbins=4)
     ax.set_title(title, fontsize=9)
     ax.set_xlabel("x [m]")
 

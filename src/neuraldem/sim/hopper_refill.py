@@ -4,8 +4,9 @@ inserted at the top as fast as it leaves, so the run can go on for as long as it
 Stages: the draining hopper's fill and settle (`fill_and_settle_input`), then the outlet opens at t = 0 and
 every `refill.interval` the particles that left since the last top-up are replaced by new ones, inserted
 (insert/pack, overlap-checked) in a slab at the top of the cylinder. Topping up the count every interval is
-the outflow rate matched interval by interval; the fill level (particles in the hopper / N0) stays between
-N0 minus one interval's outflow and N0, and a run whose level leaves `refill.level_band` is failed.
+the outflow rate matched interval by interval; the fill level (particles in the hopper, i.e. above the
+outlet plane, / N0) stays between N0 minus one interval's outflow and N0, and a run whose level leaves
+`refill.level_band` is failed.
 
 Bookkeeping, done by LIGGGHTS itself:
 - every particle carries its insertion time in the per-atom property `tins` (the fill's particles get the
@@ -146,14 +147,15 @@ unfix walls
 fix walls all wall/gran {material.wall_model} mesh n_meshes 1 meshes wall
 fix exits all massflow/mesh mesh sink vec_side 0.0 0.0 -1.0 count once delete_atoms yes file exits.txt writeTime
 region refill cylinder z 0.0 0.0 {r_ins} {z_lo} {z_hi} units box
+region inside cylinder z 0.0 0.0 {geom.radius + d} 0.0 {geom.wall_height + d} units box
 dump snapshots flowing custom {n_snap} dump.txt id x y z vx vy vz f_tins
 dump_modify snapshots format "%d %.6f %.6f %.6f %.5g %.5g %.5g %.6f" sort id
 thermo_style custom step time atoms ke cpu
 thermo {max(n_int, 2000)}
 thermo_modify lost ignore norm no
 variable nflow equal count(flowing)
-variable missing equal {n0}-count(flowing)
-variable want equal count(flowing,refill)+{n0}-count(flowing)
+variable missing equal {n0}-count(flowing,inside)
+variable want equal count(flowing,refill)+{n0}-count(flowing,inside)
 variable ninserted equal f_top[1]
 variable idle equal 0
 """]
@@ -304,8 +306,11 @@ def consistency_problem(traj: RefillTrajectory, dt: float) -> str | None:
 
 
 def fill_levels(traj: RefillTrajectory) -> np.ndarray:
-    """(T,) particles in the hopper / particles at t = 0."""
-    return traj.counts() / max(traj.n_initial, 1)
+    """(T,) fill level: particles in the hopper (centre at or above the outlet plane z = 0, not yet in the
+    stream below the outlet) / particles at t = 0."""
+    snap = np.repeat(np.arange(traj.n_snapshots), traj.counts())
+    inside = np.bincount(snap[traj.positions[:, 2] >= 0.0], minlength=traj.n_snapshots)
+    return inside / max(traj.n_initial, 1)
 
 
 def run_refill(scene: HopperScene, settings: RefillSettings, alpha: float, mu_s: float, mu_r: float,
