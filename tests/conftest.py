@@ -116,3 +116,23 @@ def fb_tiny_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathF
     path = tmp_path_factory.mktemp("ckpt") / "fb_tiny.ckpt"
     trainer.save_checkpoint(path)
     return path
+
+
+@pytest.fixture(scope="session")
+def hopper_refill_tiny_dataset(data_root: Path) -> Path:
+    """A real LIGGGHTS refilling-hopper dataset at test size (hopper_refill_tiny: 4 simulations of 2 s), made
+    once per session with the datagen pipeline (resumable: reused when NEURALDEM_TEST_DATA is set)."""
+    from omegaconf import open_dict
+
+    from neuraldem.datagen.driver import DatagenOptions, generate
+    from neuraldem.datagen.hopper_refill import RefillPipeline
+    from tests.helpers import compose_cfg
+
+    os.environ["NEURALDEM_DATA"] = str(data_root)
+    cfg = compose_cfg("datagen", ["data=hopper_refill_tiny"], output_dir=data_root / "runs")
+    with open_dict(cfg):
+        cfg.data.dataset_dir = str(data_root / "datasets" / "hopper_refill_tiny")
+    pipe = RefillPipeline(cfg.data)
+    m = generate(pipe, DatagenOptions(n_sims=4, workers=1, progress=False))
+    assert all(r.status == "ok" for r in m.simulations[:4]), [(r.sim_id, r.status, r.reason) for r in m.simulations]
+    return pipe.dataset_dir

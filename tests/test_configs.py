@@ -21,9 +21,11 @@ def test_there_are_experiments():
 def test_experiment_builds(experiment: str, compose_train_cfg, request: pytest.FixtureRequest):
     # the tiny real dataset of the experiment's kind stands in for its own (built by the same pipeline)
     kind = compose_train_cfg(f"experiment={experiment}").data.kind
-    tiny = {"hopper": "hopper_tiny", "fluidized_bed": "fb_tiny"}[kind]
+    tiny = {"hopper": "hopper_tiny", "hopper_refill": "hopper_refill_tiny", "fluidized_bed": "fb_tiny"}[kind]
     dataset = request.getfixturevalue(f"{tiny}_dataset")
     overrides = [f"data.dataset_dir={dataset}", f"data.name={tiny}"]
+    if kind == "hopper_refill":  # the tiny runs last 2 s, shorter than the production window
+        overrides.append("data.reference.window=0.25")
     if kind == "fluidized_bed":  # fb_tiny's 6 x 1 x 15 cells need patches that divide 15
         overrides.append("model.net.patch_size=[2,1,3]")
     cfg = compose_train_cfg(f"experiment={experiment}", *overrides)

@@ -3,7 +3,9 @@
 The checkpoint says what it is. A fluidized-bed model is scored by `neuraldem.eval.fb_eval`: one rollout per
 held-out inlet velocity against CFD-DEM (time statistics, mass drift, Lacey curves, stability at 1x, 3x, 10x
 the training horizon; options under `fluidized_bed:`), into metrics.json, report.md, PNG figures and VTK.
-A hopper model: for each simulation of the chosen split part, the model is rolled over the whole trajectory
+A refilling-hopper model is scored by `neuraldem.eval.refill_eval` (transport `refill.horizon` seconds after
+a reference time, residence-time distribution at the outlet over a rollout with periodic reference resets;
+options under `refill:`). A hopper model: for each simulation of the chosen split part, the model is rolled over the whole trajectory
 from the scalars alone, its occupancy and transport fields are evaluated at the initial particle positions,
 and the same functions that scored the DEM data compute drainage time, residual, outflow, flow regime,
 stripes and residence time. Writes metrics.json, table.md (layout of the paper's Table 4), PNG figures and
@@ -30,8 +32,12 @@ def main(cfg: DictConfig) -> None:
     checks.one_of("device", cfg.device, ("auto", "cpu", "cuda"))
     if cfg.max_sims is not None:
         checks.positive_int("max_sims", cfg.max_sims)
-    if checkpoint_metadata(Path(cfg.ckpt))["kind"] == "fluidized_bed":
+    kind = checkpoint_metadata(Path(cfg.ckpt))["kind"]
+    if kind == "fluidized_bed":
         evaluate_fluidized_bed(cfg)
+        return
+    if kind == "hopper_refill":
+        evaluate_refill(cfg)
         return
     result = evaluate_checkpoint(
         Path(cfg.ckpt), out_dir=Path(cfg.paths.output_dir), datasets_dir=Path(cfg.paths.datasets_dir),
@@ -44,6 +50,26 @@ def main(cfg: DictConfig) -> None:
           f"({agg['drainage_mae_pct_of_mean']:.1f} % of the mean), residual MAE {agg['residual_mae_pp']:.2f} pp, "
           f"outflow error {agg['outflow_rel_err_pct']:.1f} %, flow regime accuracy "
           f"{100 * agg['flow_regime_accuracy']:.0f} %")
+    print(f"results in {cfg.paths.output_dir}")
+
+
+def evaluate_refill(cfg: DictConfig) -> None:
+    from neuraldem.eval.hopper_report import resolve_device
+    from neuraldem.eval.refill_eval import evaluate_refill_checkpoint
+
+    r = cfg.refill
+    t_ref = None if r.t_ref is None else checks.number("refill.t_ref", r.t_ref, lo=0.0)
+    horizon = None if r.horizon is None else checks.positive("refill.horizon", r.horizon)
+    result = evaluate_refill_checkpoint(
+        Path(cfg.ckpt), out_dir=Path(cfg.paths.output_dir), datasets_dir=Path(cfg.paths.datasets_dir),
+        dataset_dir=cfg.dataset_dir, split=cfg.split, part=cfg.part, max_sims=cfg.max_sims, t_ref=t_ref,
+        horizon=horizon, threshold=cfg.threshold, time_stride=checks.positive_int("refill.time_stride", r.time_stride),
+        device=resolve_device(cfg.device))
+    agg = result["aggregate"]
+    print(f"{agg['n_sims']} {cfg.part} simulations, transport {result['horizon']:g} s after t_ref: layer-fraction "
+          f"error {agg['layer_fraction_error']:.3f}, label agreement {agg['label_agreement']:.2f}, transport MSE "
+          f"{agg['transport_mse']:.2e}, residence MSE {agg['residence_mse']:.2e}; outlet residence-time "
+          f"distribution: Wasserstein {agg['rtd_wasserstein_s']:.3f} s, median error {agg['rtd_median_error_s']:+.3f} s")
     print(f"results in {cfg.paths.output_dir}")
 
 

@@ -66,16 +66,8 @@ class HopperSnapshots(FileSamples):
         rng = self._rng(i)
         q = self.n_queries
 
-        # occupancy: jittered particle centres + uniform points in the box, labelled by the particles
-        n_near = q - self.n_negative if len(present) else 0
-        near = pos[rng.choice(present, n_near)] + _in_ball(rng, n_near, self.radius) if n_near else np.zeros((0, 3))
         lo, hi = np.asarray(self.norm.box_lo), np.asarray(self.norm.box_hi)
-        uniform = lo + rng.random((q - n_near, 3)) * (hi - lo)
-        occ_pos = np.clip(np.concatenate([near, uniform]), lo, hi)
-        occ = np.zeros(q, dtype=np.float32)
-        if len(present):
-            dist, _ = cKDTree(pos[present]).query(occ_pos, k=1, distance_upper_bound=self.radius)
-            occ = np.isfinite(dist).astype(np.float32)
+        occ_pos, occ = occupancy_samples(rng, pos[present], q, self.n_negative, self.radius, lo, hi)
 
         # transport / residence at the particles present now
         if len(present):
@@ -98,6 +90,21 @@ class HopperSnapshots(FileSamples):
         }
 
 
+def occupancy_samples(rng: np.random.Generator, centres: np.ndarray, n_queries: int, n_negative: int,
+                      radius: float, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Occupancy queries and labels: particle `centres` (n, 3) jittered within `radius`, plus `n_negative`
+    points drawn uniformly in the box [lo, hi], labelled by whether a centre lies within `radius`."""
+    n_near = n_queries - n_negative if len(centres) else 0
+    near = centres[rng.choice(len(centres), n_near)] + _in_ball(rng, n_near, radius) if n_near else np.zeros((0, 3))
+    uniform = lo + rng.random((n_queries - n_near, 3)) * (hi - lo)
+    occ_pos = np.clip(np.concatenate([near, uniform]), lo, hi)
+    occ = np.zeros(n_queries, dtype=np.float32)
+    if len(centres):
+        dist, _ = cKDTree(centres).query(occ_pos, k=1, distance_upper_bound=radius)
+        occ = np.isfinite(dist).astype(np.float32)
+    return occ_pos, occ
+
+
 def _in_ball(rng: np.random.Generator, n: int, radius: float) -> np.ndarray:
     v = rng.normal(size=(n, 3))
     v /= np.linalg.norm(v, axis=1, keepdims=True)
@@ -107,6 +114,10 @@ def _in_ball(rng: np.random.Generator, n: int, radius: float) -> np.ndarray:
 class HopperDataModule(L.LightningDataModule):
     """Train/val/test loaders over a hopper dataset dir, for one conditioning list and one split."""
 
+    KIND = "hopper"  # the dataset kind it reads
+    CONDITIONING = CONDITIONING_NAMES  # scalars a model may be conditioned on
+    FIRST_SCALAR = "t"  # the time scalar, always first
+
     def __init__(self, dataset_dir: str, name: str, conditioning: list[str], split: str = "random",
                  batch_size: int = 8, n_queries: int = 1024, negative_fraction: float = 0.5,
                  occupancy_radius_d: float = 0.6, num_workers: int = 0, seed: int = 0,
@@ -114,10 +125,10 @@ class HopperDataModule(L.LightningDataModule):
         super().__init__()
         self.dataset_dir = Path(dataset_dir)
         self.name = name
-        self.conditioning = checks.names("data.conditioning", list(conditioning), allowed=CONDITIONING_NAMES)
-        if self.conditioning[0] != "t":
+        self.conditioning = checks.names("data.conditioning", list(conditioning), allowed=self.CONDITIONING)
+        if self.conditioning[0] != self.FIRST_SCALAR:
             raise ConfigError(f"config value data.conditioning={self.conditioning} is invalid: the first "
-                              "scalar must be the time 't'")
+                              f"scalar must be the time {self.FIRST_SCALAR!r}")
         self.split = checks.one_of("data.split", split, SPLITS)
         self.batch_size = checks.positive_int("data.datamodule.batch_size", batch_size)
         self.n_queries = checks.positive_int("data.datamodule.n_queries", n_queries)
@@ -153,8 +164,8 @@ class HopperDataModule(L.LightningDataModule):
     def prepare_manifest(self) -> Manifest:
         if self.manifest is None:
             m = require_dataset(self.dataset_dir, self.name)
-            if m.kind != "hopper":
-                raise DataError(f"dataset {self.dataset_dir} holds {m.kind!r} data, not hopper data")
+            if m.kind != self.KIND:
+                raise DataError(f"dataset {self.dataset_dir} holds {m.kind!r} data, not {self.KIND} data")
             for part in ("train", "val", "test"):
                 if not m.splits.get(self.split, {}).get(part):
                     raise DataError(f"dataset {self.dataset_dir}: split {self.split!r} has no {part} "

@@ -33,19 +33,25 @@ def capped_exit_times(exit_times: np.ndarray, t_end: float) -> np.ndarray:
 def fields_at(points: np.ndarray, positions: np.ndarray, initial_positions: np.ndarray,
               exit_times: np.ndarray, t: float, t_end: float, radius: float) -> HopperFields:
     """Fields at `points` (Q, 3) from particle `positions` (N, 3; NaN = exited) at time `t`."""
-    present = np.isfinite(positions[:, 0])
     q = len(points)
-    occupied = np.zeros(q, dtype=bool)
     transport = np.full((q, 3), np.nan)
     residence = np.full(q, np.nan)
-    if present.any():
-        idx_present = np.flatnonzero(present)
-        dist, nn = cKDTree(positions[present]).query(points, k=1, distance_upper_bound=radius)
-        occupied = np.isfinite(dist)
-        src = idx_present[nn[occupied]]
-        transport[occupied] = initial_positions[src]
-        residence[occupied] = capped_exit_times(exit_times[src], t_end) - t
+    occupied, src = nearest_particle(points, positions, radius)
+    transport[occupied] = initial_positions[src]
+    residence[occupied] = capped_exit_times(exit_times[src], t_end) - t
     return HopperFields(occupied=occupied, transport=transport, residence=residence)
+
+
+def nearest_particle(points: np.ndarray, positions: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """(occupied (Q,) bool, particle index (n_occupied,)): the particle (row of `positions`, NaN = absent)
+    whose centre is nearest to each query point, for the points with a centre within `radius`."""
+    present = np.isfinite(positions[:, 0])
+    if not present.any():
+        return np.zeros(len(points), dtype=bool), np.zeros(0, dtype=np.int64)
+    idx_present = np.flatnonzero(present)
+    dist, nn = cKDTree(positions[present]).query(points, k=1, distance_upper_bound=radius)
+    occupied = np.isfinite(dist)
+    return occupied, idx_present[nn[occupied]]
 
 
 def trajectory_fields_at(points: np.ndarray, times: np.ndarray, positions: np.ndarray,

@@ -28,11 +28,16 @@ def make_pipeline(data_cfg: DictConfig) -> Pipeline:
         from neuraldem.datagen.hopper import HopperPipeline
 
         return HopperPipeline(data_cfg)
+    if kind == "hopper_refill":
+        from neuraldem.datagen.hopper_refill import RefillPipeline
+
+        return RefillPipeline(data_cfg)
     if kind == "fluidized_bed":
         from neuraldem.datagen.fb import FluidizedBedPipeline
 
         return FluidizedBedPipeline(data_cfg)
-    raise ConfigError(f"config value data.kind={kind!r} is invalid: datagen knows 'hopper' and 'fluidized_bed'")
+    raise ConfigError(f"config value data.kind={kind!r} is invalid: datagen knows 'hopper', "
+                      "'hopper_refill' and 'fluidized_bed'")
 
 
 def summary_lines(m: Manifest, n_sims: int) -> list[str]:

@@ -46,9 +46,12 @@ class HopperModule(L.LightningModule):
                                           "transport": batch["particle_pos"], "residence": batch["particle_pos"]})
         mask = batch["particle_mask"].float()
         n = mask.sum().clamp(min=1.0)
+        # refill data: material inserted after the reference time has no transport target
+        tmask = batch["transport_mask"].float() if "transport_mask" in batch else mask
         losses = {
             "occupancy": F.binary_cross_entropy_with_logits(out["occupancy"][..., 0], batch["occupancy"]),
-            "transport": (((out["transport"] - batch["transport"]) ** 2).mean(-1) * mask).sum() / n,
+            "transport": (((out["transport"] - batch["transport"]) ** 2).mean(-1) * tmask).sum()
+            / tmask.sum().clamp(min=1.0),
             "residence": (((out["residence"][..., 0] - batch["residence"]) ** 2) * mask).sum() / n,
         }
         with torch.no_grad():

@@ -114,15 +114,22 @@ class HopperGeometry:
                   "sink")
 
 
-def hopper_input(scene: HopperScene, geom: HopperGeometry, material: Material, seeds: list[int]) -> str:
-    d, dt = material.diameter, material.dt
+def settle_steps(scene: HopperScene) -> int:
+    """Steps of the fill + settle stage: the opening step, a multiple of the dump step."""
+    n_snap = round(scene.snapshot_interval / scene.material.dt)
+    return math.ceil(scene.settle_time / scene.snapshot_interval) * n_snap
+
+
+def fill_and_settle_input(scene: HopperScene, geom: HopperGeometry, material: Material, seeds: list[int],
+                          title: str, before_fill: str = "") -> str:
+    """The input up to the opening of the outlet, shared by the draining and the refilling hopper: box,
+    material, meshes, the loose fill (insert/pack) and settling with the plate closed. `before_fill` goes
+    in just before the fill (e.g. per-atom properties the fill particles must get)."""
+    d = material.diameter
     half = geom.radius + 0.01
-    n_snap = round(scene.snapshot_interval / dt)
-    n_settle = math.ceil(scene.settle_time / scene.snapshot_interval) * n_snap  # a multiple of the dump step
-    n_chunk = round(scene.stall_time / dt)
-    n_loops = math.ceil(scene.max_time / scene.stall_time)
+    n_settle = settle_steps(scene)
     r_ins = geom.radius - 0.6 * d
-    return f"""# neuraldem draining hopper (generated; all values from the dataset's scene config)
+    return f"""# neuraldem {title} (generated; all values from the dataset's scene config)
 {liggghts.preamble()}
 region domain block {-half} {half} {-half} {half} {geom.sink_z - 0.02} {geom.wall_height + 0.02} units box
 create_box 2 domain
@@ -134,7 +141,7 @@ fix wall all mesh/surface file wall.stl type 2 curvature_tolerant yes
 fix plate all mesh/surface file plate.stl type 2
 fix sink all mesh/surface/planar file sink.stl type 2
 fix walls all wall/gran {material.wall_model} mesh n_meshes 2 meshes wall plate
-
+{before_fill}
 region fill cylinder z 0.0 0.0 {r_ins} {geom.cone_height + d} {geom.wall_height - d} units box
 fix template all particletemplate/sphere {seeds[0]} atom_type 1 &
     density constant {material.density} radius constant {material.radius}
@@ -151,7 +158,15 @@ run {n_settle}
 unfix insert
 print "NEURALDEM_INSERTED ${{natoms}}"
 print "NEURALDEM_OPEN_STEP {n_settle}"
+"""
 
+
+def hopper_input(scene: HopperScene, geom: HopperGeometry, material: Material, seeds: list[int]) -> str:
+    dt = material.dt
+    n_snap = round(scene.snapshot_interval / dt)
+    n_chunk = round(scene.stall_time / dt)
+    n_loops = math.ceil(scene.max_time / scene.stall_time)
+    return fill_and_settle_input(scene, geom, material, seeds, "draining hopper") + f"""
 unfix walls
 fix walls all wall/gran {material.wall_model} mesh n_meshes 1 meshes wall
 fix exits all massflow/mesh mesh sink vec_side 0.0 0.0 -1.0 count once delete_atoms yes file exits.txt writeTime
@@ -241,18 +256,22 @@ def trajectory_from_files(dump_path: Path, exit_path: Path | None, dt: float, op
                             n_inserted=n_inserted if n_inserted is not None else N, geometry=geometry)
 
 
+def particles_over_outlet(positions: np.ndarray, outlet_radius: float, diameter: float) -> int:
+    """Particle centres (N, 3; NaN = gone) in the column just above the outlet: within 0.8 outlet radii of
+    the axis, below 2 outlet radii. More than 3 there when the flow has stopped is an arch (a clog)."""
+    alive = np.isfinite(positions[:, 0])
+    r = np.hypot(positions[alive, 0], positions[alive, 1])
+    z = positions[alive, 2]
+    return int(((r < 0.8 * outlet_radius) & (z > -diameter) & (z < 2 * outlet_radius)).sum())
+
+
 def classify(traj: HopperTrajectory, scene: HopperScene, ended_by: str) -> tuple[str, str]:
     """ok, or clogged: flow stopped (stall) while particles still sit in the column above the outlet.
 
     A dead zone on a flat bottom is not a clog: it rests beside the outlet, the column above it is empty."""
     if ended_by != "stall":
         return STATUS_OK, ""
-    last = traj.positions[-1]
-    alive = np.isfinite(last[:, 0])
-    r = np.hypot(last[alive, 0], last[alive, 1])
-    z = last[alive, 2]
-    ro = traj.geometry.outlet_radius
-    in_column = int(((r < 0.8 * ro) & (z > -scene.material.diameter) & (z < 2 * ro)).sum())
+    in_column = particles_over_outlet(traj.positions[-1], traj.geometry.outlet_radius, scene.material.diameter)
     if in_column > 3:
         return STATUS_CLOGGED, f"flow stopped with {in_column} particles arching over the outlet"
     return STATUS_OK, ""
