@@ -1,5 +1,6 @@
 """The paper's optimisation (LION, linear warm-up then cosine decay) from `model.optimizer` / `model.scheduler`,
-validated once here so every LightningModule checks the same keys the same way."""
+validated once here so every LightningModule checks the same keys the same way. `model.optimizer.name: adam`
+takes Adam instead (the GNS baseline's optimizer), with the same schedule."""
 
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ from neuraldem.config import checks
 from neuraldem.errors import ConfigError
 from neuraldem.lit.schedules import warmup_cosine
 
-DEFAULT_OPTIMIZER = {"lr": 1e-4, "weight_decay": 0.05, "betas": [0.9, 0.99]}
+DEFAULT_OPTIMIZER = {"name": "lion", "lr": 1e-4, "weight_decay": 0.05, "betas": [0.9, 0.99]}
+OPTIMIZERS = ("lion", "adam")
 DEFAULT_SCHEDULER = {"warmup_steps": 100, "end_factor": 0.01}
 FALLBACK_TOTAL_STEPS = 10_000  # cosine length when the trainer has no max_steps
 
@@ -35,6 +37,7 @@ def optimizer_settings(optimizer: DictConfig | dict | None,
         unknown = sorted(set(values) - set(known))
         if unknown:
             raise ConfigError(f"unknown key(s) {unknown} in {key}; known: {sorted(known)}")
+    checks.one_of("model.optimizer.name", opt["name"], OPTIMIZERS)
     checks.positive("model.optimizer.lr", opt["lr"])
     checks.number("model.optimizer.weight_decay", opt["weight_decay"], lo=0.0)
     betas = opt["betas"]
@@ -50,8 +53,10 @@ def optimizer_settings(optimizer: DictConfig | dict | None,
 
 def lion_warmup_cosine(params: Any, opt: dict[str, Any], sched: dict[str, Any],
                        max_steps: int | None) -> dict[str, Any]:
-    """What `configure_optimizers` returns: LION with the schedule stepped every optimizer step."""
-    optimizer = Lion(params, lr=opt["lr"], betas=tuple(opt["betas"]), weight_decay=opt["weight_decay"])
+    """What `configure_optimizers` returns: LION (or Adam, `opt["name"]`) with the schedule stepped every
+    optimizer step."""
+    kwargs = {"lr": opt["lr"], "betas": tuple(opt["betas"]), "weight_decay": opt["weight_decay"]}
+    optimizer = torch.optim.Adam(params, **kwargs) if opt.get("name") == "adam" else Lion(params, **kwargs)
     total = max_steps if max_steps and max_steps > 0 else FALLBACK_TOTAL_STEPS
     warm, end = sched["warmup_steps"], sched["end_factor"]
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: warmup_cosine(s, warm, total, end))
