@@ -23,6 +23,8 @@ BENCHMARKS = {
                  "DPMFoam vs the fluidized-bed rollout per simulated second, side by side (speed-up ratios)"),
     "fb_stability": ("neuraldem.bench.fb_stability",
                      "fluidized-bed stability map: steps to divergence / solid-volume drift across velocities"),
+    "gns_stability": ("neuraldem.bench.gns_stability",
+                      "the GNS baseline's stability map on the fluidized bed (fb_stability's JSON and figure)"),
     "all": ("neuraldem.bench.suite:run_all", "the hopper benchmarks above, and the fluidized bed's with --fb-ckpt"),
     "render": ("neuraldem.bench.suite:render", "redraw every figure and table from the results files"),
 }

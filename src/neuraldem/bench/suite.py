@@ -113,7 +113,8 @@ def render(argv: list[str]) -> int:
     a = p.parse_args(argv)
     out_dir = a.out_dir or default_out_dir()
     written = []
-    for name in ("hopper_speed", "hopper_scaling", "speed_accuracy", "right_sizing", "fb_speed", "fb_stability"):
+    for name in ("hopper_speed", "hopper_scaling", "speed_accuracy", "right_sizing", "fb_speed", "fb_stability",
+                 "gns_stability"):
         path = out_dir / f"{name}.json"
         if not path.is_file():
             continue
@@ -126,7 +127,7 @@ def render(argv: list[str]) -> int:
         elif name == "fb_speed":
             written.append(_write(path.with_suffix(".md"), fb_speed.render_markdown(results, payload["machine"])))
             written.append(plots.fb_speed_figure(results, path.with_suffix(".png")))
-        elif name == "fb_stability":
+        elif name in ("fb_stability", "gns_stability"):
             written.append(plots.fb_stability_figure(results, path.with_suffix(".png")))
         elif name == "speed_accuracy":
             written.append(plots.speed_accuracy_figure(results, path.with_suffix(".png")))

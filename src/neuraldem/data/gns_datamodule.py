@@ -144,6 +144,7 @@ class GnsNormalizer:
     acceleration_std: list[float]
     scalar_lo: dict[str, float] = field(default_factory=dict)
     scalar_hi: dict[str, float] = field(default_factory=dict)
+    horizon_steps: int = 0  # steps of the longest training run (the "training horizon")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -176,12 +177,13 @@ class GnsNormalizer:
             conditioning: list[str]) -> GnsNormalizer:
         """Statistics of the velocities and accelerations of every particle step of the training runs."""
         sums = {"v": [np.zeros(3), np.zeros(3), 0], "a": [np.zeros(3), np.zeros(3), 0]}
-        lengths, dts = [], []
+        lengths, dts, horizon = [], [], 0
         for path, _ in runs:
             with ParticleRun(path, kind, scene) as run:  # validates every training file once
                 x = run.positions()
                 lengths.append(float(np.mean(run.diameters)))
                 dts.append(run.dt)
+                horizon = max(horizon, run.n_snapshots - 1)
             v = (x[1:] - x[:-1]) / run.dt
             a = (x[2:] - 2 * x[1:-1] + x[:-2]) / run.dt**2
             for key, arr in (("v", v), ("a", a)):
@@ -208,7 +210,7 @@ class GnsNormalizer:
                    conditioning=list(conditioning), velocity_mean=stats["v"][0], velocity_std=stats["v"][1],
                    acceleration_mean=stats["a"][0], acceleration_std=stats["a"][1],
                    scalar_lo={k: float(min(v)) for k, v in values.items()},
-                   scalar_hi={k: float(max(v)) for k, v in values.items()})
+                   scalar_hi={k: float(max(v)) for k, v in values.items()}, horizon_steps=horizon)
 
 
 def graph_inputs(norm: GnsNormalizer, run: ParticleRun, history_positions: np.ndarray,

@@ -12,7 +12,8 @@ import torch
 from neuraldem.data.manifest import Manifest
 from neuraldem.errors import DataError
 
-TRAIN_HINT = {"hopper": "experiment=hopper_micro", "fluidized_bed": "experiment=fb"}
+TRAIN_HINT = {"hopper": "experiment=hopper_micro", "fluidized_bed": "experiment=fb",
+              "gns": "experiment=gns_hopper (or gns_fb)"}
 
 
 def checkpoint_metadata(path: Path) -> dict[str, Any]:
