@@ -153,8 +153,9 @@ def rollout(accelerate: Accelerator, run: ParticleRun, norm: GnsNormalizer, scal
     failed_at, failure = None, ""
     for s in range(1, steps + 1):
         alive = tracked & ~exited
-        a = np.asarray(accelerate(s, graph_inputs(norm, run, hist[:, alive], scalars)), dtype=np.float64)
         present = np.flatnonzero(alive)
+        a = (np.asarray(accelerate(s, graph_inputs(norm, run, hist[:, alive], scalars)), dtype=np.float64)
+             if len(present) else np.zeros((0, 3)))  # an empty hopper stays empty
         if a.shape != (len(present), 3):  # a predictor that lost or invented particles
             failed_at, failure = s, (f"particle count changed: {len(a)} accelerations for {len(present)} particles "
                                      "(mass not conserved)")

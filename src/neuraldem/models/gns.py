@@ -111,7 +111,7 @@ class GraphNetworkSimulator(nn.Module):
         n = pos.shape[0]
         if velocities.shape != (n, self.history, 3):
             raise ValueError(f"velocities have shape {tuple(velocities.shape)}, expected ({n}, {self.history}, 3)")
-        parts = [velocities.reshape(n, -1), wall_distances(pos, box_lo, box_hi, batch, self.radius)]
+        parts = [velocities.reshape(n, 3 * self.history), wall_distances(pos, box_lo, box_hi, batch, self.radius)]
         if self.n_extra_walls:
             if wall_distance is None or wall_distance.shape != (n, self.n_extra_walls):
                 got = None if wall_distance is None else tuple(wall_distance.shape)

@@ -13,6 +13,7 @@ from omegaconf import DictConfig, OmegaConf
 from torch import nn
 
 from neuraldem.errors import ConfigError, NeuraldemError
+from neuraldem.models.gns import GraphNetworkSimulator
 from neuraldem.models.hopper_field import HopperFieldModel
 from neuraldem.models.multi_branch_operator import MultiBranchOperator
 from neuraldem.paths import config_dir
@@ -20,6 +21,7 @@ from neuraldem.paths import config_dir
 NETS: dict[str, type[nn.Module]] = {
     "hopper_field": HopperFieldModel,
     "multi_branch_operator": MultiBranchOperator,
+    "gns": GraphNetworkSimulator,
 }
 _TARGETS = {f"{cls.__module__}.{cls.__qualname__}": cls for cls in NETS.values()}
 
