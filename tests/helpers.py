@@ -77,3 +77,24 @@ def copy_dataset(src: Path, dst: Path) -> Path:
     shutil.copy2(src / "manifest.json", dst / "manifest.json")
     shutil.copytree(src / "sims", dst / "sims")
     return dst
+
+
+def train_tiny_gns(dataset: Path, name: str, path: Path) -> Path:
+    """A GNS (model gns_tiny, history 2) trained for 3 steps on a tiny dataset, saved at `path` (for rollout
+    and benchmark plumbing, not accuracy)."""
+    import lightning as L
+    import torch
+    from omegaconf import OmegaConf
+
+    from neuraldem.data.gns_datamodule import GnsDataModule
+    from neuraldem.lit.gns_module import GnsModule
+
+    torch.manual_seed(0)
+    dm = GnsDataModule(str(dataset), name, history=2)
+    cfg = OmegaConf.load(config_dir() / "model" / "gns_tiny.yaml")
+    module = GnsModule(cfg.net, datamodule=dm, optimizer=cfg.optimizer, scheduler=cfg.scheduler)
+    trainer = L.Trainer(max_steps=3, accelerator="cpu", logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0)
+    trainer.fit(module, datamodule=dm)
+    trainer.save_checkpoint(path)
+    return path

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from tests.helpers import run_module
 
 
@@ -59,3 +61,23 @@ def test_training_without_any_logger(hopper_tiny_dataset: Path, tmp_path: Path):
                       f"hydra.run.dir={tmp_path}/run", env={"NEURALDEM_DATA": str(tmp_path)})
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert (tmp_path / "run" / "checkpoints" / "last.ckpt").is_file()
+
+
+@pytest.mark.solver
+@pytest.mark.parametrize("scene", ["hopper", "fb"])
+def test_gns_experiments_train(scene: str, request: pytest.FixtureRequest, tmp_path: Path):
+    """`experiment=gns_<scene>_tiny` trains the particle baseline through the same entry point."""
+    dataset = request.getfixturevalue(f"{'hopper' if scene == 'hopper' else 'fb'}_tiny_dataset")
+    proc = run_module("neuraldem.train", f"experiment=gns_{scene}_tiny", "logger=none", "trainer.max_steps=2",
+                      "trainer.val_check_interval=2", f"data.dataset_dir={dataset}", f"hydra.run.dir={tmp_path}/run",
+                      env={"NEURALDEM_DATA": str(tmp_path)})
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert (tmp_path / "run" / "checkpoints" / "last.ckpt").is_file()
+
+
+@pytest.mark.solver
+def test_gns_bad_value_is_one_line(hopper_tiny_dataset: Path, tmp_path: Path):
+    out = _one_clear_error(run_module("neuraldem.train", "experiment=gns_hopper_tiny", "logger=none",
+                                      "data.datamodule.noise_std=5", f"data.dataset_dir={hopper_tiny_dataset}",
+                                      f"hydra.run.dir={tmp_path}/run", env={"NEURALDEM_DATA": str(tmp_path)}))
+    assert "data.datamodule.noise_std=5 is invalid" in out

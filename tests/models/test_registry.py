@@ -5,7 +5,7 @@ from neuraldem.errors import ConfigError
 from neuraldem.models import registry
 from neuraldem.models.registry import NETS, build_net, model_config_names, net_config
 
-CPU_CONFIGS = ["hopper_tiny", "hopper_base", "hopper_small", "fb_tiny", "fb_small"]
+CPU_CONFIGS = ["hopper_tiny", "hopper_base", "hopper_small", "fb_tiny", "fb_small", "gns_tiny", "gns_small"]
 PAPER_PARAMS = 850e6
 
 
@@ -25,6 +25,9 @@ def test_config_builds_and_runs(name):
     if name.startswith("hopper"):
         out = model(**model.example_inputs(batch_size=2, n_queries=10))
         expected = {"occupancy": (2, 10, 1), "transport": (2, 10, 3), "residence": (2, 10, 1)}
+    elif name.startswith("gns"):
+        out = {"acceleration": model(**model.example_inputs(n_graphs=2, n_particles=30))}
+        expected = {"acceleration": (60, 3)}
     else:
         x = model.example_inputs(batch_size=2, n_particles=300, grid_shape=(12, 1, 30))
         out = model(x)
