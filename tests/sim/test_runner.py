@@ -29,8 +29,13 @@ def _kill_when_started(marker: Path, sig: signal.Signals) -> threading.Thread:
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL, signal.SIGINT])
-def test_killed_from_outside_is_interrupted_not_failed(tmp_path: Path, sig: signal.Signals):
+def test_killed_from_outside_is_interrupted_not_failed(tmp_path: Path, sig: signal.Signals,
+                                                      request: pytest.FixtureRequest):
     pid_file = tmp_path / "pid"
+    # a job started in the background (`cmd &`, as CI may be) inherits SIGINT ignored, and so would the solver;
+    # any Python handler here is reset to the default in the child at exec, as in an interactive session
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    request.addfinalizer(lambda: signal.signal(signal.SIGINT, previous))
     killer = _kill_when_started(pid_file, sig)
     # exec: the pid written is the sleeping process itself
     script = f"echo $$ > {pid_file}; exec sleep 30"
