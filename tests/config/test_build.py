@@ -27,3 +27,19 @@ def test_trainer_switch_wins_over_the_callback(tmp_path):
     cfg = OmegaConf.create({**TRAINER, "default_root_dir": str(tmp_path), "enable_progress_bar": False})
     trainer = build_trainer(cfg, [TQDMProgressBar()], [])
     assert trainer.progress_bar_callback is None
+
+
+def test_checkpoint_on_rollout_metrics_needs_the_rollout_callback(tmp_path):
+    from neuraldem.config.build import build_callbacks
+    from neuraldem.errors import ConfigError
+
+    ckpt = {"_target_": "lightning.pytorch.callbacks.ModelCheckpoint", "dirpath": str(tmp_path),
+            "monitor": "val/rollout_score"}
+    rollout = {"_target_": "neuraldem.eval.fb_rollout_validation.RolloutValidation", "steps": 10}
+    built = build_callbacks(OmegaConf.create({"checkpoint": ckpt, "rollout_validation": rollout}))
+    assert [type(cb).__name__ for cb in built] == ["ModelCheckpoint", "RolloutValidation"]
+    import pytest
+
+    with pytest.raises(ConfigError, match="callbacks.checkpoint.monitor=val/rollout_score .*val/loss"):
+        build_callbacks(OmegaConf.create({"checkpoint": ckpt, "rollout_validation": None}))
+    build_callbacks(OmegaConf.create({"checkpoint": {**ckpt, "monitor": "val/loss"}}))  # one-step loss: fine

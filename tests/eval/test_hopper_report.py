@@ -63,7 +63,7 @@ def test_checkpoint_on_another_scene_is_refused(tiny_checkpoint: Path, hopper_ti
     m = Manifest.load(other)
     m.scene["hopper"]["n_particles"] = 400
     m.save(other)
-    with pytest.raises(DataError, match=r"scene differs .*\['hopper'\]"):
+    with pytest.raises(DataError, match=r"scene differs .*\['hopper\.n_particles'\]"):
         evaluate_checkpoint(tiny_checkpoint, tmp_path / "out", tmp_path, dataset_dir=other, progress=False)
 
 

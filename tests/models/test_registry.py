@@ -5,7 +5,7 @@ from neuraldem.errors import ConfigError
 from neuraldem.models import registry
 from neuraldem.models.registry import NETS, build_net, model_config_names, net_config
 
-CPU_CONFIGS = ["hopper_tiny", "hopper_base", "hopper_small", "fb_tiny", "fb_small", "gns_tiny", "gns_small"]
+CPU_CONFIGS = ["hopper_tiny", "hopper_base", "hopper_small", "fb_tiny", "fb_base", "fb_small", "gns_tiny", "gns_small"]
 PAPER_PARAMS = 850e6
 
 
@@ -39,6 +39,13 @@ def test_config_builds_and_runs(name):
 @pytest.mark.parametrize(("name", "band"), [("hopper_small", (1e6, 5e6)), ("fb_small", (1e6, 5e6))])
 def test_small_configs_fit_cpu_training(name, band):
     assert band[0] <= n_params(build_net(name)) <= band[1]
+
+
+def test_size_ladders_grow():
+    """tiny < base < small for each scene: the right-sizing benchmarks compare them in this order."""
+    for scene in ("hopper", "fb"):
+        counts = [n_params(build_net(f"{scene}_{size}")) for size in ("tiny", "base", "small")]
+        assert counts == sorted(counts) and len(set(counts)) == 3, (scene, counts)
 
 
 def test_paper_config_parameter_count():

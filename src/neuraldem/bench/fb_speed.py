@@ -32,10 +32,10 @@ from neuraldem.bench.report import command_line, machine_info, resolve_out, warn
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock, Sample, Timing, side_by_side, time_call, torch_threads
 from neuraldem.config import checks
 from neuraldem.data.fb_store import FbFile
-from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
+from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.datagen.fb import packing_seed
 from neuraldem.errors import ConfigError, DataError, SolverError
-from neuraldem.eval.checkpoints import check_scene
+from neuraldem.eval.checkpoints import checkpoint_dataset
 from neuraldem.eval.fb_rollout import (
     DivergenceLimits,
     FbState,
@@ -86,9 +86,7 @@ def bench_case(module: FluidizedBedModule, ckpt: Path, dataset_dir: Path | None,
     """The checkpoint's dataset (checked to be of its scene) and the trajectory to time: `sim_id`, else the
     first test trajectory of the checkpoint's split, else the first usable one."""
     meta = module.metadata
-    dataset_dir = Path(dataset_dir) if dataset_dir else data_dir() / "datasets" / meta["data_name"]
-    m = require_dataset(dataset_dir, meta["data_name"])
-    check_scene(meta, m, Path(ckpt), dataset_dir)
+    dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), data_dir() / "datasets", dataset_dir)
     if m.kind != "fluidized_bed" or "fluidized_bed" not in m.scene:
         raise DataError(f"{dataset_dir}/manifest.json: kind={m.kind!r}, not a fluidized-bed dataset: pass the "
                         "dataset the checkpoint was trained on (--dataset)")

@@ -18,9 +18,9 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from neuraldem.data.hopper_store import HopperFile
-from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
+from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.normalization import HopperNormalizer
-from neuraldem.eval.checkpoints import check_scene, checkpoint_metadata, require_kind
+from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, require_kind
 from neuraldem.eval.hopper_predict import ModelPredictor, TrajectoryFields, time_grid
 from neuraldem.eval.hopper_report import load_hopper_checkpoint
 from neuraldem.models.registry import build_net
@@ -64,9 +64,7 @@ def surrogate_dataset(surrogate: Surrogate, dataset_dir: Path | None, datasets_d
     """The dataset the surrogate was trained on (default `datasets_dir/<data_name>`), checked to be of the
     same scene, so the surrogate and the solver answer questions about the same hopper."""
     meta = surrogate.metadata
-    dataset_dir = Path(dataset_dir) if dataset_dir else Path(datasets_dir) / meta["data_name"]
-    m = require_dataset(dataset_dir, meta["data_name"])
-    check_scene(meta, m, surrogate.checkpoint or Path("?"), dataset_dir)
+    dataset_dir, m = checkpoint_dataset(meta, surrogate.checkpoint or Path("?"), datasets_dir, dataset_dir)
     return dataset_dir, m
 
 

@@ -6,13 +6,14 @@ from typing import Any
 
 import lightning as L
 from hydra.utils import instantiate
-from lightning.pytorch.callbacks import LearningRateMonitor, ProgressBar
+from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, ProgressBar
 from omegaconf import DictConfig
 
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError
 
 ACCELERATORS = ("auto", "cpu", "gpu", "cuda", "mps")
+ROLLOUT_METRICS = "val/rollout_"  # logged by neuraldem.eval.fb_rollout_validation.RolloutValidation
 
 
 def check_trainer(cfg: DictConfig) -> None:
@@ -79,4 +80,17 @@ def build_callbacks(cfg: DictConfig | None, with_logger: bool = True) -> list[An
     callbacks = _build_group("callbacks", cfg)
     if not with_logger:
         callbacks = [cb for cb in callbacks if not isinstance(cb, LearningRateMonitor)]
+    check_monitored_metrics(callbacks)
     return callbacks
+
+
+def check_monitored_metrics(callbacks: list[Any]) -> None:
+    """A checkpoint that monitors the rollout validation's metrics needs that callback: without it Lightning
+    would stop the run at its first validation, minutes or hours in; say so before training starts."""
+    logs_rollouts = any(type(cb).__name__ == "RolloutValidation" for cb in callbacks)
+    for cb in callbacks:
+        monitor = getattr(cb, "monitor", None) if isinstance(cb, ModelCheckpoint) else None
+        if monitor and str(monitor).startswith(ROLLOUT_METRICS) and not logs_rollouts:
+            raise ConfigError(f"config value callbacks.checkpoint.monitor={monitor} is invalid: only "
+                              "callbacks.rollout_validation logs it, and it is disabled (override it, e.g. "
+                              "callbacks.checkpoint.monitor=val/loss)")

@@ -22,16 +22,15 @@ import logging
 from pathlib import Path
 from typing import Any
 
-import lightning as L
 import numpy as np
 import torch
-from torch.utils.data import DataLoader
 
 from neuraldem.config import checks
 from neuraldem.data.fb_normalization import FbNormalizer
 from neuraldem.data.fb_store import KIND, FbFile
 from neuraldem.data.file_samples import FileSamples
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
+from neuraldem.data.part_loaders import PartLoaders
 from neuraldem.errors import ConfigError, DataError
 
 log = logging.getLogger(__name__)
@@ -123,7 +122,7 @@ class FbSamples(FileSamples):
         }
 
 
-class FluidizedBedDataModule(L.LightningDataModule):
+class FluidizedBedDataModule(PartLoaders):
     """Train/val/test loaders over a fluidized-bed dataset dir, split by inlet velocity (manifest)."""
 
     def __init__(self, dataset_dir: str, name: str, conditioning: list[str] | None = None,
@@ -207,22 +206,6 @@ class FluidizedBedDataModule(L.LightningDataModule):
             raise ConfigError(f"config value data.datamodule.push_forward_steps={self.push_forward_steps} is "
                               f"invalid: the shortest training trajectory of {self.dataset_dir} has {shortest} "
                               "steps (override it, e.g. data.datamodule.push_forward_steps=2)")
-
-    def _loader(self, part: str, shuffle: bool) -> DataLoader | list:
-        if not len(self.datasets[part]):
-            return []
-        return DataLoader(self.datasets[part], batch_size=self.batch_size, shuffle=shuffle,
-                          num_workers=self.num_workers, persistent_workers=self.num_workers > 0,
-                          drop_last=shuffle and len(self.datasets[part]) >= self.batch_size)
-
-    def train_dataloader(self) -> DataLoader | list:
-        return self._loader("train", shuffle=True)
-
-    def val_dataloader(self) -> DataLoader | list:
-        return self._loader("val", shuffle=False)
-
-    def test_dataloader(self) -> DataLoader | list:
-        return self._loader("test", shuffle=False)
 
     def checkpoint_metadata(self) -> dict[str, Any]:
         """What a rollout and the evaluation need to use a trained model correctly (in every checkpoint)."""

@@ -26,17 +26,17 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Self
 
-import lightning as L
 import numpy as np
 import torch
 from torch_geometric.data import Data
-from torch_geometric.loader import DataLoader
+from torch_geometric.loader import DataLoader as GraphLoader
 
 from neuraldem.config import checks
 from neuraldem.data.fb_store import FbFile
 from neuraldem.data.file_samples import FileSamples
 from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
+from neuraldem.data.part_loaders import PartLoaders
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.sim.hopper import HopperGeometry
 
@@ -272,9 +272,11 @@ class GnsSamples(FileSamples):
         return Data(num_nodes=len(nodes), y=target, mask=torch.from_numpy(mask), **x)
 
 
-class GnsDataModule(L.LightningDataModule):
+class GnsDataModule(PartLoaders):
     """Train/val/test loaders (torch_geometric batches: one graph per sample) over a hopper or
     fluidized-bed dataset, for one conditioning list and one split of the manifest."""
+
+    loader_class = GraphLoader
 
     def __init__(self, dataset_dir: str, name: str, conditioning: list[str] | None = None, split: str | None = None,
                  history: int = 5, noise_std: float = 0.0, batch_size: int = 2, num_workers: int = 0, seed: int = 0,
@@ -353,22 +355,6 @@ class GnsDataModule(L.LightningDataModule):
             raise ConfigError(f"config value data.datamodule.history={self.history} is invalid: no training run of "
                               f"{self.dataset_dir} has {self.history + 2} snapshots (override it, e.g. "
                               "data.datamodule.history=2)")
-
-    def _loader(self, part: str, shuffle: bool) -> DataLoader | list:
-        if not len(self.datasets[part]):
-            return []
-        return DataLoader(self.datasets[part], batch_size=self.batch_size, shuffle=shuffle,  # type: ignore[arg-type]
-                          num_workers=self.num_workers, persistent_workers=self.num_workers > 0,
-                          drop_last=shuffle and len(self.datasets[part]) >= self.batch_size)
-
-    def train_dataloader(self) -> DataLoader | list:
-        return self._loader("train", shuffle=True)
-
-    def val_dataloader(self) -> DataLoader | list:
-        return self._loader("val", shuffle=False)
-
-    def test_dataloader(self) -> DataLoader | list:
-        return self._loader("test", shuffle=False)
 
     def checkpoint_metadata(self) -> dict[str, Any]:
         """What a rollout needs to use a trained GNS correctly (in every checkpoint). `kind` is "gns" so that

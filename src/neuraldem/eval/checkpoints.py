@@ -9,7 +9,7 @@ from typing import Any
 
 import torch
 
-from neuraldem.data.manifest import Manifest
+from neuraldem.data.manifest import Manifest, require_dataset
 from neuraldem.errors import DataError
 
 TRAIN_HINT = {"hopper": "experiment=hopper_micro", "fluidized_bed": "experiment=fb",
@@ -45,6 +45,16 @@ def check_scene(meta: dict[str, Any], m: Manifest, ckpt: Path, dataset_dir: Path
         keys = differing_keys(meta["scene"], m.scene)
         raise DataError(f"checkpoint {ckpt} was trained on dataset {meta['data_name']!r} whose scene differs "
                         f"from {dataset_dir} (in {keys[:8]}): use data of its own scene")
+
+
+def checkpoint_dataset(meta: dict[str, Any], ckpt: Path, datasets_dir: Path,
+                       dataset_dir: Path | None = None) -> tuple[Path, Manifest]:
+    """The dataset a checkpoint is scored on (`dataset_dir`, else the one it was trained on under
+    `datasets_dir`) and its manifest; refused when missing or of another scene."""
+    dataset_dir = Path(dataset_dir) if dataset_dir else Path(datasets_dir) / meta["data_name"]
+    m = require_dataset(dataset_dir, meta["data_name"])
+    check_scene(meta, m, Path(ckpt), dataset_dir)
+    return dataset_dir, m
 
 
 def differing_keys(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> list[str]:

@@ -19,8 +19,8 @@ from neuraldem.eval.run_results import find_results
 
 
 def run_name(result: dict) -> str:
-    """The run's folder name (<run>/evaluation/metrics.json)."""
-    return Path(result["path"]).parent.parent.name
+    """The run's folder (<run>/evaluation/metrics.json) relative to the folder searched, e.g. fb_base/noise_pf."""
+    return result.get("run") or Path(result["path"]).parent.parent.name
 
 
 def _f(v: float | None, fmt: str) -> str:

@@ -28,12 +28,12 @@ import numpy as np
 
 from neuraldem.config import checks
 from neuraldem.data.fb_store import FbFile
-from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
+from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.eval import fb_metrics as fm
 from neuraldem.eval import fb_plots
-from neuraldem.eval.checkpoints import check_scene
+from neuraldem.eval.checkpoints import checkpoint_dataset
 from neuraldem.eval.fb_report import metric_settings
 from neuraldem.eval.fb_rollout import (
     DivergenceLimits,
@@ -221,9 +221,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     device = resolve_device(device)
     module = load_fb_checkpoint(ckpt, device)
     meta, norm = module.metadata, module.norm
-    dataset_dir = Path(dataset_dir) if dataset_dir else Path(datasets_dir) / meta["data_name"]
-    m = require_dataset(dataset_dir, meta["data_name"])
-    check_scene(meta, m, Path(ckpt), dataset_dir)
+    dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), datasets_dir, dataset_dir)
     split = split or meta["split"]
     records = held_out(m, split, part, max_sims)
     if not records:

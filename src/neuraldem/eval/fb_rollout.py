@@ -28,7 +28,7 @@ import json
 import logging
 import warnings
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -42,10 +42,9 @@ from neuraldem.config import checks
 from neuraldem.data.fb_datamodule import grid_input, mixing_input
 from neuraldem.data.fb_normalization import FbNormalizer
 from neuraldem.data.fb_store import FbFile
-from neuraldem.data.manifest import require_dataset
 from neuraldem.data.schema import SCHEMA_VERSION, ValidatedH5File, atomic_write_h5, atomic_write_json
 from neuraldem.errors import DataError
-from neuraldem.eval.checkpoints import check_scene, checkpoint_metadata, require_kind
+from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, require_kind
 from neuraldem.eval.vtk_export import write_grid_series, write_point_series
 from neuraldem.lit.fb_autoregressive import advance
 from neuraldem.lit.fb_module import FluidizedBedModule
@@ -249,7 +248,7 @@ def write_rollout(path: Path, r: Rollout, grid: BoxGrid, particle_volume: float,
         f.attrs.update(schema_version=SCHEMA_VERSION, kind=ROLLOUT_KIND, steps_requested=r.steps_requested,
                        diverged_at=-1 if r.diverged_at is None else r.diverged_at, divergence=r.divergence,
                        neuraldem_version=__version__,
-                       created_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"))
+                       created_utc=datetime.now(UTC).isoformat(timespec="seconds"))
         for k, v in attrs.items():
             f.attrs[k] = json.dumps(v) if isinstance(v, (dict, list, tuple)) or v is None else v
         f.create_group("grid").attrs.update(lo=np.asarray(grid.lo), hi=np.asarray(grid.hi),
@@ -351,9 +350,7 @@ def initial_file(meta: dict[str, Any], ckpt: Path, velocity: float, datasets_dir
     (`init_sim`, or the one closest in inlet velocity). Returns (path, description)."""
     if init is not None:
         return Path(init), str(init)
-    dataset_dir = Path(dataset_dir) if dataset_dir else Path(datasets_dir) / meta["data_name"]
-    m = require_dataset(dataset_dir, meta["data_name"])
-    check_scene(meta, m, Path(ckpt), dataset_dir)
+    dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), datasets_dir, dataset_dir)
     if init_sim is not None:
         rec = m.record(init_sim)
         if not rec.usable:

@@ -39,11 +39,11 @@ from scipy.spatial import cKDTree
 from neuraldem.config import checks
 from neuraldem.data.fb_fields import mixing_concentration, particle_volumes, solid_fraction
 from neuraldem.data.gns_datamodule import GnsNormalizer, ParticleRun, graph_inputs
-from neuraldem.data.manifest import Manifest, require_dataset
+from neuraldem.data.manifest import Manifest
 from neuraldem.data.schema import atomic_write_h5, atomic_write_json
 from neuraldem.errors import DataError, NeuraldemError
 from neuraldem.eval import hopper_metrics as hm
-from neuraldem.eval.checkpoints import check_scene, checkpoint_metadata, require_kind
+from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, require_kind
 from neuraldem.lit.gns_module import GnsModule
 from neuraldem.paths import data_dir
 
@@ -256,9 +256,7 @@ def run_gns_rollout(ckpt: Path, out_dir: Path | None = None, sim: str | None = N
         checks.positive_int("--steps", steps)
     module = load_gns_checkpoint(Path(ckpt))
     meta, norm = module.metadata, module.norm
-    dataset_dir = Path(dataset_dir) if dataset_dir else data_dir() / "datasets" / meta["data_name"]
-    m = require_dataset(dataset_dir, meta["data_name"])
-    check_scene(meta, m, Path(ckpt), dataset_dir)
+    dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), data_dir() / "datasets", dataset_dir)
     if sim is None:
         test = m.split_ids(meta["split"], "test") or m.split_ids(meta["split"], "val")
         if not test:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import sys
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -11,11 +11,12 @@ import numpy as np
 import torch
 
 from neuraldem.data.hopper_store import HopperFile
-from neuraldem.data.manifest import Manifest, require_dataset
+from neuraldem.data.manifest import Manifest
 from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.eval import hopper_plots
+from neuraldem.eval.checkpoints import checkpoint_dataset
 from neuraldem.eval.hopper_eval import SimEvaluation, aggregate, evaluate_sims
 from neuraldem.eval.hopper_metrics import layer_edges
 from neuraldem.eval.hopper_predict import DemPredictor, ModelPredictor, time_grid
@@ -51,13 +52,6 @@ def load_hopper_checkpoint(path: Path, device: str = "cpu") -> HopperModule:
     return module.to(device).eval()
 
 
-def check_scene(meta: dict[str, Any], m: Manifest, ckpt: Path, dataset_dir: Path) -> None:
-    if meta["scene"] != m.scene:
-        keys = sorted(k for k in set(meta["scene"]) | set(m.scene) if meta["scene"].get(k) != m.scene.get(k))
-        raise DataError(f"checkpoint {ckpt} was trained on dataset {meta['data_name']!r} whose scene differs "
-                        f"from {dataset_dir} (in {keys}): evaluate it on data of its own scene")
-
-
 def table_row(meta: dict[str, Any], agg: dict[str, float]) -> str:
     marks = " | ".join("x" if s in meta["conditioning"] else "-" for s in TABLE_SCALARS)
     return (f"| {marks} | {agg['drainage_mae_s']:.3f} | {agg['residual_mae_pp']:.2f} | "
@@ -77,9 +71,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     device = resolve_device(device)
     module = load_hopper_checkpoint(ckpt, device)
     meta = module.metadata
-    dataset_dir = Path(dataset_dir) if dataset_dir else Path(datasets_dir) / meta["data_name"]
-    m = require_dataset(dataset_dir, meta["data_name"])
-    check_scene(meta, m, Path(ckpt), dataset_dir)
+    dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), datasets_dir, dataset_dir)
     split = split or meta["split"]
     records = [m.record(i) for i in m.split_ids(split, part)][:max_sims]
     if not records:
@@ -99,7 +91,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         "checkpoint": str(Path(ckpt).resolve()), "dataset": str(dataset_dir), "split": split, "part": part,
         "conditioning": meta["conditioning"], "aggregate": agg, "table_row": table_row(meta, agg),
         "simulations": [e.as_dict() for e in evals], "machine": machine_info(),
-        "command": " ".join(sys.argv), "date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "command": " ".join(sys.argv), "date_utc": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     atomic_write_json(out_dir / "metrics.json", result)
     (out_dir / "table.md").write_text(TABLE_HEADER + "\n" + result["table_row"] + "\n")

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from neuraldem.data.manifest import SimRecord, require_dataset
+from neuraldem.data.manifest import SimRecord
 from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.data.refill_datamodule import reference_scalars
 from neuraldem.data.refill_store import RefillFile
@@ -37,7 +37,7 @@ from neuraldem.data.refill_targets import (
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.eval import refill_metrics as rm
-from neuraldem.eval.checkpoints import check_scene, checkpoint_metadata, require_kind
+from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, require_kind
 
 
 @dataclass
@@ -218,9 +218,7 @@ def evaluate_refill_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, da
 
     module = load_refill_checkpoint(ckpt, device)
     meta = module.metadata
-    dataset_dir = Path(dataset_dir) if dataset_dir else Path(datasets_dir) / meta["data_name"]
-    m = require_dataset(dataset_dir, meta["data_name"])
-    check_scene(meta, m, Path(ckpt), dataset_dir)
+    dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), datasets_dir, dataset_dir)
     split = split or meta["split"]
     records = [m.record(i) for i in m.split_ids(split, part)][:max_sims]
     if not records:
