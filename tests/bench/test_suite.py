@@ -131,3 +131,19 @@ FB_STABILITY = {
                            {"inlet_velocity": 1.5, "failed": False, "steps_to_failure": None, "steps_stable": 100,
                             "drift_pct_end": 0.5}]}],
 }
+
+
+def test_plan_with_fluidized_bed_runs(tmp_path: Path):
+    steps = dict(plan(None, None, None, tmp_path, no_solver=False, repeats=2, threads=1, fb_runs=[Path("/fbruns")],
+                      fb_dataset=Path("/fbd")))
+    assert list(steps) == ["fb_speed_accuracy"]
+    chart = steps["fb_speed_accuracy"]
+    assert chart[:2] == ["--runs", "/fbruns"] and "/fbd" in chart and "--skip-solver" not in chart
+    assert chart[-2:] == ["--out", str(tmp_path / "fb_speed_accuracy.json")]
+    # without the solver: the cheaper-DPMFoam points of an earlier chart if there is one, else none
+    assert "--skip-solver" in dict(plan(None, None, None, tmp_path, no_solver=True, repeats=2, threads=1,
+                                        fb_runs=[Path("/r")]))["fb_speed_accuracy"]
+    (tmp_path / "fb_speed_accuracy.json").write_text("{}")
+    chart = dict(plan(None, None, None, tmp_path, no_solver=True, repeats=2, threads=1,
+                      fb_runs=[Path("/r")]))["fb_speed_accuracy"]
+    assert chart[chart.index("--reuse-solver") + 1] == str(tmp_path / "fb_speed_accuracy.json")

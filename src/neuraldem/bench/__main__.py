@@ -21,6 +21,9 @@ BENCHMARKS = {
                      "the smallest model within 10 % of the best accuracy, per task, with its speed"),
     "fb_speed": ("neuraldem.bench.fb_speed",
                  "DPMFoam vs the fluidized-bed rollout per simulated second, side by side (speed-up ratios)"),
+    "fb_speed_accuracy": ("neuraldem.bench.fb_speed_accuracy",
+                          "fluidized bed: rollout cost vs error of time averages and mixing, surrogates and "
+                          "cheaper DPMFoam; Pareto front, right-sizing"),
     "fb_stability": ("neuraldem.bench.fb_stability",
                      "fluidized-bed stability map: steps to divergence / solid-volume drift across velocities"),
     "gns_stability": ("neuraldem.bench.gns_stability",

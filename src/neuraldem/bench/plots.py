@@ -61,7 +61,8 @@ def scaling_figure(results: dict[str, Any], path: Path) -> Path:
     return path
 
 
-METHOD_STYLE = {"surrogate": ("o", "C1"), "liggghts": ("s", "C0")}
+METHOD_STYLE = {"surrogate": ("o", "C1"), "liggghts": ("s", "C0"), "DPMFoam, cheaper settings": ("s", "C0"),
+                "DPMFoam, another packing": ("^", "C2")}
 
 
 def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path:
@@ -83,20 +84,23 @@ def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path:
         ax.plot([p["time_to_answer_s"] for p in front], [p["errors"][key] for p in front], "k-", lw=1,
                 alpha=0.6, label="Pareto front", zorder=2)
         ref = results.get("reference")
-        if ref:
-            ax.axvline(ref["time_to_answer_s"], color="C0", ls="--", lw=1, label="LIGGGHTS reference (error 0)")
+        if ref and _finite(ref.get("time_to_answer_s")):
+            ax.axvline(ref["time_to_answer_s"], color="C0", ls="--", lw=1,
+                       label=ref.get("label", "LIGGGHTS reference (error 0)"))
         positive = [p["errors"][key] for p in points if _finite(p["errors"].get(key)) and p["errors"][key] > 0]
         # symlog: an error of exactly 0 (e.g. no residual anywhere) stays on the chart
         ax.set_yscale("symlog", linthresh=min(positive, default=1.0) / 2)
         ax.set_ylim(bottom=0, top=2 * max(positive, default=1.0))  # headroom for the labels
-        ax.set(xscale="log", xlabel="time to answer one trajectory [s, wall]", ylabel=label, title=label)
+        ax.set(xscale="log", xlabel=results.get("xlabel", "time to answer one trajectory [s, wall]"), ylabel=label,
+               title=label)
         ax.xaxis.set_minor_formatter(NullFormatter())
         ax.grid(True, which="both", alpha=0.3)
     axes[0][0].legend(fontsize=7)
     failed = [f"{p['label']}: {p['n_failed']} of {p['n_sims']} ({p['failures'][0]['reason'][:80]})"
               for p in points if p.get("n_failed")]
     if failed:
-        fig.text(0.01, 0.01, "Failed LIGGGHTS runs: " + "; ".join(failed), fontsize=7, va="bottom")
+        fig.text(0.01, 0.01, results.get("failed_label", "Failed LIGGGHTS runs: ") + "; ".join(failed), fontsize=7,
+                 va="bottom")
     fig.tight_layout(rect=(0, 0.05 if failed else 0, 1, 1))
     fig.savefig(path, dpi=120)
     plt.close(fig)

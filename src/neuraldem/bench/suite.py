@@ -1,11 +1,12 @@
 """Every chart and table in one command, and redrawing them from their results files.
 
-`python -m neuraldem.bench all --runs DIR... --ckpt CKPT [--dataset DIR] [--fb-ckpt CKPT...] [--fb-dataset DIR]
-[--no-solver] [--out-dir DIR]` runs hopper_speed, hopper_scaling, speed_accuracy and right_sizing in turn
-(with --runs and --ckpt), then fb_speed (the first --fb-ckpt against DPMFoam) and fb_stability (every
---fb-ckpt, one series each) (with --fb-ckpt); each also runs on its own. With --no-solver nothing runs
-LIGGGHTS or DPMFoam: solver costs come from the dataset manifests and the LIGGGHTS parts of earlier results
-in --out-dir (where there are none, the chart has no solver points).
+`python -m neuraldem.bench all --runs DIR... --ckpt CKPT [--dataset DIR] [--fb-ckpt CKPT...] [--fb-runs DIR...]
+[--fb-dataset DIR] [--no-solver] [--out-dir DIR]` runs hopper_speed, hopper_scaling, speed_accuracy and
+right_sizing in turn (with --runs and --ckpt), then fb_speed (the first --fb-ckpt against DPMFoam) and
+fb_stability (every --fb-ckpt, one series each) (with --fb-ckpt), then fb_speed_accuracy (with --fb-runs);
+each also runs on its own. With --no-solver nothing runs LIGGGHTS or DPMFoam: solver costs come from the
+dataset manifests and the solver parts of earlier results in --out-dir (where there are none, the chart has
+no solver points).
 
 `python -m neuraldem.bench render [--out-dir DIR]` redraws every figure and table from the JSON files in
 --out-dir, measuring nothing (e.g. after a change of the plotting code).
@@ -28,15 +29,16 @@ def default_out_dir() -> Path:
 
 def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_dir: Path, no_solver: bool,
          repeats: int, threads: int, skip_unevaluated: bool = False, fb_ckpts: list[Path] | None = None,
-         fb_dataset: Path | None = None, fb_labels: list[str] | None = None) -> list[tuple[str, list[str]]]:
+         fb_dataset: Path | None = None, fb_labels: list[str] | None = None,
+         fb_runs: list[Path] | None = None) -> list[tuple[str, list[str]]]:
     """The benchmark commands `all` runs, in order (name, argv): the hopper's with `runs` and `ckpt`, the
     fluidized bed's with `fb_ckpts`."""
     if bool(runs) != (ckpt is not None):
         raise ConfigError("--runs and --ckpt go together (the hopper benchmarks need both): give both, or "
                           "neither and --fb-ckpt for the fluidized-bed benchmarks alone")
-    if not runs and not fb_ckpts:
-        raise ConfigError("nothing to run: give --runs DIR --ckpt CKPT (hopper) and/or --fb-ckpt CKPT "
-                          "(fluidized bed)")
+    if not runs and not fb_ckpts and not fb_runs:
+        raise ConfigError("nothing to run: give --runs DIR --ckpt CKPT (hopper) and/or --fb-ckpt CKPT / "
+                          "--fb-runs DIR (fluidized bed)")
     steps = _hopper_plan(runs, ckpt, dataset, out_dir, no_solver, repeats, threads, skip_unevaluated) if runs else []
     if fb_ckpts:
         fb_data = ["--dataset", str(fb_dataset)] if fb_dataset else []
@@ -51,6 +53,13 @@ def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_d
         labels = ["--labels", *fb_labels] if fb_labels else []
         stability = ["--ckpt", *map(str, fb_ckpts), *labels, *fb_data, "--out", str(out_dir / "fb_stability.json")]
         steps += [("fb_speed", speed), ("fb_stability", stability)]
+    if fb_runs:
+        fb_data = ["--dataset", str(fb_dataset)] if fb_dataset else []
+        chart = ["--runs", *map(str, fb_runs), *fb_data, "--repeats", str(repeats), "--out",
+                 str(out_dir / "fb_speed_accuracy.json")]
+        if no_solver:
+            chart += _reuse_or_skip(out_dir / "fb_speed_accuracy.json")
+        steps.append(("fb_speed_accuracy", chart))
     return steps
 
 
@@ -88,6 +97,8 @@ def run_all(argv: list[str]) -> int:
                    help="fluidized-bed checkpoints: the first is timed against DPMFoam, all go into the stability map")
     p.add_argument("--fb-labels", nargs="+", default=None, help="their names in the stability map (one per --fb-ckpt)")
     p.add_argument("--fb-dataset", type=Path, default=None, help="dataset dir of the fluidized-bed checkpoints' scene")
+    p.add_argument("--fb-runs", type=Path, nargs="+", default=None,
+                   help="folders holding evaluated fluidized-bed runs: the bed's speed-accuracy chart and right-sizing")
     p.add_argument("--no-solver", action="store_true",
                    help="run no LIGGGHTS or DPMFoam (reuse recorded solver costs)")
     p.add_argument("--skip-unevaluated", action="store_true", help="leave out runs without evaluation/metrics.json")
@@ -97,7 +108,7 @@ def run_all(argv: list[str]) -> int:
     a = p.parse_args(argv)
     out_dir = a.out_dir or default_out_dir()
     for name, args in plan(a.runs, a.ckpt, a.dataset, out_dir, a.no_solver, a.repeats, a.threads,
-                           a.skip_unevaluated, a.fb_ckpt, a.fb_dataset, a.fb_labels):
+                           a.skip_unevaluated, a.fb_ckpt, a.fb_dataset, a.fb_labels, a.fb_runs):
         print(f"==> python -m neuraldem.bench {name} {' '.join(args)}", flush=True)
         rc = entry_point(name)(args)
         if rc != 0:
@@ -106,7 +117,7 @@ def run_all(argv: list[str]) -> int:
 
 
 def render(argv: list[str]) -> int:
-    from neuraldem.bench import fb_speed, hopper_speed, right_sizing, speed_accuracy
+    from neuraldem.bench import fb_speed, fb_speed_accuracy, hopper_speed, right_sizing, speed_accuracy
 
     p = argparse.ArgumentParser(prog="python -m neuraldem.bench render", description="redraw from results")
     p.add_argument("--out-dir", type=Path, default=None, help="default results/bench")
@@ -114,7 +125,7 @@ def render(argv: list[str]) -> int:
     out_dir = a.out_dir or default_out_dir()
     written = []
     for name in ("hopper_speed", "hopper_scaling", "speed_accuracy", "right_sizing", "fb_speed", "fb_stability",
-                 "gns_stability"):
+                 "gns_stability", "fb_speed_accuracy"):
         path = out_dir / f"{name}.json"
         if not path.is_file():
             continue
@@ -129,6 +140,9 @@ def render(argv: list[str]) -> int:
             written.append(plots.fb_speed_figure(results, path.with_suffix(".png")))
         elif name in ("fb_stability", "gns_stability"):
             written.append(plots.fb_stability_figure(results, path.with_suffix(".png")))
+        elif name == "fb_speed_accuracy":
+            written.append(plots.speed_accuracy_figure(results, path.with_suffix(".png")))
+            written.append(_write(path.with_suffix(".md"), fb_speed_accuracy.render_markdown(results)))
         elif name == "speed_accuracy":
             written.append(plots.speed_accuracy_figure(results, path.with_suffix(".png")))
             written.append(_write(path.with_suffix(".md"), speed_accuracy.render_markdown(results)))

@@ -1,0 +1,115 @@
+"""fb_speed_accuracy: right-sizing and fronts on hand-made points; on the real fb_tiny data, the surrogate's
+errors are its evaluation's, CFD-DEM against another packing is scored with the evaluation's functions, and
+DPMFoam re-run at the reference settings reproduces the reference (error 0)."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import pytest
+
+from neuraldem.bench import fb_speed_accuracy as fsa
+from neuraldem.data.fb_store import FbFile
+from neuraldem.data.manifest import Manifest
+from neuraldem.errors import ConfigError
+from neuraldem.eval.fb_eval import FieldSeries, compare, evaluate_checkpoint
+from neuraldem.eval.fb_report import metric_settings
+from neuraldem.sim.dpmfoam import FluidizedBedScene
+
+
+def _point(label: str, params: int, t: float, err: float, method: str = fsa.SURROGATE) -> dict:
+    return {"method": method, "label": label, "time_to_answer_s": t, "size": {"parameters": params},
+            "errors": {k: err for k in fsa.QUANTITIES}}
+
+
+def test_right_size_picks_the_smallest_within_tolerance():
+    points = [_point("big", 3_000_000, 5.0, 0.100), _point("mid", 1_000_000, 2.0, 0.108),
+              _point("tiny", 200_000, 0.5, 0.150), _point("solver", 0, 100.0, 0.05, method=fsa.CHEAPER)]
+    picks = fsa.right_size(points, tolerance=0.10)
+    for key in fsa.QUANTITIES:  # the solver point is never a pick; 0.108 <= 1.1 x 0.100, 0.150 is not
+        assert picks[key]["best"] == "big" and picks[key]["pick"] == "mid"
+        assert picks[key]["within"] == ["big", "mid"] and picks[key]["limit"] == pytest.approx(0.11)
+    assert fsa.right_size(points, tolerance=0.6)["lacey_mae"]["pick"] == "tiny"
+    front = fsa.chart(points)["lacey_mae"]  # tiny (cheapest), mid, big beaten by mid? no: big is more accurate
+    assert [points[i]["label"] for i in front] == ["tiny", "mid", "big", "solver"]
+    points.append(_point("slow and bad", 1, 50.0, 0.5))
+    assert len(fsa.chart(points)["lacey_mae"]) == 4  # dominated by every other point: not on the front
+
+
+def test_solver_variants_parse_and_apply():
+    scene = FluidizedBedScene()
+    assert fsa.SolverVariant.parse("dt:2").apply(scene).dt == pytest.approx(2e-4)
+    assert fsa.SolverVariant.parse("substeps:0.5").apply(scene).collision_resolution_steps == 3
+    for bad in ("dt", "dt:-1", "dt:x", "speed:2"):
+        with pytest.raises(ConfigError, match="--solver-variants"):
+            fsa.SolverVariant.parse(bad)
+    with pytest.raises(ConfigError, match="does not divide the snapshot interval"):
+        fsa.SolverVariant.parse("dt:3").apply(scene)  # 3e-4 s does not divide 0.01 s
+
+
+@pytest.fixture(scope="module")
+def packings_as_test(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """fb_tiny with its two-packing velocity as the test part (the held-out one has a single packing)."""
+    out = tmp_path_factory.mktemp("fb_tiny_packings") / "fb_tiny"
+    out.mkdir()
+    (out / "sims").symlink_to(fb_tiny_dataset / "sims")
+    shutil.copy(fb_tiny_dataset / "manifest.json", out / "manifest.json")
+    m = Manifest.load(out)
+    m.splits["velocity"]["test"] = list(m.splits["velocity"]["train"])
+    m.save(out)
+    return out
+
+
+@pytest.mark.solver
+def test_chart_on_real_data(fb_tiny_checkpoint: Path, packings_as_test: Path, tmp_path: Path):
+    run = tmp_path / "runs" / "tiny"
+    evaluation = evaluate_checkpoint(fb_tiny_checkpoint, run / "evaluation", packings_as_test.parent,
+                                     dataset_dir=packings_as_test, horizons=[1], vtk=False, progress=False)
+    out = tmp_path / "chart.json"
+    assert fsa.main(["--runs", str(tmp_path / "runs"), "--dataset", str(packings_as_test), "--skip-solver",
+                     "--steps", "3", "--repeats", "1", "--out", str(out)]) == 0
+    results = json.loads(out.read_text())["results"]
+    assert results["reference_sims"] == ["sim_0000"]  # one per test velocity: the first by id
+    surrogate, packing = results["points"]
+    assert surrogate["label"] == "tiny" and surrogate["size"]["parameters"] == evaluation["training"]["parameters"]
+    (t,) = [t for t in evaluation["trajectories"] if t["sim_id"] == "sim_0000"]
+    assert surrogate["errors"]["solid_fraction_mean_rel_l2"] == t["rel_l2"]["solid_fraction_mean"]
+    assert surrogate["errors"]["lacey_mae"] == t["lacey"]["mae"]
+    assert surrogate["time_to_answer_s"] > 0 and surrogate["timing"]["steps_computed"] == 3
+    m = Manifest.load(packings_as_test)
+    with FbFile(packings_as_test / "sims" / "sim_0001.h5") as a, FbFile(packings_as_test / "sims" / "sim_0000.h5") as b:
+        expected = compare(FieldSeries.from_dataset_file(a), FieldSeries.from_dataset_file(b), metric_settings(m))
+    assert packing["method"] == fsa.OTHER_PACKING and packing["sims"] == ["sim_0001"]
+    assert packing["errors"]["solid_fraction_mean_rel_l2"] == expected["rel_l2"]["solid_fraction_mean"] > 0
+    assert packing["time_to_answer_s"] == pytest.approx(
+        m.record("sim_0001").cost["solver_cpu_s"] / m.record("sim_0001").cost["simulated_s"])
+    assert results["right_sizing"]["lacey_mae"]["pick"] == "tiny"
+    for suffix in (".png", ".md"):
+        assert out.with_suffix(suffix).is_file()
+    assert "another packing" in out.with_suffix(".md").read_text()
+
+
+@pytest.mark.solver
+def test_dpmfoam_at_the_reference_settings_reproduces_the_reference(packings_as_test: Path, tmp_path: Path):
+    ref = fsa.reference(packings_as_test, "velocity")
+    point = fsa.solver_variant_point(fsa.SolverVariant.parse("dt:1"), ref, 1, tmp_path / "work")
+    assert point["n_failed"] == 0 and point["n_trajectories"] == 1
+    assert point["settings"] == {"dt": 1e-4, "collision_resolution_steps": 6}
+    # serial DPMFoam is deterministic: the same scene, velocity and packing seed give the stored trajectory
+    assert all(v == pytest.approx(0.0, abs=1e-9) for v in point["errors"].values()), point["errors"]
+    assert point["time_to_answer_s"] > 0 and math.isfinite(point["time_to_answer_s"])
+    assert not (tmp_path / "work" / "dt_1" / "sim_0000").exists()  # the run folder is removed
+
+
+def test_bad_inputs_say_what_to_do(tmp_path: Path, capsys: pytest.CaptureFixture):
+    from neuraldem.bench.__main__ import main
+
+    assert main(["fb_speed_accuracy", "--runs", str(tmp_path)]) == 2
+    assert "no evaluation/metrics.json" in capsys.readouterr().err
+    assert main(["fb_speed_accuracy", "--runs", str(tmp_path), "--solver-variants", "dt:0"]) == 2
+    assert "--solver-variants" in capsys.readouterr().err
+    assert main(["fb_speed_accuracy", "--runs", str(tmp_path), "--steps", "0"]) == 2
+    assert "--steps" in capsys.readouterr().err
