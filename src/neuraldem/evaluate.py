@@ -82,7 +82,8 @@ def evaluate_fluidized_bed(cfg: DictConfig) -> None:
         Path(cfg.ckpt), out_dir=Path(cfg.paths.output_dir), datasets_dir=Path(cfg.paths.datasets_dir),
         dataset_dir=cfg.dataset_dir, split=cfg.split, part=cfg.part, max_sims=cfg.max_sims,
         horizons=list(fb.horizons), limits=DivergenceLimits(fb.max_packing, fb.tolerance),
-        seed=checks.positive_int("fluidized_bed.seed", fb.seed, allow_zero=True), vtk=cfg.vtk, device=cfg.device)
+        seed=checks.positive_int("fluidized_bed.seed", fb.seed, allow_zero=True), vtk=cfg.vtk, device=cfg.device,
+        conserve_solid_volume=checks.boolean("fluidized_bed.conserve_solid_volume", fb.conserve_solid_volume))
     agg = result["aggregate"]
     print((Path(cfg.paths.output_dir) / "report.md").read_text())
     print(f"{agg['n_trajectories']} held-out velocities: mean solid-fraction rel. L2 "

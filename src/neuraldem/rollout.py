@@ -32,7 +32,8 @@ def main(cfg: DictConfig) -> None:
         dataset_dir=cfg.dataset_dir, init=cfg.init, init_sim=cfg.init_sim, init_snapshot=cfg.init_snapshot,
         seed=checks.positive_int("seed", cfg.seed, allow_zero=True), limits=limits,
         particles_every=cfg.particles_every, vtk=bool(cfg.vtk), vtk_every=cfg.vtk_every,
-        device=resolve_device(cfg.device), progress=bool(cfg.progress))
+        device=resolve_device(cfg.device), progress=bool(cfg.progress),
+        conserve_solid_volume=checks.boolean("conserve_solid_volume", cfg.conserve_solid_volume))
     print(summary["message"])
     if summary["extrapolation"]:
         lo, hi = summary["trained_velocity_range"]

@@ -25,6 +25,13 @@ def test_fraction_rejects(value):
         checks.fraction("splits.val", value)
 
 
+def test_boolean_takes_only_true_or_false():
+    assert checks.boolean("x", True) is True and checks.boolean("x", False) is False
+    for value in (1, 0, "true", None):
+        with pytest.raises(ConfigError, match="must be true or false"):
+            checks.boolean("rollout.flag", value)
+
+
 def test_interval_and_names():
     assert checks.interval("r", [0, 60]) == (0.0, 60.0)
     with pytest.raises(ConfigError, match="lo <= hi"):

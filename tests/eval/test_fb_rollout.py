@@ -171,3 +171,20 @@ def test_cli(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tiny_checkpoint: P
                      f"hydra.run.dir={tmp_path / 'bad'}", env=env)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
     assert "is a 'hopper' checkpoint" in bad.stderr
+    typo = run_module("neuraldem.rollout", f"ckpt={fb_tiny_checkpoint}", "velocity=1.3", "conserve_solid_volume=1",
+                      f"hydra.run.dir={tmp_path / 'typo'}", env=env)
+    assert typo.returncode == 2 and "conserve_solid_volume=1 is invalid: must be true or false" in typo.stderr
+
+
+def test_solid_volume_projection_holds_the_first_states_volume(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path,
+                                                                tmp_path: Path):
+    plain = _run(fb_tiny_checkpoint, fb_tiny_dataset, tmp_path / "plain", steps=20, vtk=False)
+    kept = _run(fb_tiny_checkpoint, fb_tiny_dataset, tmp_path / "kept", steps=20, vtk=False,
+                conserve_solid_volume=True)
+    assert kept["conserve_solid_volume"] and not plain["conserve_solid_volume"]
+    with RolloutFile(tmp_path / "plain" / "rollout.h5") as a, RolloutFile(tmp_path / "kept" / "rollout.h5") as b:
+        va = a.grid_field("solid_fraction").sum(axis=(1, 2, 3))
+        vb = b.grid_field("solid_fraction").sum(axis=(1, 2, 3))
+        assert b.f.attrs["conserve_solid_volume"]
+    np.testing.assert_allclose(vb, vb[0], rtol=1e-5)  # float32 storage
+    assert np.max(np.abs(va / va[0] - 1)) > 1e-3  # the untrained tiny model alone does not conserve it

@@ -37,6 +37,13 @@ def number(key: str, value: Any, *, lo: float | None = None, hi: float | None = 
     return v
 
 
+def boolean(key: str, value: Any) -> bool:
+    """true/false only: a typo like `=ture` or `=1` is not silently read as a truth value."""
+    if not isinstance(value, bool):
+        raise _fail(key, value, "must be true or false")
+    return value
+
+
 def positive(key: str, value: Any) -> float:
     return number(key, value, lo=0.0, lo_open=True)
 

@@ -19,8 +19,10 @@ from neuraldem.eval.run_results import find_results
 
 
 def run_name(result: dict) -> str:
-    """The run's folder (<run>/evaluation/metrics.json) relative to the folder searched, e.g. fb_base/noise_pf."""
-    return result.get("run") or Path(result["path"]).parent.parent.name
+    """The run's folder (<run>/evaluation/metrics.json) relative to the folder searched, e.g. fb_base/noise_pf;
+    marked when its rollouts projected the solid volume (its mass drift is then 0 by construction)."""
+    name = result.get("run") or Path(result["path"]).parent.parent.name
+    return f"{name} (solid volume projected)" if result.get("conserve_solid_volume") else name
 
 
 def _f(v: float | None, fmt: str) -> str:

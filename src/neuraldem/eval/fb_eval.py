@@ -213,7 +213,8 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
                         split: str | None = None, part: str = "test", max_sims: int | None = None,
                         horizons: Sequence[int] = DEFAULT_HORIZONS, limits: DivergenceLimits | None = None,
                         seed: int = 0, vtk: bool = True, device: str = "auto", progress: bool = True,
-                        make_stepper: Callable[[Any, float], Stepper] | None = None) -> dict[str, Any]:
+                        make_stepper: Callable[[Any, float], Stepper] | None = None,
+                        conserve_solid_volume: bool = False) -> dict[str, Any]:
     """Evaluate a fluidized-bed checkpoint on the held-out velocities; write and return metrics.json."""
     horizons = [checks.positive_int(f"fluidized_bed.horizons[{i}]", h) for i, h in enumerate(horizons)]
     if not horizons:
@@ -228,7 +229,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         raise DataError(f"no {part} trajectories in split {split!r} of {dataset_dir}")
     settings = metric_settings(m)
     steps = max(horizons) * norm.horizon_steps
-    make_stepper = make_stepper or (lambda mod, v: ModelStepper(mod, v, seed, device))
+    make_stepper = make_stepper or (lambda mod, v: ModelStepper(mod, v, seed, device, conserve_solid_volume))
     out_dir = Path(out_dir)
     (out_dir / "rollouts").mkdir(parents=True, exist_ok=True)
     results, volumes = [], {}
@@ -238,7 +239,8 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         with FbFile(path) as f:
             check_grid(norm, f)
         attrs = {"extrapolation": check_velocity(norm, v), "checkpoint": str(Path(ckpt).resolve()),
-                 "initial_state": f"{m.name}/{rec.sim_id} snapshot 0", "seed": seed}
+                 "initial_state": f"{m.name}/{rec.sim_id} snapshot 0", "seed": seed,
+                 "conserve_solid_volume": bool(conserve_solid_volume)}
         e = evaluate_trajectory(path, rec.sim_id, v, make_stepper(module, v), steps, norm.horizon_steps, horizons,
                                 settings, limits, out_dir / "rollouts" / f"{rec.sim_id}.h5", attrs, progress)
         volumes |= write_trajectory_figures(e, settings, out_dir)
@@ -252,6 +254,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         "training": {"input_noise": meta.get("input_noise", 0.0), "push_forward_steps": meta.get("push_forward_steps", 1),
                      "parameters": sum(p.numel() for p in module.parameters())},
         "training_horizon_steps": norm.horizon_steps, "horizons": horizons, "rollout_steps": steps,
+        "conserve_solid_volume": bool(conserve_solid_volume),
         "limits": vars(limits or DivergenceLimits()), "metric_settings": settings,
         "aggregate": aggregate(results), "trajectories": results,
         "machine": machine_info(), "command": " ".join(sys.argv),
