@@ -7,9 +7,12 @@
 # e.g. JOBS=2 VARIANTS="base noise_pf" bash scripts/fb_ablation.sh $NEURALDEM_DATA/fb_ablation \
 #        trainer=cpu logger=csv trainer.max_steps=3000 trainer.val_check_interval=500
 # Variants: base (no noise, k = 1), noise (input_noise 0.01), pf (push_forward_steps 2), noise_pf (both).
+# A variant may name a model config: "fb_base/noise_pf" trains model=fb_base (sizes side by side for
+# right-sizing: VARIANTS="fb_tiny/noise_pf fb_base/noise_pf fb_small/noise_pf").
 # Runs land in RUNS_DIR/<variant>/ (logs beside them), the table in RUNS_DIR/table.md (+ .json). A run whose
 # folder already holds evaluation/metrics.json is skipped, so a killed sweep resumes.
 set -uo pipefail
+ROOT=$(cd "$(dirname "$0")/.." && pwd)
 PY=${PYTHON:-python}
 JOBS=${JOBS:-2}
 VARIANTS=${VARIANTS:-"base noise pf noise_pf"}
@@ -19,6 +22,10 @@ export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 export OMP_WAIT_POLICY=${OMP_WAIT_POLICY:-PASSIVE}
 overrides() {
   case "$1" in
+    */*) local model=${1%%/*} rest
+         [ -f "$ROOT/conf/model/$model.yaml" ] || { echo "fb_ablation: unknown model '$model' (no conf/model/$model.yaml)" >&2; return 2; }
+         rest=$(overrides "${1#*/}") || return 2
+         echo "model=$model $rest" ;;
     base) echo "data.datamodule.input_noise=0.0 data.datamodule.push_forward_steps=1" ;;
     noise) echo "data.datamodule.input_noise=0.01 data.datamodule.push_forward_steps=1" ;;
     pf) echo "data.datamodule.input_noise=0.0 data.datamodule.push_forward_steps=2" ;;
@@ -35,9 +42,10 @@ for v in $VARIANTS; do
   if [ "$running" -ge "$JOBS" ]; then wait -n || failed=$((failed + 1)); running=$((running - 1)); fi
   echo "start $v"
   rm -rf "$run"
+  mkdir -p "$(dirname "$run")"
   # shellcheck disable=SC2046
   "$PY" -m neuraldem.train experiment=fb $(overrides "$v") hydra.run.dir="$run" callbacks.progress=null "$@" \
-    > "$runs/$v.log" 2>&1 &
+    > "$run.log" 2>&1 &
   running=$((running + 1))
 done
 while [ "$running" -gt 0 ]; do wait -n || failed=$((failed + 1)); running=$((running - 1)); done

@@ -1,0 +1,42 @@
+"""scripts/fb_ablation.sh: each variant becomes one training command with the right overrides and run folder
+(a model named in the variant included); unknown variants and models stop it before anything runs."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "fb_ablation.sh"
+
+
+def _run(tmp_path: Path, variants: str) -> tuple[subprocess.CompletedProcess, list[list[str]]]:
+    calls = tmp_path / "calls.txt"
+    fake = tmp_path / "python"
+    fake.write_text(f'#!/bin/sh\necho "$@" >> {calls}\n')  # records every command instead of running it
+    fake.chmod(0o755)
+    env = {**os.environ, "PYTHON": str(fake), "VARIANTS": variants, "JOBS": "1"}
+    proc = subprocess.run(["bash", str(SCRIPT), str(tmp_path / "runs"), "trainer.max_steps=7"], env=env,
+                          capture_output=True, text=True, timeout=60)
+    lines = calls.read_text().splitlines() if calls.exists() else []
+    return proc, [line.split() for line in lines]
+
+
+def test_each_variant_is_one_training_command(tmp_path: Path):
+    proc, calls = _run(tmp_path, "noise fb_base/noise_pf")
+    assert proc.returncode == 0, proc.stderr
+    train = [c for c in calls if c[:2] == ["-m", "neuraldem.train"]]
+    assert len(train) == 2
+    noise, base = train
+    assert "data.datamodule.input_noise=0.01" in noise and "data.datamodule.push_forward_steps=1" in noise
+    assert not any(a.startswith("model=") for a in noise)
+    assert f"hydra.run.dir={tmp_path / 'runs' / 'noise'}" in noise and "trainer.max_steps=7" in noise
+    assert "model=fb_base" in base and "data.datamodule.push_forward_steps=2" in base
+    assert f"hydra.run.dir={tmp_path / 'runs' / 'fb_base' / 'noise_pf'}" in base
+    assert calls[-1][:2] == ["-m", "neuraldem.eval.collect_fb_table"]  # then the table of all runs
+
+
+def test_unknown_variant_or_model_runs_nothing(tmp_path: Path):
+    for variants, message in (("bogus", "unknown variant 'bogus'"), ("fb_nope/base", "unknown model 'fb_nope'")):
+        proc, calls = _run(tmp_path, variants)
+        assert proc.returncode == 2 and message in proc.stderr and calls == []
