@@ -25,3 +25,21 @@ def test_hopper_evaluation_notebook_runs(tiny_checkpoint: Path, data_root: Path,
             exec(compile("".join(cell["source"]), "hopper_evaluation.ipynb", "exec"), namespace)
     assert namespace["result"]["aggregate"]["n_sims"] == 1
     assert (tmp_path / "metrics.json").is_file()
+
+
+def test_fb_evaluation_notebook_runs(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tmp_path: Path, monkeypatch):
+    matplotlib.use("Agg")
+    monkeypatch.setenv("NEURALDEM_DATA", str(fb_tiny_dataset.parent.parent))
+    monkeypatch.setenv("NEURALDEM_CKPT", str(fb_tiny_checkpoint))
+    monkeypatch.setenv("NEURALDEM_NOTEBOOK_OUT", str(tmp_path))
+    monkeypatch.setenv("NEURALDEM_NOTEBOOK_HORIZONS", "1,2")
+    nb = json.loads((REPO / "notebooks" / "fb_evaluation.ipynb").read_text())
+    namespace: dict = {}
+    for cell in nb["cells"]:
+        if cell["cell_type"] == "code":
+            exec(compile("".join(cell["source"]), "fb_evaluation.ipynb", "exec"), namespace)
+    model, projected = namespace["result"], namespace["projected"]
+    assert model["aggregate"]["n_trajectories"] == projected["aggregate"]["n_trajectories"] == 1
+    assert not model["conserve_solid_volume"] and projected["conserve_solid_volume"]
+    assert abs(projected["trajectories"][0]["mass"]["max_drift_pct"]) < 1e-3  # float32 files
+    assert (tmp_path / "model" / "metrics.json").is_file() and (tmp_path / "projected" / "report.md").is_file()
