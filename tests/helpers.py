@@ -79,6 +79,34 @@ def copy_dataset(src: Path, dst: Path) -> Path:
     return dst
 
 
+def with_split(src: Path, dst: Path, split: str, part: str, ids_of: str) -> Path:
+    """A view of a dataset (its HDF5 files linked, not copied) whose `split` part `part` holds the ids of part
+    `ids_of`: e.g. fb_tiny's two-packing training velocity as its test or validation part."""
+    import shutil
+
+    from neuraldem.data.manifest import Manifest
+
+    dst.mkdir(parents=True)
+    (dst / "sims").symlink_to(src / "sims")
+    shutil.copy(src / "manifest.json", dst / "manifest.json")
+    m = Manifest.load(dst)
+    m.splits[split][part] = list(m.splits[split][ids_of])
+    m.save(dst)
+    return dst
+
+
+def run_notebook(name: str) -> dict:
+    """Execute the code cells of notebooks/NAME top to bottom; returns their namespace."""
+    import json
+
+    nb = json.loads((REPO / "notebooks" / name).read_text())
+    namespace: dict = {}
+    for cell in nb["cells"]:
+        if cell["cell_type"] == "code":
+            exec(compile("".join(cell["source"]), name, "exec"), namespace)  # noqa: S102 (our own notebooks)
+    return namespace
+
+
 def train_tiny_gns(dataset: Path, name: str, path: Path) -> Path:
     """A GNS (model gns_tiny, history 2) trained for 3 steps on a tiny dataset, saved at `path` (for rollout
     and benchmark plumbing, not accuracy)."""

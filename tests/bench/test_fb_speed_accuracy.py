@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 from pathlib import Path
 
 import pytest
@@ -18,6 +17,7 @@ from neuraldem.errors import ConfigError
 from neuraldem.eval.fb_eval import FieldSeries, compare, evaluate_checkpoint
 from neuraldem.eval.fb_report import metric_settings
 from neuraldem.sim.dpmfoam import FluidizedBedScene
+from tests.helpers import with_split
 
 
 def _point(label: str, params: int, t: float, err: float, method: str = fsa.SURROGATE) -> dict:
@@ -53,14 +53,8 @@ def test_solver_variants_parse_and_apply():
 @pytest.fixture(scope="module")
 def packings_as_test(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """fb_tiny with its two-packing velocity as the test part (the held-out one has a single packing)."""
-    out = tmp_path_factory.mktemp("fb_tiny_packings") / "fb_tiny"
-    out.mkdir()
-    (out / "sims").symlink_to(fb_tiny_dataset / "sims")
-    shutil.copy(fb_tiny_dataset / "manifest.json", out / "manifest.json")
-    m = Manifest.load(out)
-    m.splits["velocity"]["test"] = list(m.splits["velocity"]["train"])
-    m.save(out)
-    return out
+    return with_split(fb_tiny_dataset, tmp_path_factory.mktemp("fb_tiny_packings") / "fb_tiny", "velocity", "test",
+                      ids_of="train")
 
 
 @pytest.mark.solver

@@ -4,7 +4,6 @@ callback logs its metrics at every validation and ModelCheckpoint keeps the chec
 from __future__ import annotations
 
 import math
-import shutil
 from pathlib import Path
 
 import lightning as L
@@ -21,6 +20,7 @@ from neuraldem.eval.fb_report import metric_settings
 from neuraldem.eval.fb_rollout_validation import DIVERGENCE_PENALTY, RolloutValidation, score_rollout
 from neuraldem.lit.fb_module import FluidizedBedModule
 from neuraldem.models.registry import net_config
+from tests.helpers import with_split
 
 pytestmark = pytest.mark.solver
 
@@ -47,14 +47,7 @@ def test_ground_truth_scores_zero_and_a_changed_field_does_not(fb_tiny_dataset: 
 @pytest.fixture
 def fb_tiny_with_val(fb_tiny_dataset: Path, tmp_path: Path) -> Path:
     """fb_tiny whose held-out velocity also serves as the validation part (fb_tiny itself has none)."""
-    out = tmp_path / "fb_tiny"
-    out.mkdir()
-    (out / "sims").symlink_to(fb_tiny_dataset / "sims")
-    shutil.copy(fb_tiny_dataset / "manifest.json", out / "manifest.json")
-    m = Manifest.load(out)
-    m.splits["velocity"]["val"] = list(m.splits["velocity"]["test"])
-    m.save(out)
-    return out
+    return with_split(fb_tiny_dataset, tmp_path / "fb_tiny", "velocity", "val", ids_of="test")
 
 
 def test_callback_logs_at_every_validation_and_picks_the_checkpoint(fb_tiny_with_val: Path, tmp_path: Path):

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import matplotlib
 import pytest
 
-from tests.helpers import REPO
+from tests.helpers import run_notebook
 
 pytestmark = pytest.mark.solver
 
@@ -18,11 +17,7 @@ def test_hopper_evaluation_notebook_runs(tiny_checkpoint: Path, data_root: Path,
     monkeypatch.setenv("NEURALDEM_CKPT", str(tiny_checkpoint))
     monkeypatch.setenv("NEURALDEM_NOTEBOOK_OUT", str(tmp_path))
     monkeypatch.setenv("NEURALDEM_NOTEBOOK_MAX_SIMS", "1")
-    nb = json.loads((REPO / "notebooks" / "hopper_evaluation.ipynb").read_text())
-    namespace: dict = {}
-    for cell in nb["cells"]:
-        if cell["cell_type"] == "code":
-            exec(compile("".join(cell["source"]), "hopper_evaluation.ipynb", "exec"), namespace)
+    namespace = run_notebook("hopper_evaluation.ipynb")
     assert namespace["result"]["aggregate"]["n_sims"] == 1
     assert (tmp_path / "metrics.json").is_file()
 
@@ -33,11 +28,7 @@ def test_fb_evaluation_notebook_runs(fb_tiny_checkpoint: Path, fb_tiny_dataset: 
     monkeypatch.setenv("NEURALDEM_CKPT", str(fb_tiny_checkpoint))
     monkeypatch.setenv("NEURALDEM_NOTEBOOK_OUT", str(tmp_path))
     monkeypatch.setenv("NEURALDEM_NOTEBOOK_HORIZONS", "1,2")
-    nb = json.loads((REPO / "notebooks" / "fb_evaluation.ipynb").read_text())
-    namespace: dict = {}
-    for cell in nb["cells"]:
-        if cell["cell_type"] == "code":
-            exec(compile("".join(cell["source"]), "fb_evaluation.ipynb", "exec"), namespace)
+    namespace = run_notebook("fb_evaluation.ipynb")
     model, projected = namespace["result"], namespace["projected"]
     assert model["aggregate"]["n_trajectories"] == projected["aggregate"]["n_trajectories"] == 1
     assert not model["conserve_solid_volume"] and projected["conserve_solid_volume"]
