@@ -23,11 +23,12 @@ def _run(tmp_path: Path, variants: str) -> tuple[subprocess.CompletedProcess, li
 
 
 def test_each_variant_is_one_training_command(tmp_path: Path):
-    proc, calls = _run(tmp_path, "noise fb_base/noise_pf")
+    proc, calls = _run(tmp_path, "noise fb_base/noise_pf fb_base/grid_only")
     assert proc.returncode == 0, proc.stderr
     train = [c for c in calls if c[:2] == ["-m", "neuraldem.train"]]
-    assert len(train) == 2
-    noise, base = train
+    assert len(train) == 3
+    noise, base, grid = train
+    assert "model.net.particle_branch=false" in grid and "model.net.particle_branch=false" not in base
     assert "data.datamodule.input_noise=0.01" in noise and "data.datamodule.push_forward_steps=1" in noise
     assert not any(a.startswith("model=") for a in noise)
     assert f"hydra.run.dir={tmp_path / 'runs' / 'noise'}" in noise and "trainer.max_steps=7" in noise

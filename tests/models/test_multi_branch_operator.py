@@ -61,6 +61,25 @@ def test_chunked_equals_unchunked_and_subset_equals_subset_of_all():
         assert torch.allclose(sub[name], full[name][:, subset], atol=1e-6)
 
 
+def test_grid_only_model_has_no_particle_branch_and_ignores_particles():
+    full, grid_only = tiny(), tiny(particle_branch=False)
+    assert grid_only.branches == ("fluid", "mixing") and "particles" not in grid_only.encoders
+    assert sum(p.numel() for p in grid_only.parameters()) < sum(p.numel() for p in full.parameters())
+    grid_only = activate_modulations(grid_only)
+    x = inputs(grid_only)
+    assert "particles" not in x.query_pos
+    out = grid_only(x)
+    assert {name: tuple(v.shape) for name, v in out.items()} == {"fluid": (2, 360, 4), "mixing": (2, 360, 1)}
+    x.particle_pos, x.particle_features = torch.rand_like(x.particle_pos), torch.rand_like(x.particle_features)
+    again = grid_only(x)
+    assert all(torch.equal(again[name], out[name]) for name in out)
+    x.grid = torch.rand_like(x.grid)
+    assert not torch.allclose(grid_only(x)["fluid"], out["fluid"])
+    x.query_pos = {"particles": x.particle_pos}
+    with pytest.raises(ValueError, match="unknown branches"):
+        grid_only(x)
+
+
 def test_off_branch_inputs_do_not_change_main_outputs():
     model = activate_modulations(tiny())
     x = inputs(model)

@@ -60,6 +60,10 @@ def advance(net: MultiBranchOperator, inputs: OperatorInputs, norm: FbNormalizer
     fluid, mixing = decode_grid(net, tokens, cond, inputs, chunk_size)
     alpha = fluid[:, SOLID_FRACTION_CHANNEL] * norm.std["solid_fraction"][0] + norm.mean["solid_fraction"][0]
     positions = sample_positions(alpha, n_particles, generator)
-    displacement = net.decode(tokens, cond, {"particles": positions}, chunk_size=chunk_size)["particles"]
+    if net.particle_branch:
+        displacement = net.decode(tokens, cond, {"particles": positions}, chunk_size=chunk_size)["particles"]
+    else:  # a grid-only model reads no particles: the samples only show where the solid is
+        displacement = inputs.particle_features.new_zeros(positions.shape[0], n_particles,
+                                                          inputs.particle_features.shape[-1])
     return replace(inputs, particle_pos=positions, particle_features=displacement, grid=fluid, mixing_grid=mixing,
                    query_pos={}, supernode_idx=None)

@@ -56,6 +56,8 @@ class MultiBranchOperator(nn.Module):
         encoder_depth, approximator_depth, decoder_depth: multi-branch blocks per stage (paper: 4 each).
         n_supernodes, n_supernodes_eval, radius, max_neighbours, position_mode: particle encoder
         (see `SupernodePooling`; radius in normalised units). patch_size: cells per patch along (X, Y, Z).
+        particle_branch: False drops the particle branch (no supernode pooling, no particle decoder): a
+        grid-only model whose main branch is the fluid grid, the "single branch" ablation of right-sizing.
 
     forward(inputs: OperatorInputs, chunk_size=None) -> {branch: (B, Q_branch, channels)} for the branches in
     `inputs.query_pos`.
@@ -66,9 +68,12 @@ class MultiBranchOperator(nn.Module):
                  encoder_depth: int = 1, approximator_depth: int = 1, decoder_depth: int = 1,
                  n_supernodes: int = 256, n_supernodes_eval: int | None = None, radius: float = 0.05,
                  max_neighbours: int = 32, position_mode: str = "both",
-                 patch_size: Sequence[int] = (2, 1, 2), mlp_ratio: float = 4.0) -> None:
+                 patch_size: Sequence[int] = (2, 1, 2), mlp_ratio: float = 4.0, particle_branch: bool = True) -> None:
         super().__init__()
         self.n_scalars = checks.positive_int("model.net.n_scalars", n_scalars)
+        self.particle_branch = checks.boolean("model.net.particle_branch", particle_branch)
+        self.main_branches = MAIN_BRANCHES if self.particle_branch else ("fluid",)
+        self.branches = self.main_branches + OFF_BRANCHES
         self.channels = {
             "particles": checks.positive_int("model.net.particle_channels", particle_channels),
             "fluid": checks.positive_int("model.net.fluid_channels", fluid_channels),
@@ -78,16 +83,17 @@ class MultiBranchOperator(nn.Module):
                   for stage, depth in (("encoder", encoder_depth), ("approximator", approximator_depth),
                                        ("decoder", decoder_depth))}
         self.conditioner = ScalarConditioner(n_scalars, dim, cond_dim)
-        self.encoders = nn.ModuleDict({
-            "particles": SupernodePooling(particle_channels, dim, radius, n_supernodes, n_supernodes_eval,
-                                          max_neighbours, ndim=3, position_mode=position_mode),
-            "fluid": PatchEmbedding(fluid_channels, dim, patch_size),
-            "mixing": PatchEmbedding(mixing_channels, dim, patch_size),
-        })
+        self.encoders = nn.ModuleDict()
+        if self.particle_branch:
+            self.encoders["particles"] = SupernodePooling(particle_channels, dim, radius, n_supernodes,
+                                                          n_supernodes_eval, max_neighbours, ndim=3,
+                                                          position_mode=position_mode)
+        self.encoders["fluid"] = PatchEmbedding(fluid_channels, dim, patch_size)
+        self.encoders["mixing"] = PatchEmbedding(mixing_channels, dim, patch_size)
 
         def stage(depth: int) -> nn.ModuleList:
             return nn.ModuleList(
-                MultiBranchTransformerBlock(dim, num_heads, cond_dim, MAIN_BRANCHES, OFF_BRANCHES, mlp_ratio)
+                MultiBranchTransformerBlock(dim, num_heads, cond_dim, self.main_branches, OFF_BRANCHES, mlp_ratio)
                 for _ in range(depth))
 
         self.encoder_blocks = stage(depths["encoder"])
@@ -95,17 +101,17 @@ class MultiBranchOperator(nn.Module):
         self.decoder_blocks = stage(depths["decoder"])
         self.decoders = nn.ModuleDict({
             name: PerceiverDecoder(dim, self.channels[name], num_heads, cond_dim, ndim=3, mlp_ratio=mlp_ratio)
-            for name in BRANCHES
+            for name in self.branches
         })
 
     def encode(self, inputs: OperatorInputs) -> dict[str, torch.Tensor]:
         """Input fields -> tokens {branch: (B, n_tokens_branch, dim)}."""
-        return {
-            "particles": self.encoders["particles"](inputs.particle_pos, inputs.particle_features,
-                                                    inputs.supernode_idx),
-            "fluid": self.encoders["fluid"](inputs.grid),
-            "mixing": self.encoders["mixing"](inputs.mixing_grid),
-        }
+        tokens = {}
+        if self.particle_branch:
+            tokens["particles"] = self.encoders["particles"](inputs.particle_pos, inputs.particle_features,
+                                                             inputs.supernode_idx)
+        return tokens | {"fluid": self.encoders["fluid"](inputs.grid),
+                         "mixing": self.encoders["mixing"](inputs.mixing_grid)}
 
     def forward(self, inputs: OperatorInputs, chunk_size: int | None = None) -> dict[str, torch.Tensor]:
         tokens, cond = self.latents(inputs)
@@ -123,9 +129,9 @@ class MultiBranchOperator(nn.Module):
     def decode(self, tokens: Mapping[str, torch.Tensor], cond: torch.Tensor,
                query_pos: Mapping[str, torch.Tensor], chunk_size: int | None = None) -> dict[str, torch.Tensor]:
         """{branch: (B, Q_branch, channels)} at `query_pos` from the output of `latents`."""
-        unknown = sorted(set(query_pos) - set(BRANCHES))
+        unknown = sorted(set(query_pos) - set(self.branches))
         if unknown:
-            raise ValueError(f"query positions for unknown branches {unknown}; branches are {list(BRANCHES)}")
+            raise ValueError(f"query positions for unknown branches {unknown}; branches are {list(self.branches)}")
         # off-branch decoders see a detached conditioning vector, like the off-branches inside the blocks
         return {
             name: self.decoders[name](tokens[name], pos, cond if name in MAIN_BRANCHES else cond.detach(),
@@ -138,8 +144,9 @@ class MultiBranchOperator(nn.Module):
                        generator: torch.Generator | None = None) -> OperatorInputs:
         """Random inputs of the right shapes (smoke tests, benchmarks), decoded at particles and cells."""
         device = self.conditioner.merge.weight.device
-        pooling = self.encoders["particles"]
-        n_particles = n_particles or 2 * max(pooling.n_supernodes, pooling.n_supernodes_eval)
+        if n_particles is None:
+            pooling = self.encoders["particles"] if self.particle_branch else None
+            n_particles = 2 * max(pooling.n_supernodes, pooling.n_supernodes_eval) if pooling else 64
 
         def rand(*shape: int) -> torch.Tensor:
             return torch.rand(*shape, generator=generator).to(device)
@@ -152,5 +159,5 @@ class MultiBranchOperator(nn.Module):
             grid=rand(batch_size, self.channels["fluid"], *grid_shape),
             mixing_grid=rand(batch_size, self.channels["mixing"], *grid_shape),
             scalars=rand(batch_size, self.n_scalars),
-            query_pos={"particles": particle_pos, "fluid": centres, "mixing": centres},
+            query_pos=({"particles": particle_pos} if self.particle_branch else {}) | {"fluid": centres, "mixing": centres},
         )
