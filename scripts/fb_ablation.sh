@@ -7,7 +7,8 @@
 # e.g. JOBS=2 VARIANTS="base noise_pf" bash scripts/fb_ablation.sh $NEURALDEM_DATA/fb_ablation \
 #        trainer=cpu logger=csv trainer.max_steps=3000 trainer.val_check_interval=500
 # Variants: base (no noise, k = 1), noise (input_noise 0.01), pf (push_forward_steps 2), noise_pf (both),
-# grid_only (noise_pf without the particle branch: the fluid grid is the only main branch).
+# grid_only (noise_pf without the particle branch: the fluid grid is the only main branch), residual (noise_pf,
+# the grid branches predict the scaled change per step), grid_residual (both).
 # A variant may name a model config: "fb_base/noise_pf" trains model=fb_base (sizes side by side for
 # right-sizing: VARIANTS="fb_tiny/noise_pf fb_base/noise_pf fb_small/noise_pf").
 # Runs land in RUNS_DIR/<variant>/ (logs beside them), the table in RUNS_DIR/table.md (+ .json). A run whose
@@ -32,7 +33,9 @@ overrides() {
     pf) echo "data.datamodule.input_noise=0.0 data.datamodule.push_forward_steps=2" ;;
     noise_pf) echo "data.datamodule.input_noise=0.01 data.datamodule.push_forward_steps=2" ;;
     grid_only) echo "data.datamodule.input_noise=0.01 data.datamodule.push_forward_steps=2 model.net.particle_branch=false" ;;
-    *) echo "fb_ablation: unknown variant '$1' (known: base noise pf noise_pf grid_only)" >&2; return 2 ;;
+    residual) echo "data.datamodule.input_noise=0.01 data.datamodule.push_forward_steps=2 model.residual=true" ;;
+    grid_residual) echo "data.datamodule.input_noise=0.01 data.datamodule.push_forward_steps=2 model.residual=true model.net.particle_branch=false" ;;
+    *) echo "fb_ablation: unknown variant '$1' (known: base noise pf noise_pf grid_only residual grid_residual)" >&2; return 2 ;;
   esac
 }
 for v in $VARIANTS; do overrides "$v" > /dev/null || exit 2; done

@@ -89,6 +89,21 @@ def test_normalisation_comes_from_the_training_split_only(fb_tiny_dataset: Path)
     assert dm.checkpoint_metadata()["normalizer"] == norm.to_dict()
 
 
+def test_one_step_change_statistics(fb_tiny_dataset: Path):
+    norm = _dm(fb_tiny_dataset).norm
+    train = _dm(fb_tiny_dataset).paths("train")
+    diffs = np.concatenate([np.diff(_read(p, "solid_fraction"), axis=0).ravel() for p in train])
+    assert norm.step_rms["solid_fraction"][0] == pytest.approx(np.sqrt(np.mean(diffs**2)), rel=1e-6)
+    scale = norm.step_scale("solid_fraction")[0]  # in model units: relative to the field's own spread
+    assert scale == pytest.approx(norm.step_rms["solid_fraction"][0] / norm.std["solid_fraction"][0])
+    assert 0 < scale < 1  # the solid fraction changes by a fraction of its spread per step
+    velocity = norm.step_scale("fluid_velocity")
+    assert velocity[1] == 0.01  # the y velocity of the pseudo-2D bed never changes: the floor, not 0
+    old = FbNormalizer.from_dict({k: v for k, v in norm.to_dict().items() if k != "step_rms"})
+    with pytest.raises(DataError, match="no one-step statistics.*model.residual"):
+        old.step_scale("mixing")
+
+
 def test_noise_only_on_training_inputs(fb_tiny_dataset: Path):
     torch.manual_seed(0)
     noisy, clean = _dm(fb_tiny_dataset, input_noise=0.05), _dm(fb_tiny_dataset)

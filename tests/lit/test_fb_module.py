@@ -71,6 +71,41 @@ def test_grid_only_model_trains_and_rolls_forward(fb_tiny_dataset: Path):
     assert nxt.particle_pos.shape == (batch["scalars"].shape[0], 50, 3) and not nxt.particle_features.any()
 
 
+def test_residual_model_adds_scaled_changes_to_its_input(fb_tiny_dataset: Path, tmp_path: Path,
+                                                         monkeypatch: pytest.MonkeyPatch):
+    from neuraldem.lit.fb_autoregressive import advance, grid_cells
+
+    torch.manual_seed(0)
+    dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=4, push_forward_steps=2)
+    module = FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, residual=True)
+    trainer = _fit(module, dm, 3)  # trains, push-forward through the residual step
+    batch = next(iter(dm.test_dataloader()))
+    x = module.inputs(batch)
+    scales = module.step_scales
+    assert scales["fluid"].shape == (4,) and scales["mixing"].shape == (1,)
+    real_decode = module.net.decode
+
+    def constant_change(tokens, cond, query_pos, chunk_size=None):  # every grid output = 1 scaled step
+        out = real_decode(tokens, cond, query_pos, chunk_size)
+        return {k: torch.ones_like(v) if k != "particles" else v for k, v in out.items()}
+
+    monkeypatch.setattr(module.net, "decode", constant_change)
+    with torch.no_grad():
+        nxt = advance(module.net, x, module.norm, n_particles=30, step_scales=scales)
+        losses = module.losses(batch)
+    torch.testing.assert_close(grid_cells(nxt.grid), grid_cells(x.grid) + scales["fluid"])
+    torch.testing.assert_close(grid_cells(nxt.mixing_grid), grid_cells(x.mixing_grid) + scales["mixing"])
+    change = (batch["target_fluid"] - grid_cells(x.grid)) / scales["fluid"]
+    torch.testing.assert_close(losses["fluid"], (1 - change).square().mean())
+    monkeypatch.undo()
+    path = tmp_path / "residual.ckpt"
+    trainer.save_checkpoint(path)
+    back = FluidizedBedModule.load_from_checkpoint(path)
+    assert back.residual and torch.equal(back.step_scales["fluid"], scales["fluid"])
+    with pytest.raises(ConfigError, match="model.residual"):
+        FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, residual="yes")
+
+
 def test_push_forward_unrolls_k_minus_one_model_steps(fb_tiny_dataset: Path, monkeypatch: pytest.MonkeyPatch):
     calls = []
     real_advance = fb_module.advance

@@ -23,6 +23,8 @@ from neuraldem.errors import DataError
 FIELDS = ("displacement", "fluid_velocity", "solid_fraction", "mixing")
 CHANNELS = {"displacement": 3, "fluid_velocity": 3, "solid_fraction": 1, "mixing": 1}
 STD_FLOOR = 1e-3  # a channel's std is at least this share of its field's largest channel std (no 0 division)
+STEP_SCALE_FLOOR = 1e-2  # model units: a channel that never changes (the y velocity of a pseudo-2D bed)
+STEP_FIELDS = ("fluid_velocity", "solid_fraction", "mixing")
 
 
 @dataclass
@@ -39,6 +41,9 @@ class FbNormalizer:
     n_particles: int = 0  # particles per trajectory (training)
     particle_volume: float = 0.0  # [m^3] mean particle volume
     solid_fraction_max: float = 0.0  # largest solid fraction in the training data
+    # RMS of the change over one model step per channel, physical units (fluid_velocity, solid_fraction, mixing):
+    # the scale of what a residual model predicts (`step_scale`); empty in normalisers fitted before it existed
+    step_rms: dict[str, list[float]] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -73,6 +78,15 @@ class FbNormalizer:
         x = np.asarray(u) * std + mean
         return x[..., 0] if CHANNELS[name] == 1 else x
 
+    def step_scale(self, name: str) -> np.ndarray:
+        """Per-channel RMS of one step's change in model units (>= STEP_SCALE_FLOOR): a residual model predicts
+        (next - current) / step_scale, so every channel's change is of order one in its loss, the solid fraction's
+        small per-step change as much as the fluid velocity's large one."""
+        if name not in self.step_rms:
+            raise DataError(f"this normalisation has no one-step statistics for {name!r} (fitted by an older "
+                            "neuraldem): retrain, or train without model.residual")
+        return np.maximum(np.asarray(self.step_rms[name]) / np.asarray(self.std[name]), STEP_SCALE_FLOOR)
+
     # ---- conditioning
     def velocity(self, v: float) -> float:
         span = self.velocity_hi - self.velocity_lo
@@ -89,6 +103,7 @@ class FbNormalizer:
         if not paths:
             raise DataError("no training trajectories to fit the normalisation on")
         acc = {name: _Moments(CHANNELS[name]) for name in FIELDS}
+        steps = {name: _Moments(CHANNELS[name]) for name in STEP_FIELDS}  # of the one-step changes
         grids, velocities, horizons, dts, counts, volumes, alpha_max = set(), [], [], [], [], [], 0.0
         for path in paths:
             with FbFile(path) as f:  # validates the file
@@ -99,11 +114,12 @@ class FbNormalizer:
                 counts.append(f.n_particles)
                 volumes.append(float(np.mean(f.particle_volumes)))
                 acc["displacement"].add(f.displacement().reshape(-1, 3))
-                acc["fluid_velocity"].add(f.fluid_velocity().reshape(-1, 3))
                 alpha = f.solid_fraction()
                 alpha_max = max(alpha_max, float(alpha.max()))
-                acc["solid_fraction"].add(alpha.reshape(-1, 1))
-                acc["mixing"].add(f.mixing().reshape(-1, 1))
+                for name, values in (("fluid_velocity", f.fluid_velocity()), ("solid_fraction", alpha),
+                                     ("mixing", f.mixing())):
+                    acc[name].add(values.reshape(-1, CHANNELS[name]))
+                    steps[name].add(np.diff(values, axis=0).reshape(-1, CHANNELS[name]))
         if len(grids) != 1:
             raise DataError(f"training trajectories {[str(p) for p in paths]} use {len(grids)} different grids; "
                             "a dataset must have one grid (regenerate or import them onto the same grid)")
@@ -121,7 +137,8 @@ class FbNormalizer:
         return cls(box_lo=list(lo), box_hi=list(hi), grid_shape=list(shape), dt=float(dts[0]),
                    horizon_steps=int(max(horizons)), velocity_lo=float(min(velocities)),
                    velocity_hi=float(max(velocities)), mean=mean, std=std, n_particles=int(max(counts)),
-                   particle_volume=float(np.mean(volumes)), solid_fraction_max=alpha_max)
+                   particle_volume=float(np.mean(volumes)), solid_fraction_max=alpha_max,
+                   step_rms={name: m.rms().tolist() for name, m in steps.items()})
 
 
 class _Moments:
@@ -137,6 +154,9 @@ class _Moments:
         self.n += len(x)
         self.s += x.sum(axis=0)
         self.ss += np.square(x).sum(axis=0)
+
+    def rms(self) -> np.ndarray:
+        return np.sqrt(self.ss / max(self.n, 1))
 
     def result(self) -> tuple[np.ndarray, np.ndarray]:
         mean = self.s / max(self.n, 1)

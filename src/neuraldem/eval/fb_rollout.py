@@ -132,6 +132,7 @@ class ModelStepper:
         self.conserve_solid_volume = bool(conserve_solid_volume)
         self.solid_volume: float | None = None  # sum of the first state's solid fraction (cells are equal)
         self.net = module.net.to(device).eval()
+        self.step_scales = getattr(module, "step_scales", None)  # a residual model's
         self.norm: FbNormalizer = module.norm
         self.dt = self.norm.dt
         self.chunk_size = module.chunk_size
@@ -150,7 +151,7 @@ class ModelStepper:
                            grid=self._tensor(grid_input(norm, state.fluid_velocity, state.solid_fraction)),
                            mixing_grid=self._tensor(mixing_input(norm, state.mixing)), scalars=self.scalars)
         nxt = advance(self.net, x, norm, n_particles=len(state.positions), generator=self.generator,
-                      chunk_size=self.chunk_size)
+                      chunk_size=self.chunk_size, step_scales=self.step_scales)
         grid = np.moveaxis(nxt.grid[0].double().cpu().numpy(), 0, -1)
         solid_fraction = norm.field_back("solid_fraction", grid[..., 3:])
         if self.conserve_solid_volume:

@@ -3,13 +3,16 @@
 Shared by push-forward training and by rollouts, so both feed the model exactly the same kind of input:
 the grid fields come from the decoded fluid and mixing branches; particles are never tracked: their input
 positions are sampled anew from the predicted solid fraction (density proportional to it, uniform inside a
-cell), and their input displacement is the particle branch decoded at those positions.
+cell), and their input displacement is the particle branch decoded at those positions. A residual model
+(`model.residual=true`) predicts the grid fields' change over the step, scaled per channel by the training
+data's typical one-step change (`FbNormalizer.step_scale`); the next state is the input plus that change.
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
 import torch
 
 from neuraldem.data.fb_normalization import FbNormalizer
@@ -41,12 +44,37 @@ def sample_positions(solid_fraction: torch.Tensor, n: int, generator: torch.Gene
     return ((ijk + offset) / dims).to(solid_fraction.device)
 
 
+def grid_cells(grid: torch.Tensor) -> torch.Tensor:
+    """(B, C, nx, ny, nz) -> (B, cells, C), cells in the C order of `grid_queries` (and of the targets)."""
+    return grid.flatten(2).transpose(1, 2)
+
+
+def grid_step_scales(norm: FbNormalizer) -> dict[str, torch.Tensor]:
+    """Per-channel scale of one step's change, model units, for the fluid (fluid velocity + solid fraction) and
+    mixing branches: a residual model's output times this is the change of the field over one step."""
+    fluid = np.concatenate([norm.step_scale("fluid_velocity"), norm.step_scale("solid_fraction")])
+    return {"fluid": torch.tensor(fluid, dtype=torch.float32),
+            "mixing": torch.tensor(norm.step_scale("mixing"), dtype=torch.float32)}
+
+
+def next_grid_fields(out: dict[str, torch.Tensor], inputs: OperatorInputs,
+                     step_scales: dict[str, torch.Tensor] | None) -> dict[str, torch.Tensor]:
+    """The decoded grid branches (B, cells, C) as next states, model units: the output itself, or for a
+    residual model (`step_scales` given) the input plus the output times the step scale."""
+    if step_scales is None:
+        return {"fluid": out["fluid"], "mixing": out["mixing"]}
+    return {name: grid_cells(grid) + out[name] * step_scales[name].to(out[name].device)
+            for name, grid in (("fluid", inputs.grid), ("mixing", inputs.mixing_grid))}
+
+
 def decode_grid(net: MultiBranchOperator, tokens: dict[str, torch.Tensor], cond: torch.Tensor,
-                inputs: OperatorInputs, chunk_size: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                inputs: OperatorInputs, chunk_size: int | None = None,
+                step_scales: dict[str, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Next fluid grid (B, 4, nx, ny, nz) and mixing grid (B, 1, nx, ny, nz), model units."""
     shape = inputs.grid.shape[2:]
     queries = grid_queries(inputs)
-    out = net.decode(tokens, cond, {"fluid": queries, "mixing": queries}, chunk_size=chunk_size)
+    out = next_grid_fields(net.decode(tokens, cond, {"fluid": queries, "mixing": queries}, chunk_size=chunk_size),
+                           inputs, step_scales)
     batch = inputs.grid.shape[0]
     fluid = out["fluid"].transpose(1, 2).reshape(batch, -1, *shape)
     mixing = out["mixing"].transpose(1, 2).reshape(batch, -1, *shape)
@@ -54,10 +82,12 @@ def decode_grid(net: MultiBranchOperator, tokens: dict[str, torch.Tensor], cond:
 
 
 def advance(net: MultiBranchOperator, inputs: OperatorInputs, norm: FbNormalizer, n_particles: int,
-            generator: torch.Generator | None = None, chunk_size: int | None = None) -> OperatorInputs:
-    """The model's next state as the next input: decoded grids, particles re-sampled from the solid fraction."""
+            generator: torch.Generator | None = None, chunk_size: int | None = None,
+            step_scales: dict[str, torch.Tensor] | None = None) -> OperatorInputs:
+    """The model's next state as the next input: decoded grids, particles re-sampled from the solid fraction.
+    `step_scales` (`grid_step_scales`) for a residual model, whose grid outputs are scaled changes."""
     tokens, cond = net.latents(inputs)
-    fluid, mixing = decode_grid(net, tokens, cond, inputs, chunk_size)
+    fluid, mixing = decode_grid(net, tokens, cond, inputs, chunk_size, step_scales)
     alpha = fluid[:, SOLID_FRACTION_CHANNEL] * norm.std["solid_fraction"][0] + norm.mean["solid_fraction"][0]
     positions = sample_positions(alpha, n_particles, generator)
     if net.particle_branch:

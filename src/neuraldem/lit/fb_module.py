@@ -3,7 +3,9 @@
 Loss: the sum over branches (particles, fluid, mixing; weights in config) of the mean squared error in model
 units (paper sec. 4.3). With push-forward training (`data.datamodule.push_forward_steps` = k > 1) the model
 first rolls itself k - 1 steps forward without gradient, exactly as a rollout does (`fb_autoregressive`),
-and is trained on the last step against the data at t + k. The net is built here with as many input
+and is trained on the last step against the data at t + k. `residual=true`: the grid branches predict the
+change over the step in units of its typical size per channel (the loss is then the squared error of the
+change relative to that size, every channel weighted alike); the next state is the input plus the change. The net is built here with as many input
 scalars as the data's conditioning list; checkpoints carry the data's metadata (scene, conditioning,
 normalisation, velocities seen in training) that rollouts and evaluation check before using a model.
 """
@@ -21,7 +23,7 @@ from neuraldem.config import checks
 from neuraldem.data.fb_datamodule import FluidizedBedDataModule
 from neuraldem.data.fb_normalization import FbNormalizer
 from neuraldem.errors import ConfigError
-from neuraldem.lit.fb_autoregressive import advance, grid_queries
+from neuraldem.lit.fb_autoregressive import advance, grid_cells, grid_queries, grid_step_scales
 from neuraldem.lit.module_setup import loss_weight_settings, net_config_and_metadata
 from neuraldem.lit.optim import lion_warmup_cosine, optimizer_settings
 from neuraldem.models.modules.patch_embedding import check_patch_size
@@ -32,7 +34,7 @@ class FluidizedBedModule(L.LightningModule):
     def __init__(self, net: DictConfig | dict, datamodule: FluidizedBedDataModule | None = None,
                  optimizer: DictConfig | dict | None = None, scheduler: DictConfig | dict | None = None,
                  loss_weights: DictConfig | dict | None = None, chunk_size: int | None = None,
-                 metadata: dict[str, Any] | None = None):
+                 metadata: dict[str, Any] | None = None, residual: bool = False):
         super().__init__()
         net_cfg, metadata = net_config_and_metadata("FluidizedBedModule", net, datamodule, metadata)
         self.metadata = metadata
@@ -45,8 +47,11 @@ class FluidizedBedModule(L.LightningModule):
         self.opt_cfg, self.sched_cfg, self.loss_weights = opt, sched, weights
         self.chunk_size = chunk_size
         self.push_forward_steps = int(metadata.get("push_forward_steps", 1))
+        self.residual = checks.boolean("model.residual", residual)
+        self.step_scales = grid_step_scales(self.norm) if self.residual else None
         self.save_hyperparameters({"net": OmegaConf.to_container(net_cfg), "optimizer": opt, "scheduler": sched,
-                                   "loss_weights": weights, "chunk_size": chunk_size, "metadata": metadata})
+                                   "loss_weights": weights, "chunk_size": chunk_size, "metadata": metadata,
+                                   "residual": self.residual})
         self.net = instantiate(net_cfg)
 
     @staticmethod
@@ -60,13 +65,18 @@ class FluidizedBedModule(L.LightningModule):
         if push_forward_steps > 1:
             with torch.no_grad():
                 for _ in range(push_forward_steps - 1):
-                    x = advance(self.net, x, self.norm, n_particles=x.particle_pos.shape[1])
+                    x = advance(self.net, x, self.norm, n_particles=x.particle_pos.shape[1],
+                                step_scales=self.step_scales)
         cells = grid_queries(x)
         x.query_pos = {"particles": batch["target_pos"], "fluid": cells, "mixing": cells}
         if not self.net.particle_branch:  # a grid-only model: nothing to decode at the particles
             x.query_pos = {"fluid": cells, "mixing": cells}
         out = self.net(x)
         losses = {name: (out[name] - batch[f"target_{name}"]).square().mean() for name in self.net.branches}
+        if self.residual:  # the grid outputs are scaled changes: compare them with the scaled true change
+            for name, grid in (("fluid", x.grid), ("mixing", x.mixing_grid)):
+                change = (batch[f"target_{name}"] - grid_cells(grid)) / self.step_scales[name].to(grid.device)
+                losses[name] = (out[name] - change).square().mean()
         losses["loss"] = sum(self.loss_weights[k] * losses[k] for k in self.net.branches)
         return losses
 
