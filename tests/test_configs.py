@@ -46,3 +46,13 @@ def test_ablation_grid_composes(split: str, compose_train_cfg):
     for experiment in ("hopper_micro", "hopper_theta", "hopper_ffc", "hopper_macro", "hopper_all"):
         cfg = compose_train_cfg(f"experiment={experiment}", f"data.split={split}")
         assert cfg.data.datamodule.split == split and cfg.evaluate
+
+
+@pytest.mark.parametrize("override", ["model.net.particle_branch=false", "model.residual=true"])
+def test_fb_model_options_are_overridable(override: str, compose_train_cfg):
+    cfg = compose_train_cfg("experiment=fb", override)
+    key, value = override.split("=")
+    node = cfg
+    for part in key.split("."):
+        node = node[part]
+    assert node is (value == "true")
