@@ -11,6 +11,8 @@ import torch
 
 from neuraldem.bench import fb_stability
 from neuraldem.bench.__main__ import main as bench_main
+from neuraldem.bench.fb_stability import merge_maps
+from neuraldem.errors import DataError
 from neuraldem.eval.fb_rollout import DataStepper, FbState
 from tests.eval.test_fb_rollout import TRAINED_VELOCITY, Inject, _nan
 
@@ -115,3 +117,16 @@ def test_a_hopper_checkpoint_is_refused(fb_tiny_checkpoint: Path, tmp_path: Path
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "is a 'hopper' checkpoint" in err and "needs a fluidized_bed model" in err
     assert not (tmp_path / "x.json").exists()
+
+
+def test_merged_maps_keep_every_series_and_refuse_mismatches():
+    a = {"velocities": [1.0, 2.0], "steps": 10, "drift_limit_pct": 5.0, "limits": {"max_packing": 0.64},
+         "series": [{"label": "model", "points": []}]}
+    b = {**a, "limits": {"overlap_fraction": 0.5}, "series": [{"label": "gns", "method": "gns", "points": []}]}
+    merged = merge_maps(a, b)
+    assert [(s["label"], s["method"]) for s in merged["series"]] == [("model", "field surrogate"), ("gns", "gns")]
+    assert merged["steps"] == 10 and len(merged["limits"]) == 2
+    with pytest.raises(DataError, match="differ in velocities"):
+        merge_maps(a, {**b, "velocities": [1.0]})
+    with pytest.raises(DataError, match="share series labels"):
+        merge_maps(a, a)

@@ -147,3 +147,29 @@ def test_plan_with_fluidized_bed_runs(tmp_path: Path):
     chart = dict(plan(None, None, None, tmp_path, no_solver=True, repeats=2, threads=1,
                       fb_runs=[Path("/r")]))["fb_speed_accuracy"]
     assert chart[chart.index("--reuse-solver") + 1] == str(tmp_path / "fb_speed_accuracy.json")
+
+
+def test_plan_with_a_gns_of_the_bed(tmp_path: Path):
+    steps = dict(plan(None, None, None, tmp_path, no_solver=True, repeats=1, threads=1, fb_ckpts=[Path("/fb.ckpt")],
+                      gns_fb_ckpts=[Path("/gns.ckpt")], fb_dataset=Path("/fbd")))
+    assert list(steps) == ["fb_speed", "fb_stability", "gns_stability"]  # the GNS map after the one it copies
+    gns = steps["gns_stability"]
+    assert gns[:2] == ["--ckpt", "/gns.ckpt"] and "/fbd" in gns
+    assert gns[gns.index("--like") + 1] == str(tmp_path / "fb_stability.json")
+    with pytest.raises(ConfigError, match="give --fb-ckpt too"):
+        plan(None, None, None, tmp_path, no_solver=True, repeats=1, threads=1, fb_runs=[Path("/r")],
+             gns_fb_ckpts=[Path("/gns.ckpt")])
+
+
+def test_render_draws_field_surrogate_and_gns_in_one_map(tmp_path: Path):
+    write_results("fb_stability", FB_STABILITY, command="test", path=tmp_path / "fb_stability.json", machine={})
+    gns = {**FB_STABILITY, "series": [{**FB_STABILITY["series"][0], "label": "gns", "method": "gns"}]}
+    write_results("gns_stability", gns, command="test", path=tmp_path / "gns_stability.json", machine={})
+    assert bench_main(["render", "--out-dir", str(tmp_path)]) == 0
+    assert (tmp_path / "stability_map.png").is_file()
+    # maps of other steps do not share a figure: render says why instead of drawing a misleading one
+    write_results("gns_stability", {**gns, "steps": 50}, command="test", path=tmp_path / "gns_stability.json",
+                  machine={})
+    (tmp_path / "stability_map.png").unlink()
+    assert bench_main(["render", "--out-dir", str(tmp_path)]) == 2
+    assert not (tmp_path / "stability_map.png").exists()

@@ -27,7 +27,7 @@ from neuraldem.bench import plots
 from neuraldem.bench.report import command_line, machine_info, resolve_out, write_results
 from neuraldem.config import checks
 from neuraldem.data.fb_store import FbFile
-from neuraldem.errors import ConfigError
+from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.fb_metrics import total_solid_volume
 from neuraldem.eval.fb_rollout import (
     DivergenceLimits,
@@ -149,6 +149,24 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
                        "n_failed": sum(p["failed"] for p in points), "points": points})
     return {"velocities": grid, "steps": steps, "drift_limit_pct": drift_limit_pct, "seed": seed,
             "limits": {"max_packing": limits.max_packing, "tolerance": limits.tolerance}, "series": series}
+
+
+def merge_maps(*maps: dict[str, Any]) -> dict[str, Any]:
+    """One stability map from several (e.g. the field surrogates' and the GNS's), so that all series share a
+    figure; refuses maps of other velocities, step counts or drift limits, which would not compare."""
+    if not maps:
+        raise DataError("merge_maps: no stability maps given")
+    first = maps[0]
+    for m in maps[1:]:
+        for key in ("velocities", "steps", "drift_limit_pct"):
+            if m[key] != first[key]:
+                raise DataError(f"stability maps differ in {key} ({first[key]} vs {m[key]}): run both with the "
+                                "same --velocities, --steps and --drift-limit-pct (gns_stability --like FB_JSON)")
+    series = [dict(s, method=s.get("method", "field surrogate")) for m in maps for s in m["series"]]
+    labels = [s["label"] for s in series]
+    if len(set(labels)) != len(labels):
+        raise DataError(f"stability maps share series labels {labels}: give each series its own --labels")
+    return {**first, "limits": [m.get("limits") for m in maps], "series": series}
 
 
 def main(argv: list[str]) -> int:

@@ -2,7 +2,8 @@
 same figure), so its series sit beside the field surrogate's.
 
 `python -m neuraldem.bench gns_stability --ckpt GNS_CKPT [GNS_CKPT ...] [--labels NAME ...]
-[--velocities V ...] [--n-velocities 9] [--steps N] [--drift-limit-pct 5] [--dataset DIR] [--out PATH]`
+[--velocities V ...] [--n-velocities 9] [--steps N] [--drift-limit-pct 5] [--like FB_JSON] [--dataset DIR]
+[--out PATH]`
 writes results/bench/gns_stability.json and .png.
 
 For every GNS checkpoint (trained with experiment=gns_fb) and inlet velocity: one rollout of `--steps` steps
@@ -10,8 +11,8 @@ For every GNS checkpoint (trained with experiment=gns_fb) and inlet velocity: on
 (`eval.gns_rollout`). A rollout fails at the first state the GNS checks refuse (NaN/inf, a particle outside
 the box, overlapping particles, a changed particle count) or when the solid volume of the kernel
 solid-fraction field of its particles drifts beyond `--drift-limit-pct` (`fb_stability.assess`, the same
-rule as for the field surrogate). To put the field surrogate and the GNS in one figure, give both the same
-`--velocities` and `--steps` and concatenate the `series` of the two JSON files (`bench render` redraws).
+rule as for the field surrogate). `--like results/bench/fb_stability.json` rolls out at that map's velocities
+and steps, and `bench render` (or `bench all --gns-fb-ckpt`) then draws both in one figure, stability_map.png.
 """
 
 from __future__ import annotations
@@ -29,11 +30,11 @@ from neuraldem.bench.fb_stability import (
     check_options,
     velocity_grid,
 )
-from neuraldem.bench.report import command_line, machine_info, resolve_out, write_results
+from neuraldem.bench.report import command_line, machine_info, read_results, resolve_out, write_results
 from neuraldem.config import checks
 from neuraldem.data.gns_datamodule import ParticleRun
 from neuraldem.data.manifest import require_dataset
-from neuraldem.errors import DataError
+from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.fb_rollout import initial_file
 from neuraldem.eval.gns_rollout import (
     Accelerator,
@@ -104,10 +105,18 @@ def main(argv: list[str]) -> int:
     p.add_argument("--drift-limit-pct", type=float, default=DEFAULT_DRIFT_LIMIT_PCT,
                    help="a solid-volume drift beyond this [%%] is a failure")
     p.add_argument("--dataset", type=Path, default=None, help="dataset dir (default: <data dir>/datasets/<name>)")
+    p.add_argument("--like", type=Path, default=None,
+                   help="an fb_stability.json: take its velocities, steps and drift limit, so that the two maps "
+                        "merge into one figure (bench render draws stability_map.png)")
     p.add_argument("--out", type=Path, default=None,
                    help=f"results JSON, or a folder for {NAME}.json (default results/bench/{NAME}.json)")
     a = p.parse_args(argv)
     out = resolve_out(a.out, NAME)
+    if a.like is not None:
+        if a.velocities is not None or a.steps is not None:
+            raise ConfigError("--like takes the velocities and steps of its map: drop --velocities / --steps")
+        like = read_results(a.like, "fb_stability")["results"]
+        a.velocities, a.steps, a.drift_limit_pct = like["velocities"], like["steps"], like["drift_limit_pct"]
     check_options(a.ckpt, a.labels, a.velocities, a.steps, a.drift_limit_pct, 0)
     checks.positive_int("--n-velocities", a.n_velocities)
     machine = machine_info()

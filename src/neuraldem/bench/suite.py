@@ -1,10 +1,11 @@
 """Every chart and table in one command, and redrawing them from their results files.
 
-`python -m neuraldem.bench all --runs DIR... --ckpt CKPT [--dataset DIR] [--fb-ckpt CKPT...] [--fb-runs DIR...]
-[--fb-dataset DIR] [--no-solver] [--out-dir DIR]` runs hopper_speed, hopper_scaling, speed_accuracy and
-right_sizing in turn (with --runs and --ckpt), then fb_speed (the first --fb-ckpt against DPMFoam) and
-fb_stability (every --fb-ckpt, one series each) (with --fb-ckpt), then fb_speed_accuracy (with --fb-runs);
-each also runs on its own. With --no-solver nothing runs LIGGGHTS or DPMFoam: solver costs come from the
+`python -m neuraldem.bench all --runs DIR... --ckpt CKPT [--dataset DIR] [--fb-ckpt CKPT...] [--gns-fb-ckpt
+CKPT...] [--fb-runs DIR...] [--fb-dataset DIR] [--no-solver] [--out-dir DIR]` runs hopper_speed, hopper_scaling,
+speed_accuracy and right_sizing in turn (with --runs and --ckpt), then fb_speed (the first --fb-ckpt against
+DPMFoam) and fb_stability (every --fb-ckpt, one series each) (with --fb-ckpt), gns_stability at the same
+velocities and steps (with --gns-fb-ckpt; both maps then also go into one figure, stability_map.png), then
+fb_speed_accuracy (with --fb-runs); each also runs on its own. With --no-solver nothing runs LIGGGHTS or DPMFoam: solver costs come from the
 dataset manifests and the solver parts of earlier results in --out-dir (where there are none, the chart has
 no solver points).
 
@@ -30,7 +31,7 @@ def default_out_dir() -> Path:
 def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_dir: Path, no_solver: bool,
          repeats: int, threads: int, skip_unevaluated: bool = False, fb_ckpts: list[Path] | None = None,
          fb_dataset: Path | None = None, fb_labels: list[str] | None = None,
-         fb_runs: list[Path] | None = None) -> list[tuple[str, list[str]]]:
+         fb_runs: list[Path] | None = None, gns_fb_ckpts: list[Path] | None = None) -> list[tuple[str, list[str]]]:
     """The benchmark commands `all` runs, in order (name, argv): the hopper's with `runs` and `ckpt`, the
     fluidized bed's with `fb_ckpts`."""
     if bool(runs) != (ckpt is not None):
@@ -53,6 +54,13 @@ def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_d
         labels = ["--labels", *fb_labels] if fb_labels else []
         stability = ["--ckpt", *map(str, fb_ckpts), *labels, *fb_data, "--out", str(out_dir / "fb_stability.json")]
         steps += [("fb_speed", speed), ("fb_stability", stability)]
+    if gns_fb_ckpts:
+        if not fb_ckpts:
+            raise ConfigError("--gns-fb-ckpt shares the velocities and steps of the field surrogates' stability map: "
+                              "give --fb-ckpt too")
+        fb_data = ["--dataset", str(fb_dataset)] if fb_dataset else []
+        steps.append(("gns_stability", ["--ckpt", *map(str, gns_fb_ckpts), *fb_data, "--like",
+                                        str(out_dir / "fb_stability.json"), "--out", str(out_dir / "gns_stability.json")]))
     if fb_runs:
         fb_data = ["--dataset", str(fb_dataset)] if fb_dataset else []
         chart = ["--runs", *map(str, fb_runs), *fb_data, "--repeats", str(repeats), "--out",
@@ -97,6 +105,8 @@ def run_all(argv: list[str]) -> int:
                    help="fluidized-bed checkpoints: the first is timed against DPMFoam, all go into the stability map")
     p.add_argument("--fb-labels", nargs="+", default=None, help="their names in the stability map (one per --fb-ckpt)")
     p.add_argument("--fb-dataset", type=Path, default=None, help="dataset dir of the fluidized-bed checkpoints' scene")
+    p.add_argument("--gns-fb-ckpt", type=Path, nargs="+", default=None,
+                   help="GNS checkpoints of the bed (experiment=gns_fb): their stability map beside --fb-ckpt's")
     p.add_argument("--fb-runs", type=Path, nargs="+", default=None,
                    help="folders holding evaluated fluidized-bed runs: the bed's speed-accuracy chart and right-sizing")
     p.add_argument("--no-solver", action="store_true",
@@ -108,12 +118,26 @@ def run_all(argv: list[str]) -> int:
     a = p.parse_args(argv)
     out_dir = a.out_dir or default_out_dir()
     for name, args in plan(a.runs, a.ckpt, a.dataset, out_dir, a.no_solver, a.repeats, a.threads,
-                           a.skip_unevaluated, a.fb_ckpt, a.fb_dataset, a.fb_labels, a.fb_runs):
+                           a.skip_unevaluated, a.fb_ckpt, a.fb_dataset, a.fb_labels, a.fb_runs, a.gns_fb_ckpt):
         print(f"==> python -m neuraldem.bench {name} {' '.join(args)}", flush=True)
         rc = entry_point(name)(args)
         if rc != 0:
             return rc
+    combined = stability_map(out_dir)
+    if combined is not None:
+        print(f"wrote {combined}")
     return 0
+
+
+def stability_map(out_dir: Path) -> Path | None:
+    """The field surrogates' and the GNS's stability maps in one figure (stability_map.png), where both exist."""
+    from neuraldem.bench.fb_stability import merge_maps
+
+    fb, gns = out_dir / "fb_stability.json", out_dir / "gns_stability.json"
+    if not (fb.is_file() and gns.is_file()):
+        return None
+    merged = merge_maps(read_results(fb, "fb_stability")["results"], read_results(gns, "gns_stability")["results"])
+    return plots.fb_stability_figure(merged, out_dir / "stability_map.png")
 
 
 def render(argv: list[str]) -> int:
@@ -148,6 +172,9 @@ def render(argv: list[str]) -> int:
             written.append(_write(path.with_suffix(".md"), speed_accuracy.render_markdown(results)))
         else:
             written.append(_write(path.with_suffix(".md"), right_sizing.render_markdown(results["picks"])))
+    combined = stability_map(out_dir)
+    if combined is not None:
+        written.append(combined)
     if not written:
         raise DataError(f"no benchmark results in {out_dir}: run `python -m neuraldem.bench all ...` first")
     for path in written:
