@@ -39,6 +39,26 @@ def test_right_size_picks_the_smallest_within_tolerance():
     assert len(fsa.chart(points)["lacey_mae"]) == 4  # dominated by every other point: not on the front
 
 
+def test_a_diverged_run_is_shown_but_never_picked_nor_on_a_front(tmp_path: Path):
+    # scored on its few steps before divergence, it would look best; it must not win anything
+    broken = {**_point("residual", 100_000, 0.4, 0.01), "n_diverged": 2, "n_trajectories": 4,
+              "diverged": [{"sim_id": "a", "step": 6, "reason": "solid fraction below 0"},
+                           {"sim_id": "b", "step": 19, "reason": "solid fraction below 0"}]}
+    points = [_point("big", 3_000_000, 5.0, 0.100), _point("tiny", 200_000, 0.5, 0.105), broken]
+    picks = fsa.right_size(points, tolerance=0.10)
+    assert picks["lacey_mae"]["best"] == "big" and picks["lacey_mae"]["pick"] == "tiny"
+    assert "residual" not in picks["lacey_mae"]["within"]
+    assert all(2 not in front for front in fsa.chart(points).values())
+    results = {"reference_sims": ["a", "b"], "dataset": "d", "threads": 1, "repeats": 1, "steps": 10,
+               "reference": {"time_to_answer_s": 90.0, "source": "manifest"}, "points": points,
+               "pareto_front": fsa.chart(points), "right_sizing": picks, "tolerance": 0.1,
+               "quantities": fsa.QUANTITIES, "machine": {}}
+    md = fsa.render_markdown(results)
+    assert "residual: 2 of 4 rollouts diverged (at steps 6, 19)" in md
+    fsa.plots.speed_accuracy_figure(results, tmp_path / "chart.png")
+    assert (tmp_path / "chart.png").stat().st_size > 0
+
+
 def test_solver_variants_parse_and_apply():
     scene = FluidizedBedScene()
     assert fsa.SolverVariant.parse("dt:2").apply(scene).dt == pytest.approx(2e-4)

@@ -126,10 +126,14 @@ def surrogate_point(result: dict[str, Any], ref: Reference, steps: int, repeats:
         state = initial_state(f, 0)
     timing = surrogate_timing(module, float(first.params["inlet_velocity"]), state, steps, repeats, threads).as_dict()
     net = module.hparams["net"]
+    diverged = [t for t in trajectories if t["stability"].get("steps_to_divergence") is not None]
     return {"method": SURROGATE, "label": result.get("run", Path(result["path"]).parent.parent.name),
             "time_to_answer_s": timing["median_cpu_s"], "timing": timing,
             "errors": mean_errors([trajectory_errors(t) for t in trajectories]),
             "n_trajectories": len(trajectories), "checkpoint": result["checkpoint"],
+            # a rollout that diverged is scored on its few steps before: shown, never right-sized or on a front
+            "n_diverged": len(diverged), "diverged": [{"sim_id": t["sim_id"], "step": t["stability"]["steps_to_divergence"],
+                                                       "reason": t["stability"].get("divergence", "")} for t in diverged],
             "size": {"parameters": result["training"]["parameters"], "dim": net.get("dim"),
                      "n_supernodes_eval": net.get("n_supernodes_eval") or net.get("n_supernodes")},
             "training": result["training"]}
@@ -239,7 +243,7 @@ def chart(points: list[dict[str, Any]]) -> dict[str, list[int]]:
     """Pareto front per quantity over all points (cost, error)."""
     def coord(p: dict[str, Any], key: str) -> tuple[float, float]:
         t, e = p.get("time_to_answer_s"), p["errors"].get(key)
-        ok = all(isinstance(x, (int, float)) and math.isfinite(x) for x in (t, e))
+        ok = all(isinstance(x, (int, float)) and math.isfinite(x) for x in (t, e)) and not p.get("n_diverged")
         return (float(t), float(e)) if ok else (math.nan, math.nan)
 
     return {key: pareto_front([coord(p, key) for p in points]) for key in QUANTITIES}
@@ -248,7 +252,7 @@ def chart(points: list[dict[str, Any]]) -> dict[str, list[int]]:
 def right_size(points: list[dict[str, Any]], tolerance: float) -> dict[str, Any]:
     """Per quantity: the best surrogate error and the smallest surrogate within (1 + tolerance) x of it."""
     checks.number("--tolerance", tolerance, lo=0.0)
-    surrogates = [p for p in points if p["method"] == SURROGATE]
+    surrogates = [p for p in points if p["method"] == SURROGATE and not p.get("n_diverged")]
     out = {}
     for key in QUANTITIES:
         scored = [p for p in surrogates if math.isfinite(p["errors"].get(key, math.nan))]
@@ -291,6 +295,10 @@ def render_markdown(results: dict[str, Any]) -> str:
     for p in failed:
         lines.append(f"\n{p['label']}: {p['n_failed']} of {p['n_sims']} DPMFoam runs failed "
                      f"({p['failures'][0]['reason'][:120]}).")
+    for p in (p for p in results["points"] if p.get("n_diverged")):
+        steps = ", ".join(str(d["step"]) for d in p["diverged"])
+        lines.append(f"\n{p['label']}: {p['n_diverged']} of {p['n_trajectories']} rollouts diverged (at steps {steps}); "
+                     "its errors cover the steps before, so it is on no front and not right-sized.")
     rs = results["right_sizing"]
     if rs:
         lines += ["", f"Right-sizing (smallest surrogate within {100 * results['tolerance']:.0f} % of the best):", "",

@@ -75,11 +75,17 @@ def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path:
         for method in sorted({p["method"] for p in points}):
             marker, color = METHOD_STYLE.get(method, ("D", "C2"))
             mine = [p for p in points if p["method"] == method and _finite(p["errors"].get(key))]
-            ax.scatter([p["time_to_answer_s"] for p in mine], [p["errors"][key] for p in mine], marker=marker,
+            kept = [p for p in mine if not p.get("n_diverged")]
+            broke = [p for p in mine if p.get("n_diverged")]  # scored on the steps before divergence only
+            ax.scatter([p["time_to_answer_s"] for p in kept], [p["errors"][key] for p in kept], marker=marker,
                        color=color, label=method, zorder=3)
+            if broke:
+                ax.scatter([p["time_to_answer_s"] for p in broke], [p["errors"][key] for p in broke], marker="x",
+                           color=color, label=f"{method}, diverged (not ranked)", zorder=3)
             for p in mine:
-                ax.annotate(p["label"], (p["time_to_answer_s"], p["errors"][key]), fontsize=6,
-                            xytext=(3, 3), textcoords="offset points")
+                ax.annotate(p["label"] + (" (diverged)" if p.get("n_diverged") else ""),
+                            (p["time_to_answer_s"], p["errors"][key]), fontsize=6, xytext=(3, 3),
+                            textcoords="offset points")
         front = [points[i] for i in results["pareto_front"][key]]
         ax.plot([p["time_to_answer_s"] for p in front], [p["errors"][key] for p in front], "k-", lw=1,
                 alpha=0.6, label="Pareto front", zorder=2)
