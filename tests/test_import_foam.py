@@ -27,7 +27,7 @@ def _import(case: Path, dataset: Path, *extra: str):
                       "--inlet-velocity", "1.5", "--t0", "0.05", "--lacey-block", "1", "1", "2", *extra)
 
 
-def test_import_matches_datagen_conversion(fb_tiny_dataset: Path, fb_tiny_case: Path, tmp_path: Path):  # noqa: F811
+def test_import_matches_datagen_conversion(fb_tiny_dataset: Path, fb_tiny_case: Path, tmp_path: Path):
     proc = _import(fb_tiny_case, tmp_path / "ds")
     assert proc.returncode == 0, proc.stderr
     assert "300 particles (0 lost), 21 snapshots every 0.01 s on a 6x1x15 grid (exact)" in proc.stdout
@@ -44,7 +44,7 @@ def test_import_matches_datagen_conversion(fb_tiny_dataset: Path, fb_tiny_case: 
     assert len(m.simulations) == 1 and m.record("mine").params["packing"] == 1.0
 
 
-def test_cfdem_style_case_with_liggghts_dump(fb_tiny_case: Path, tmp_path: Path):  # noqa: F811
+def test_cfdem_style_case_with_liggghts_dump(fb_tiny_case: Path, tmp_path: Path):
     """A CFDEM run keeps its particles in LIGGGHTS and its fluid as voidfraction/U: build one from the
     DPMFoam case (the same numbers under CFDEM's names) and import it."""
     case = tmp_path / "CFD"
@@ -79,7 +79,7 @@ def test_cfdem_style_case_with_liggghts_dump(fb_tiny_case: Path, tmp_path: Path)
         np.testing.assert_array_equal(a.orig_id, b.orig_id + 1)  # LIGGGHTS ids
 
 
-def test_missing_cell_centres_are_written(fb_tiny_case: Path, tmp_path: Path):  # noqa: F811
+def test_missing_cell_centres_are_written(fb_tiny_case: Path, tmp_path: Path):
     case = tmp_path / "case"
     shutil.copytree(fb_tiny_case, case)
     for name in ("C", "Cx", "Cy", "Cz"):
@@ -89,7 +89,7 @@ def test_missing_cell_centres_are_written(fb_tiny_case: Path, tmp_path: Path):  
     assert (case / "0" / "C").is_file() and "3 snapshots" in proc.stdout
 
 
-def test_damaged_or_wrong_cases_end_in_one_line(fb_tiny_case: Path, tmp_path: Path):  # noqa: F811
+def test_damaged_or_wrong_cases_end_in_one_line(fb_tiny_case: Path, tmp_path: Path):
     case = tmp_path / "case"
     shutil.copytree(fb_tiny_case, case)
     alpha = case / "0.12" / "alpha.air"

@@ -128,7 +128,7 @@ def test_not_hdf5_and_missing(tmp_path: Path):
 
 
 @pytest.mark.solver
-def test_generated_files_validate(fb_tiny_dataset: Path):  # noqa: F811
+def test_generated_files_validate(fb_tiny_dataset: Path):
     files = sorted((fb_tiny_dataset / "sims").glob("*.h5"))
     assert len(files) == 3
     for path in files:

@@ -172,7 +172,7 @@ def test_crashed_case_is_recorded_and_excluded_and_the_job_goes_on(tmp_path: Pat
 
 
 @pytest.mark.solver
-def test_splits_keep_velocities_together_and_scene_changes_are_refused(fb_tiny_dataset: Path):  # noqa: F811
+def test_splits_keep_velocities_together_and_scene_changes_are_refused(fb_tiny_dataset: Path):
     m = Manifest.load(fb_tiny_dataset)
     parts = m.splits["velocity"]
     v_of = {r.sim_id: r.params["inlet_velocity"] for r in m.simulations}
@@ -188,7 +188,7 @@ def test_splits_keep_velocities_together_and_scene_changes_are_refused(fb_tiny_d
 
 
 @pytest.mark.solver
-def test_new_metric_settings_rescore_without_rerunning(fb_tiny_dataset: Path, tmp_path: Path):  # noqa: F811
+def test_new_metric_settings_rescore_without_rerunning(fb_tiny_dataset: Path, tmp_path: Path):
     import shutil
 
     from neuraldem.datagen.driver import DatagenOptions, generate

@@ -98,7 +98,7 @@ def test_volume_statistics_and_blocks():
 
 
 @pytest.mark.solver
-def test_lacey_starts_near_zero_and_rises_on_real_data(fb_tiny_dataset: Path):  # noqa: F811
+def test_lacey_starts_near_zero_and_rises_on_real_data(fb_tiny_dataset: Path):
     """Issue requirement on the real solver: the initial left/right split scores ~0, then mixing rises."""
     for path in sorted((fb_tiny_dataset / "sims").glob("*.h5")):
         with FbFile(path) as f:
@@ -111,7 +111,7 @@ def test_lacey_starts_near_zero_and_rises_on_real_data(fb_tiny_dataset: Path):  
 
 
 @pytest.mark.solver
-def test_ground_truth_metrics_in_the_manifest(fb_tiny_dataset: Path):  # noqa: F811
+def test_ground_truth_metrics_in_the_manifest(fb_tiny_dataset: Path):
     m = json.loads((fb_tiny_dataset / "manifest.json").read_text())
     low, high = m["simulations"][0], m["simulations"][-1]
     assert low["params"]["inlet_velocity"] < high["params"]["inlet_velocity"]
@@ -123,7 +123,7 @@ def test_ground_truth_metrics_in_the_manifest(fb_tiny_dataset: Path):  # noqa: F
 
 
 @pytest.mark.solver
-def test_report_command_writes_plots_and_json(fb_tiny_dataset: Path, tmp_path: Path):  # noqa: F811
+def test_report_command_writes_plots_and_json(fb_tiny_dataset: Path, tmp_path: Path):
     proc = run_module("neuraldem.eval.fb_report", str(fb_tiny_dataset), "--out", str(tmp_path / "rep"),
                       "--note", "test run")
     assert proc.returncode == 0, proc.stderr

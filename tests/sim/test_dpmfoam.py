@@ -76,7 +76,7 @@ def test_openfoam_missing_or_unset_gives_the_fix(monkeypatch: pytest.MonkeyPatch
 
 
 @pytest.mark.solver
-def test_fluid_inflow_equals_outflow_every_step(fb_tiny_case: Path):  # noqa: F811
+def test_fluid_inflow_equals_outflow_every_step(fb_tiny_case: Path):
     """Continuity of the air: volume flow in through the bottom = out through the top in every solver step
     (pressure solver tolerance 1e-7), and equal to the superficial inlet velocity times the inlet area."""
     import json
@@ -94,7 +94,7 @@ def test_fluid_inflow_equals_outflow_every_step(fb_tiny_case: Path):  # noqa: F8
 
 
 @pytest.mark.solver
-def test_run_keeps_every_particle_and_the_solver_alpha_volume(fb_tiny_case: Path, tiny_scene):  # noqa: F811
+def test_run_keeps_every_particle_and_the_solver_alpha_volume(fb_tiny_case: Path, tiny_scene):
     case = FoamCase(fb_tiny_case)
     traj = read_trajectory(case, tiny_scene.grid, tiny_scene.spinup_time, tiny_scene.snapshot_interval)
     assert traj.positions.shape == (21, 300, 3) and traj.times[-1] == pytest.approx(0.2)
@@ -107,7 +107,7 @@ def test_run_keeps_every_particle_and_the_solver_alpha_volume(fb_tiny_case: Path
 
 
 @pytest.mark.solver
-def test_truncated_time_directory_is_read_as_error_and_resumed(fb_tiny_case: Path, tiny_scene,  # noqa: F811
+def test_truncated_time_directory_is_read_as_error_and_resumed(fb_tiny_case: Path, tiny_scene,
                                                                tmp_path: Path):
     case_dir = tmp_path / "case"
     shutil.copytree(fb_tiny_case, case_dir)
@@ -155,7 +155,7 @@ def test_crashing_case_is_failed_with_the_solver_message(tmp_path: Path, tiny_sc
 
 
 @pytest.mark.solver
-def test_lost_particles_are_counted_not_dropped(fb_tiny_case: Path, tiny_scene, tmp_path: Path):  # noqa: F811
+def test_lost_particles_are_counted_not_dropped(fb_tiny_case: Path, tiny_scene, tmp_path: Path):
     case_dir = tmp_path / "case"
     shutil.copytree(fb_tiny_case, case_dir)
     # from t = 0.1 s (solver time 0.15) on, two particles are gone, as through a patch that lets them escape

@@ -169,7 +169,7 @@ def test_box_grid_mapping():
 
 
 @pytest.mark.solver
-def test_real_case_reads_consistently(fb_tiny_case: Path):  # noqa: F811
+def test_real_case_reads_consistently(fb_tiny_case: Path):
     case = FoamCase(fb_tiny_case)
     times = case.times()
     assert times[0] == (0.0, "0") and len(times) == 26  # 0 .. 0.25 every 0.01 s

@@ -31,7 +31,7 @@ gets the stored values.
 from __future__ import annotations
 
 import json
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -66,7 +66,7 @@ def write_fb_file(path: Path, sim_id: str, traj: FbTrajectory, params: dict[str,
     def fill(f: h5py.File) -> None:
         f.attrs.update(schema_version=SCHEMA_VERSION, kind=KIND, sim_id=sim_id, params=json.dumps(params),
                        solver=solver, solver_version=solver_version, neuraldem_version=__version__,
-                       created_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"), t0=traj.t0,
+                       created_utc=datetime.now(UTC).isoformat(timespec="seconds"), t0=traj.t0,
                        grid_mapping=traj.grid_mapping)
         f.create_group("grid").attrs.update(lo=np.asarray(grid.lo), hi=np.asarray(grid.hi),
                                             shape=np.asarray(grid.shape, dtype=np.int64))

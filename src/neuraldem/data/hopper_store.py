@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import h5py
@@ -56,7 +56,7 @@ def write_hopper_file(path: Path, sim_id: str, traj: HopperTrajectory, params: d
         f.attrs.update(schema_version=SCHEMA_VERSION, kind=KIND, sim_id=sim_id, params=json.dumps(params),
                        solver="LIGGGHTS", solver_version=solver_version, n_inserted=traj.n_inserted,
                        neuraldem_version=__version__,
-                       created_utc=datetime.now(timezone.utc).isoformat(timespec="seconds"))
+                       created_utc=datetime.now(UTC).isoformat(timespec="seconds"))
         g = f.create_group("particles")
         g.create_dataset("ids", data=traj.ids.astype(np.int64))
         g.create_dataset("exit_time", data=traj.exit_times.astype(np.float32))

@@ -182,7 +182,7 @@ def _run_safely(fn: Callable[[SimRecord], SimRecord], rec: SimRecord) -> SimReco
         raise  # killed from outside: unfinished, stays pending, the job stops
     except NeuraldemError as err:
         return _failed(rec, str(err))
-    except Exception as err:  # noqa: BLE001 - recorded with its type, the job goes on
+    except Exception as err:
         log.exception("%s: unexpected error", rec.sim_id)
         return _failed(rec, f"internal error {type(err).__name__}: {err}")
 

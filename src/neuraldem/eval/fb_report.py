@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -124,7 +124,7 @@ def build_report(dataset: Path, out: Path, sims: list[str] | None = None, note: 
     per_sim_s = [r.cost["cpu_s_per_simulated_s"] for r in usable if "cpu_s_per_simulated_s" in r.cost]
     report = {
         "dataset": str(dataset), "name": m.name, "note": note, "solver": m.solver,
-        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"), "machine": machine_info(),
+        "created_utc": datetime.now(UTC).isoformat(timespec="seconds"), "machine": machine_info(),
         "metric_settings": settings, "fields": m.scene.get("fields"),
         "minimum_fluidization_velocity_wen_yu": umf,
         "dataset_size": {"simulations": len(m.simulations), "ok": len(usable),

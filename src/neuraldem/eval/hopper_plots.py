@@ -7,10 +7,10 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from neuraldem.eval.hopper_eval import SimEvaluation  # noqa: E402
+from neuraldem.eval.hopper_eval import SimEvaluation
 
 QUANTITIES = {"drainage_time": ("drainage time [s]", 1.0), "residual_fraction": ("residual [%]", 100.0),
               "outflow_rate": ("outflow [N0/s]", 1.0)}

@@ -278,7 +278,7 @@ def analyze_heap(material: Material, s: HeapSettings, workdir: Path, run: Solver
         repose_deg=float(fit["repose_deg"]), heap_formed=bool(fit["heap_formed"]),
         heap_height=float(fit["heap_height"]), runout_radius=float(fit["runout_radius"]),
         fit_r2=float(fit["fit_r2"]), fit_rmse=float(fit["fit_rmse"]), n_fit=int(fit["n_fit"]),
-        n_particles=int(len(dump)), n_lost=int(s.n_particles - len(dump)),
+        n_particles=len(dump), n_lost=int(s.n_particles - len(dump)),
         max_speed=float(np.sqrt(vx ** 2 + vy ** 2 + vz ** 2).max()) if len(dump) else 0.0,
         cpu_s=run.cpu_s, wall_s=run.wall_s)
 
