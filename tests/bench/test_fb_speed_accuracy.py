@@ -39,6 +39,19 @@ def test_right_size_picks_the_smallest_within_tolerance():
     assert len(fsa.chart(points)["lacey_mae"]) == 4  # dominated by every other point: not on the front
 
 
+def test_seeds_of_one_config_are_one_model_with_their_mean_error():
+    # one lucky seed of "big" (0.080) would win alone; its mean over two seeds (0.100) does not beat "tiny"
+    big = [{**_point(f"seed{i}/big", 1_000_000, 2.0 + i, e), "config_key": "big"} for i, e in enumerate((0.080, 0.120))]
+    tiny = [{**_point(f"seed{i}/tiny", 200_000, 0.5, e), "config_key": "tiny"} for i, e in enumerate((0.095, 0.097))]
+    picks = fsa.right_size([*big, *tiny], tolerance=0.10)["lacey_mae"]
+    assert picks["best"] == "seed0/tiny (2 runs)" and picks["best_error"] == pytest.approx(0.096)
+    assert picks["pick"] == "seed0/tiny (2 runs)" and picks["pick_runs"] == ["seed0/tiny", "seed1/tiny"]
+    assert picks["within"] == ["seed0/big (2 runs)", "seed0/tiny (2 runs)"]  # 0.100 <= 1.1 x 0.096
+    assert picks["pick_spread"] == [0.095, 0.097] and picks["pick_time_to_answer_s"] == 0.5
+    alone = fsa.right_size([big[0], *tiny], tolerance=0.10)["lacey_mae"]  # with only the lucky seed it is best
+    assert alone["best"] == "seed0/big" and alone["pick"] == "seed0/big"
+
+
 def test_a_diverged_run_is_shown_but_never_picked_nor_on_a_front(tmp_path: Path):
     # scored on its few steps before divergence, it would look best; it must not win anything
     broken = {**_point("residual", 100_000, 0.4, 0.01), "n_diverged": 2, "n_trajectories": 4,

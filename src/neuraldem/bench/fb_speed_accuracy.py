@@ -20,13 +20,16 @@ over its 3 stored seconds. Points:
   from the reference trajectory's own packing and velocity, scored like the others; cost of the run measured.
 
 The reference (DPMFoam at the dataset's settings, error 0 by definition) is a vertical line at the manifest's
-median cost. Right-sizing: per quantity, the smallest surrogate (fewest parameters, then cheapest) whose error
-is within --tolerance (10 %) of the best surrogate's.
+median cost. Right-sizing: per quantity, the smallest model (fewest parameters, then cheapest) whose error is
+within --tolerance (10 %) of the best model's; runs of one config (model and options, not the seed: e.g. the
+same sweep run with seed=0 and seed=1) are one model with the mean of their errors. Runs whose rollouts
+diverged are drawn but neither right-sized nor on a front.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import shutil
 import statistics
@@ -126,11 +129,16 @@ def surrogate_point(result: dict[str, Any], ref: Reference, steps: int, repeats:
         state = initial_state(f, 0)
     timing = surrogate_timing(module, float(first.params["inlet_velocity"]), state, steps, repeats, threads).as_dict()
     net = module.hparams["net"]
+    # what was trained, without the seed: runs with equal configs are seeds of one model (right_size averages)
+    config = {"net": {k: v for k, v in net.items() if k != "_target_"}, "residual": module.hparams.get("residual", False),
+              "training": {k: v for k, v in result["training"].items() if k != "parameters"},
+              "conserve_solid_volume": result.get("conserve_solid_volume", False)}
     diverged = [t for t in trajectories if t["stability"].get("steps_to_divergence") is not None]
     return {"method": SURROGATE, "label": result.get("run", Path(result["path"]).parent.parent.name),
             "time_to_answer_s": timing["median_cpu_s"], "timing": timing,
             "errors": mean_errors([trajectory_errors(t) for t in trajectories]),
             "n_trajectories": len(trajectories), "checkpoint": result["checkpoint"],
+            "config_key": json.dumps(config, sort_keys=True, default=str),
             # a rollout that diverged is scored on its few steps before: shown, never right-sized or on a front
             "n_diverged": len(diverged), "diverged": [{"sim_id": t["sim_id"], "step": t["stability"]["steps_to_divergence"],
                                                        "reason": t["stability"].get("divergence", "")} for t in diverged],
@@ -249,23 +257,40 @@ def chart(points: list[dict[str, Any]]) -> dict[str, list[int]]:
     return {key: pareto_front([coord(p, key) for p in points]) for key in QUANTITIES}
 
 
+def config_groups(points: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
+    """Surrogate points grouped by what was trained (`config_key`: model, options; not the seed), in first-seen
+    order; a point without a key is its own group. Runs that diverged are left out (see surrogate_point)."""
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for i, p in enumerate(points):
+        if p["method"] == SURROGATE and not p.get("n_diverged"):
+            groups.setdefault(p.get("config_key") or f"#{i}", []).append(p)
+    return list(groups.values())
+
+
 def right_size(points: list[dict[str, Any]], tolerance: float) -> dict[str, Any]:
-    """Per quantity: the best surrogate error and the smallest surrogate within (1 + tolerance) x of it."""
+    """Per quantity: the best model and the smallest model within (1 + tolerance) x of its error. A model's
+    error is the mean over its runs (seeds of one config), so one lucky seed does not decide the size."""
     checks.number("--tolerance", tolerance, lo=0.0)
-    surrogates = [p for p in points if p["method"] == SURROGATE and not p.get("n_diverged")]
     out = {}
     for key in QUANTITIES:
-        scored = [p for p in surrogates if math.isfinite(p["errors"].get(key, math.nan))]
-        if not scored:
+        models = []
+        for runs in config_groups(points):
+            errors = [p["errors"][key] for p in runs if math.isfinite(p["errors"].get(key, math.nan))]
+            if errors:
+                label = runs[0]["label"] + (f" ({len(runs)} runs)" if len(runs) > 1 else "")
+                models.append({"label": label, "error": float(np.mean(errors)), "runs": [p["label"] for p in runs],
+                               "spread": [min(errors), max(errors)], "parameters": runs[0]["size"]["parameters"],
+                               "time": statistics.median(p["time_to_answer_s"] for p in runs)})
+        if not models:
             continue
-        best = min(scored, key=lambda p: p["errors"][key])
-        limit = (1 + tolerance) * best["errors"][key]
-        ok = [p for p in scored if p["errors"][key] <= limit]
-        pick = min(ok, key=lambda p: (p["size"]["parameters"], p["time_to_answer_s"]))
-        out[key] = {"best": best["label"], "best_error": best["errors"][key], "limit": limit,
-                    "pick": pick["label"], "pick_error": pick["errors"][key],
-                    "pick_parameters": pick["size"]["parameters"], "pick_time_to_answer_s": pick["time_to_answer_s"],
-                    "within": sorted(p["label"] for p in ok)}
+        best = min(models, key=lambda m: m["error"])
+        limit = (1 + tolerance) * best["error"]
+        ok = [m for m in models if m["error"] <= limit]
+        pick = min(ok, key=lambda m: (m["parameters"], m["time"]))
+        out[key] = {"best": best["label"], "best_error": best["error"], "limit": limit,
+                    "pick": pick["label"], "pick_error": pick["error"], "pick_runs": pick["runs"],
+                    "pick_spread": pick["spread"], "pick_parameters": pick["parameters"],
+                    "pick_time_to_answer_s": pick["time"], "within": sorted(m["label"] for m in ok)}
     return out
 
 
@@ -301,12 +326,16 @@ def render_markdown(results: dict[str, Any]) -> str:
                      "its errors cover the steps before, so it is on no front and not right-sized.")
     rs = results["right_sizing"]
     if rs:
-        lines += ["", f"Right-sizing (smallest surrogate within {100 * results['tolerance']:.0f} % of the best):", "",
+        lines += ["", f"Right-sizing (smallest model within {100 * results['tolerance']:.0f} % of the best; a model's "
+                  "error is the mean over its runs, seeds of one config, range in brackets):", "",
                   "| quantity | best | best error | smallest within | its error | its parameters | its CPU-s per simulated s |",
                   "|---|---|---|---|---|---|---|"]
         for key, r in rs.items():
+            lo, hi = r.get("pick_spread", [r["pick_error"]] * 2)
+            spread = f" ({lo:.3f} - {hi:.3f})" if hi > lo else ""
             lines.append(f"| {QUANTITIES[key]} | {r['best']} | {r['best_error']:.3f} | {r['pick']} | "
-                         f"{r['pick_error']:.3f} | {r['pick_parameters'] / 1e6:.2f}M | {r['pick_time_to_answer_s']:.3g} |")
+                         f"{r['pick_error']:.3f}{spread} | {r['pick_parameters'] / 1e6:.2f}M | "
+                         f"{r['pick_time_to_answer_s']:.3g} |")
     m = results.get("machine", {})
     lines += ["", f"Machine: {m.get('cpu_model', '')} ({m.get('cpu_count', '')} cores).", ""]
     return "\n".join(lines)
