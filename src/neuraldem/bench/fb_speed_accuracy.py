@@ -138,6 +138,7 @@ def surrogate_point(result: dict[str, Any], ref: Reference, steps: int, repeats:
             "time_to_answer_s": timing["median_cpu_s"], "timing": timing,
             "errors": mean_errors([trajectory_errors(t) for t in trajectories]),
             "n_trajectories": len(trajectories), "checkpoint": result["checkpoint"],
+            "config": json.loads(json.dumps(config, default=str)),
             "config_key": json.dumps(config, sort_keys=True, default=str),
             # a rollout that diverged is scored on its few steps before: shown, never right-sized or on a front
             "n_diverged": len(diverged), "diverged": [{"sim_id": t["sim_id"], "step": t["stability"]["steps_to_divergence"],
@@ -267,30 +268,72 @@ def config_groups(points: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
     return list(groups.values())
 
 
-def right_size(points: list[dict[str, Any]], tolerance: float) -> dict[str, Any]:
-    """Per quantity: the best model and the smallest model within (1 + tolerance) x of its error. A model's
-    error is the mean over its runs (seeds of one config), so one lucky seed does not decide the size."""
+def family_of(point: dict[str, Any]) -> dict[str, Any]:
+    """The options of a run that are not its size (which branches, what it predicts, how it was trained):
+    sizes are compared only at equal options."""
+    c = point.get("config")
+    if not c:
+        return {}
+    return {"particle_branch": bool(c["net"].get("particle_branch", True)), "residual": bool(c.get("residual")),
+            **c.get("training", {}), "conserve_solid_volume": bool(c.get("conserve_solid_volume"))}
+
+
+def family_label(f: dict[str, Any]) -> str:
+    if not f:
+        return "all runs"
+    parts = [f"input noise {f.get('input_noise', 0):g}", f"push-forward k = {f.get('push_forward_steps', 1)}"]
+    parts += [name for key, name, on in (("particle_branch", "grid only", False), ("residual", "residual", True),
+                                          ("conserve_solid_volume", "solid volume projected", True))
+              if f.get(key, not on) == on]
+    return ", ".join(parts)
+
+
+def _models(groups: list[list[dict[str, Any]]]) -> list[dict[str, Any]]:
+    """One entry per config: its runs' mean error per quantity, their range, size and median cost."""
+    out = []
+    for runs in groups:
+        errors = {k: [p["errors"][k] for p in runs if math.isfinite(p["errors"].get(k, math.nan))] for k in QUANTITIES}
+        out.append({"label": runs[0]["label"] + (f" ({len(runs)} runs)" if len(runs) > 1 else ""),
+                    "runs": [p["label"] for p in runs], "parameters": runs[0]["size"]["parameters"],
+                    "time": statistics.median(p["time_to_answer_s"] for p in runs),
+                    "error": {k: float(np.mean(v)) for k, v in errors.items() if v},
+                    "spread": {k: [min(v), max(v)] for k, v in errors.items() if v}})
+    return out
+
+
+def right_size(points: list[dict[str, Any]], tolerance: float) -> list[dict[str, Any]]:
+    """Sizes compared at equal options (`family_of`): per family and quantity, the best model and the smallest
+    (fewest parameters, then cheapest) within (1 + tolerance) x its error, and the smallest within that on
+    every quantity at once ("all"). A model's error is the mean over its runs (seeds of one config), so one
+    lucky seed does not decide the size."""
     checks.number("--tolerance", tolerance, lo=0.0)
-    out = {}
-    for key in QUANTITIES:
-        models = []
-        for runs in config_groups(points):
-            errors = [p["errors"][key] for p in runs if math.isfinite(p["errors"].get(key, math.nan))]
-            if errors:
-                label = runs[0]["label"] + (f" ({len(runs)} runs)" if len(runs) > 1 else "")
-                models.append({"label": label, "error": float(np.mean(errors)), "runs": [p["label"] for p in runs],
-                               "spread": [min(errors), max(errors)], "parameters": runs[0]["size"]["parameters"],
-                               "time": statistics.median(p["time_to_answer_s"] for p in runs)})
-        if not models:
-            continue
-        best = min(models, key=lambda m: m["error"])
-        limit = (1 + tolerance) * best["error"]
-        ok = [m for m in models if m["error"] <= limit]
-        pick = min(ok, key=lambda m: (m["parameters"], m["time"]))
-        out[key] = {"best": best["label"], "best_error": best["error"], "limit": limit,
-                    "pick": pick["label"], "pick_error": pick["error"], "pick_runs": pick["runs"],
-                    "pick_spread": pick["spread"], "pick_parameters": pick["parameters"],
-                    "pick_time_to_answer_s": pick["time"], "within": sorted(m["label"] for m in ok)}
+    families: dict[str, list[list[dict[str, Any]]]] = {}
+    for runs in config_groups(points):
+        families.setdefault(json.dumps(family_of(runs[0]), sort_keys=True), []).append(runs)
+    out = []
+    for key, groups in families.items():
+        models = _models(groups)
+        picks, limits = {}, {}
+        for q in QUANTITIES:
+            scored = [m for m in models if q in m["error"]]
+            if not scored:
+                continue
+            best = min(scored, key=lambda m: m["error"][q])
+            limits[q] = (1 + tolerance) * best["error"][q]
+            ok = [m for m in scored if m["error"][q] <= limits[q]]
+            pick = min(ok, key=lambda m: (m["parameters"], m["time"]))
+            picks[q] = {"best": best["label"], "best_error": best["error"][q], "limit": limits[q],
+                        "pick": pick["label"], "pick_error": pick["error"][q], "pick_runs": pick["runs"],
+                        "pick_spread": pick["spread"][q], "pick_parameters": pick["parameters"],
+                        "pick_time_to_answer_s": pick["time"], "within": sorted(m["label"] for m in ok)}
+        every = [m for m in models if limits and all(q in m["error"] and m["error"][q] <= lim for q, lim in limits.items())]
+        all_pick = min(every, key=lambda m: (m["parameters"], m["time"])) if every else None
+        out.append({"family": json.loads(key), "label": family_label(json.loads(key)),
+                    "models": [{k: m[k] for k in ("label", "runs", "parameters", "time", "error")} for m in models],
+                    "quantities": picks,
+                    "all": None if all_pick is None else {"pick": all_pick["label"], "parameters": all_pick["parameters"],
+                                                          "time_to_answer_s": all_pick["time"],
+                                                          "errors": all_pick["error"]}})
     return out
 
 
@@ -324,18 +367,22 @@ def render_markdown(results: dict[str, Any]) -> str:
         steps = ", ".join(str(d["step"]) for d in p["diverged"])
         lines.append(f"\n{p['label']}: {p['n_diverged']} of {p['n_trajectories']} rollouts diverged (at steps {steps}); "
                      "its errors cover the steps before, so it is on no front and not right-sized.")
-    rs = results["right_sizing"]
-    if rs:
-        lines += ["", f"Right-sizing (smallest model within {100 * results['tolerance']:.0f} % of the best; a model's "
-                  "error is the mean over its runs, seeds of one config, range in brackets):", "",
+    for fam in results["right_sizing"]:
+        if len(fam["models"]) < 2:
+            continue  # one size only: nothing to right-size
+        lines += ["", f"Right-sizing at {fam['label']} (smallest model within {100 * results['tolerance']:.0f} % of the "
+                  "best; a model's error is the mean over its runs, seeds of one config, their range in brackets):", "",
                   "| quantity | best | best error | smallest within | its error | its parameters | its CPU-s per simulated s |",
                   "|---|---|---|---|---|---|---|"]
-        for key, r in rs.items():
-            lo, hi = r.get("pick_spread", [r["pick_error"]] * 2)
+        for key, r in fam["quantities"].items():
+            lo, hi = r["pick_spread"]
             spread = f" ({lo:.3f} - {hi:.3f})" if hi > lo else ""
             lines.append(f"| {QUANTITIES[key]} | {r['best']} | {r['best_error']:.3f} | {r['pick']} | "
                          f"{r['pick_error']:.3f}{spread} | {r['pick_parameters'] / 1e6:.2f}M | "
                          f"{r['pick_time_to_answer_s']:.3g} |")
+        a = fam["all"]
+        lines.append("| all three at once | | | " + (f"{a['pick']} | | {a['parameters'] / 1e6:.2f}M | "
+                                                     f"{a['time_to_answer_s']:.3g} |" if a else "none | | | |"))
     m = results.get("machine", {})
     lines += ["", f"Machine: {m.get('cpu_model', '')} ({m.get('cpu_count', '')} cores).", ""]
     return "\n".join(lines)
