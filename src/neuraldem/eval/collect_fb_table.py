@@ -12,6 +12,8 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from neuraldem.cli import report_user_errors
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
@@ -36,14 +38,18 @@ def render(results: list[dict]) -> str:
              f"{first['training_horizon_steps']} steps) from the first snapshot of each held-out trajectory; "
              "statistics over the steps the CFD-DEM trajectory has, mass drift over the whole rollout."), "",
              "| run | params | input noise | push-forward k | rel. L2 mean solid fraction | (whole rollout) "
-             "| rel. L2 mean fluid speed | max abs mass drift [%] | Lacey MAE | "
+             "| rel. L2 std solid fraction | rel. L2 mean fluid speed | max abs mass drift [%] | Lacey MAE | "
              + " | ".join(f"stable {m}x" for m in mults) + " |",
-             "|---|---|---|---|---|---|---|---|---|" + "---|" * len(mults)]
+             "|---|---|---|---|---|---|---|---|---|---|" + "---|" * len(mults)]
     for r in results:
         a, t, n = r["aggregate"], r.get("training", {}), r["aggregate"]["n_trajectories"]
+        # the fluctuations (bubbles): a model that settles into the time mean scores ~1 here, fine on the mean
+        stds = [x["rel_l2"]["solid_fraction_std"] for x in r["trajectories"]]
+        std = float(np.nanmean(stds)) if stds and not np.all(np.isnan(stds)) else None
         lines.append(f"| {run_name(r)} | {t.get('parameters', 0) / 1e6:.2f}M | {t.get('input_noise', 'n/a')} | "
                      f"{t.get('push_forward_steps', 'n/a')} | {_f(a['solid_fraction_mean_rel_l2'], '.3f')} | "
-                     f"{_f(a['solid_fraction_mean_rel_l2_full'], '.3f')} | {_f(a['fluid_speed_mean_rel_l2'], '.3f')} "
+                     f"{_f(a['solid_fraction_mean_rel_l2_full'], '.3f')} | {_f(std, '.3f')} | "
+                     f"{_f(a['fluid_speed_mean_rel_l2'], '.3f')} "
                      f"| {_f(a['mass_max_abs_drift_pct'], '.2f')} | {_f(a['lacey_mae'], '.3f')} | "
                      + " | ".join(f"{a[f'stable_at_{m}x']}/{n}" for m in mults) + " |")
     lines += ["", ("| run | U0 [m/s] | rel. L2 mean solid fraction | rel. L2 std solid fraction | mass drift [%] "
