@@ -142,6 +142,9 @@ def test_chart_on_real_data(fb_tiny_checkpoint: Path, packings_as_test: Path, tm
     assert surrogate["errors"]["solid_fraction_mean_rel_l2"] == t["rel_l2"]["solid_fraction_mean"]
     assert surrogate["errors"]["lacey_mae"] == t["lacey"]["mae"]
     assert surrogate["time_to_answer_s"] > 0 and surrogate["timing"]["steps_computed"] == 3
+    # its config (what a seed of it would share) names every option, defaults included
+    assert surrogate["config"]["net"]["particle_branch"] is True and surrogate["config"]["residual"] is False
+    assert surrogate["config"]["training"] == {"input_noise": 0.0, "push_forward_steps": 1}
     m = Manifest.load(packings_as_test)
     with FbFile(packings_as_test / "sims" / "sim_0001.h5") as a, FbFile(packings_as_test / "sims" / "sim_0000.h5") as b:
         expected = compare(FieldSeries.from_dataset_file(a), FieldSeries.from_dataset_file(b), metric_settings(m))

@@ -130,7 +130,9 @@ def surrogate_point(result: dict[str, Any], ref: Reference, steps: int, repeats:
     timing = surrogate_timing(module, float(first.params["inlet_velocity"]), state, steps, repeats, threads).as_dict()
     net = module.hparams["net"]
     # what was trained, without the seed: runs with equal configs are seeds of one model (right_size averages)
-    config = {"net": {k: v for k, v in net.items() if k != "_target_"}, "residual": module.hparams.get("residual", False),
+    # (checkpoints from before an option existed lack its key: fill in its default, which they were trained with)
+    config = {"net": {"particle_branch": True, **{k: v for k, v in net.items() if k != "_target_"}},
+              "residual": module.hparams.get("residual", False),
               "training": {k: v for k, v in result["training"].items() if k != "parameters"},
               "conserve_solid_volume": result.get("conserve_solid_volume", False)}
     diverged = [t for t in trajectories if t["stability"].get("steps_to_divergence") is not None]
