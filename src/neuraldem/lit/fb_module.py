@@ -72,11 +72,11 @@ class FluidizedBedModule(L.LightningModule):
         if not self.net.particle_branch:  # a grid-only model: nothing to decode at the particles
             x.query_pos = {"fluid": cells, "mixing": cells}
         out = self.net(x)
-        losses = {name: (out[name] - batch[f"target_{name}"]).square().mean() for name in self.net.branches}
+        targets = {name: batch[f"target_{name}"] for name in self.net.branches}
         if self.residual:  # the grid outputs are scaled changes: compare them with the scaled true change
             for name, grid in (("fluid", x.grid), ("mixing", x.mixing_grid)):
-                change = (batch[f"target_{name}"] - grid_cells(grid)) / self.step_scales[name].to(grid.device)
-                losses[name] = (out[name] - change).square().mean()
+                targets[name] = (targets[name] - grid_cells(grid)) / self.step_scales[name].to(grid.device)
+        losses = {name: (out[name] - targets[name]).square().mean() for name in self.net.branches}
         losses["loss"] = sum(self.loss_weights[k] * losses[k] for k in self.net.branches)
         return losses
 
