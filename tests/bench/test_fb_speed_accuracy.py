@@ -43,8 +43,10 @@ def test_right_size_picks_the_smallest_within_tolerance():
 
 def test_seeds_of_one_config_are_one_model_with_their_mean_error():
     # one lucky seed of "big" (0.080) would win alone; its mean over two seeds (0.100) does not beat "tiny"
-    big = [{**_point(f"seed{i}/big", 1_000_000, 2.0 + i, e), "config_key": "big"} for i, e in enumerate((0.080, 0.120))]
-    tiny = [{**_point(f"seed{i}/tiny", 200_000, 0.5, e), "config_key": "tiny"} for i, e in enumerate((0.095, 0.097))]
+    big = [{**_point(f"seed{i}/big", 1_000_000, 2.0 + i, e), "config": {"net": {"dim": 96}}}
+           for i, e in enumerate((0.080, 0.120))]
+    tiny = [{**_point(f"seed{i}/tiny", 200_000, 0.5, e), "config": {"net": {"dim": 32}}}
+            for i, e in enumerate((0.095, 0.097))]
     picks = fsa.right_size([*big, *tiny], tolerance=0.10)[0]["quantities"]["lacey_mae"]
     assert picks["best"] == "seed0/tiny (2 runs)" and picks["best_error"] == pytest.approx(0.096)
     assert picks["pick"] == "seed0/tiny (2 runs)" and picks["pick_runs"] == ["seed0/tiny", "seed1/tiny"]
@@ -58,8 +60,7 @@ def _configured(label: str, params: int, t: float, errs: tuple[float, float, flo
     opts = {"input_noise": 0.01, "push_forward_steps": 2, **family}
     net = {"dim": params // 1000, "particle_branch": opts.pop("particle_branch", True)}
     config = {"net": net, "residual": False, "training": opts, "conserve_solid_volume": False}
-    return {**_point(label, params, t, 0.0), "errors": dict(zip(fsa.QUANTITIES, errs)), "config": config,
-            "config_key": json.dumps(config, sort_keys=True)}
+    return {**_point(label, params, t, 0.0), "errors": dict(zip(fsa.QUANTITIES, errs)), "config": config}
 
 
 def test_sizes_are_compared_at_equal_options_and_on_every_quantity():

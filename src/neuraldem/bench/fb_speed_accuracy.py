@@ -141,7 +141,6 @@ def surrogate_point(result: dict[str, Any], ref: Reference, steps: int, repeats:
             "errors": mean_errors([trajectory_errors(t) for t in trajectories]),
             "n_trajectories": len(trajectories), "checkpoint": result["checkpoint"],
             "config": json.loads(json.dumps(config, default=str)),
-            "config_key": json.dumps(config, sort_keys=True, default=str),
             # a rollout that diverged is scored on its few steps before: shown, never right-sized or on a front
             "n_diverged": len(diverged), "diverged": [{"sim_id": t["sim_id"], "step": t["stability"]["steps_to_divergence"],
                                                        "reason": t["stability"].get("divergence", "")} for t in diverged],
@@ -261,12 +260,13 @@ def chart(points: list[dict[str, Any]]) -> dict[str, list[int]]:
 
 
 def config_groups(points: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
-    """Surrogate points grouped by what was trained (`config_key`: model, options; not the seed), in first-seen
-    order; a point without a key is its own group. Runs that diverged are left out (see surrogate_point)."""
+    """Surrogate points grouped by what was trained (`config`: model, options; not the seed), in first-seen
+    order; a point without a config is its own group. Runs that diverged are left out (see surrogate_point)."""
     groups: dict[str, list[dict[str, Any]]] = {}
     for i, p in enumerate(points):
         if p["method"] == SURROGATE and not p.get("n_diverged"):
-            groups.setdefault(p.get("config_key") or f"#{i}", []).append(p)
+            key = json.dumps(p["config"], sort_keys=True) if p.get("config") else f"#{i}"
+            groups.setdefault(key, []).append(p)
     return list(groups.values())
 
 
@@ -309,11 +309,12 @@ def right_size(points: list[dict[str, Any]], tolerance: float) -> list[dict[str,
     every quantity at once ("all"). A model's error is the mean over its runs (seeds of one config), so one
     lucky seed does not decide the size."""
     checks.number("--tolerance", tolerance, lo=0.0)
-    families: dict[str, list[list[dict[str, Any]]]] = {}
+    families: dict[str, tuple[dict[str, Any], list[list[dict[str, Any]]]]] = {}
     for runs in config_groups(points):
-        families.setdefault(json.dumps(family_of(runs[0]), sort_keys=True), []).append(runs)
+        family = family_of(runs[0])
+        families.setdefault(json.dumps(family, sort_keys=True), (family, []))[1].append(runs)
     out = []
-    for key, groups in families.items():
+    for family, groups in families.values():
         models = _models(groups)
         picks, limits = {}, {}
         for q in QUANTITIES:
@@ -330,7 +331,7 @@ def right_size(points: list[dict[str, Any]], tolerance: float) -> list[dict[str,
                         "pick_time_to_answer_s": pick["time"], "within": sorted(m["label"] for m in ok)}
         every = [m for m in models if limits and all(q in m["error"] and m["error"][q] <= lim for q, lim in limits.items())]
         all_pick = min(every, key=lambda m: (m["parameters"], m["time"])) if every else None
-        out.append({"family": json.loads(key), "label": family_label(json.loads(key)),
+        out.append({"family": family, "label": family_label(family),
                     "models": [{k: m[k] for k in ("label", "runs", "parameters", "time", "error")} for m in models],
                     "quantities": picks,
                     "all": None if all_pick is None else {"pick": all_pick["label"], "parameters": all_pick["parameters"],
