@@ -373,8 +373,9 @@ def render_markdown(results: dict[str, Any]) -> str:
     for fam in results["right_sizing"]:
         if len(fam["models"]) < 2:
             continue  # one size only: nothing to right-size
-        lines += ["", f"Right-sizing at {fam['label']} (smallest model within {100 * results['tolerance']:.0f} % of the "
-                  "best; a model's error is the mean over its runs, seeds of one config, their range in brackets):", "",
+        lines += ["", (f"Right-sizing at {fam['label']} (smallest model within {100 * results['tolerance']:.0f} % of "
+                       "the best; a model's error is the mean over its runs, seeds of one config, their range in "
+                       "brackets):"), "",
                   "| quantity | best | best error | smallest within | its error | its parameters | its CPU-s per simulated s |",
                   "|---|---|---|---|---|---|---|"]
         for key, r in fam["quantities"].items():
