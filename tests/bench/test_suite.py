@@ -94,8 +94,13 @@ def test_all_with_only_a_fluidized_bed_checkpoint(tmp_path: Path, monkeypatch: p
     called = []
     monkeypatch.setattr("neuraldem.bench.__main__.entry_point",
                         lambda name: (lambda args: called.append((name, args)) or 0))
+    # a GNS map of other steps left from an earlier run does not fail an `all` that made no GNS map
+    write_results("fb_stability", FB_STABILITY, command="test", path=tmp_path / "fb_stability.json", machine={})
+    write_results("gns_stability", {**FB_STABILITY, "steps": 50}, command="test", path=tmp_path / "gns_stability.json",
+                  machine={})
     assert suite.run_all(["--fb-ckpt", "/fb/a.ckpt", "--no-solver", "--out-dir", str(tmp_path)]) == 0
     assert [name for name, _ in called] == ["fb_speed", "fb_stability"]
+    assert not (tmp_path / "stability_map.png").exists()
     with pytest.raises(ConfigError, match="nothing to run"):
         suite.run_all(["--out-dir", str(tmp_path)])
 

@@ -41,8 +41,8 @@ def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_d
         raise ConfigError("nothing to run: give --runs DIR --ckpt CKPT (hopper) and/or --fb-ckpt CKPT / "
                           "--fb-runs DIR (fluidized bed)")
     steps = _hopper_plan(runs, ckpt, dataset, out_dir, no_solver, repeats, threads, skip_unevaluated) if runs else []
+    fb_data = ["--dataset", str(fb_dataset)] if fb_dataset else []
     if fb_ckpts:
-        fb_data = ["--dataset", str(fb_dataset)] if fb_dataset else []
         # fb_speed times the surrogate on 1 thread and on every core by itself; --threads is the hopper's
         speed = ["--ckpt", str(fb_ckpts[0]), *fb_data, "--repeats", str(repeats), "--out",
                  str(out_dir / "fb_speed.json")]
@@ -58,11 +58,9 @@ def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_d
         if not fb_ckpts:
             raise ConfigError("--gns-fb-ckpt shares the velocities and steps of the field surrogates' stability map: "
                               "give --fb-ckpt too")
-        fb_data = ["--dataset", str(fb_dataset)] if fb_dataset else []
         steps.append(("gns_stability", ["--ckpt", *map(str, gns_fb_ckpts), *fb_data, "--like",
                                         str(out_dir / "fb_stability.json"), "--out", str(out_dir / "gns_stability.json")]))
     if fb_runs:
-        fb_data = ["--dataset", str(fb_dataset)] if fb_dataset else []
         chart = ["--runs", *map(str, fb_runs), *fb_data, "--repeats", str(repeats), "--out",
                  str(out_dir / "fb_speed_accuracy.json")]
         if no_solver:
@@ -123,7 +121,8 @@ def run_all(argv: list[str]) -> int:
         rc = entry_point(name)(args)
         if rc != 0:
             return rc
-    combined = stability_map(out_dir)
+    # only maps this call made: older results in out_dir (e.g. a GNS map of other velocities) are render's business
+    combined = stability_map(out_dir) if a.gns_fb_ckpt else None
     if combined is not None:
         print(f"wrote {combined}")
     return 0
