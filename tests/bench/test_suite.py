@@ -178,3 +178,14 @@ def test_render_draws_field_surrogate_and_gns_in_one_map(tmp_path: Path):
     (tmp_path / "stability_map.png").unlink()
     assert bench_main(["render", "--out-dir", str(tmp_path)]) == 2
     assert not (tmp_path / "stability_map.png").exists()
+
+
+def test_plan_with_a_gns_of_the_hopper(tmp_path: Path):
+    steps = dict(plan([Path("/runs")], Path("/c.ckpt"), None, tmp_path, no_solver=False, repeats=3, threads=1,
+                      gns_hopper_ckpts=[Path("/g1.ckpt"), Path("/g2.ckpt")]))
+    chart = steps["speed_accuracy"]
+    assert chart[chart.index("--gns-ckpt") + 1:chart.index("--gns-ckpt") + 3] == ["/g1.ckpt", "/g2.ckpt"]
+    assert "--gns-ckpt" not in steps["hopper_speed"]
+    with pytest.raises(ConfigError, match="--runs and --ckpt"):
+        plan(None, None, None, tmp_path, no_solver=False, repeats=3, threads=1, fb_ckpts=[Path("/f.ckpt")],
+             gns_hopper_ckpts=[Path("/g.ckpt")])

@@ -61,7 +61,7 @@ def scaling_figure(results: dict[str, Any], path: Path) -> Path:
     return path
 
 
-METHOD_STYLE = {"surrogate": ("o", "C1"), "liggghts": ("s", "C0"), "DPMFoam, cheaper settings": ("s", "C0"),
+METHOD_STYLE = {"surrogate": ("o", "C1"), "liggghts": ("s", "C0"), "GNS": ("D", "C3"), "DPMFoam, cheaper settings": ("s", "C0"),
                 "DPMFoam, another packing": ("^", "C2")}
 
 
@@ -105,7 +105,7 @@ def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path:
     failed = [f"{p['label']}: {p['n_failed']} of {p['n_sims']} ({p['failures'][0]['reason'][:80]})"
               for p in points if p.get("n_failed")]
     if failed:
-        fig.text(0.01, 0.01, results.get("failed_label", "Failed LIGGGHTS runs: ") + "; ".join(failed), fontsize=7,
+        fig.text(0.01, 0.01, results.get("failed_label", "Failed runs: ") + "; ".join(failed), fontsize=7,
                  va="bottom")
     fig.tight_layout(rect=(0, 0.05 if failed else 0, 1, 1))
     fig.savefig(path, dpi=120)

@@ -4,8 +4,9 @@
 [--solver-sims 3] [--reuse-solver FILE] [--skip-solver]` writes results/bench/speed_accuracy.json, .png, .md.
 
 Points: every evaluated surrogate run under the folders (errors from its evaluation/metrics.json, time to
-answer measured here), and LIGGGHTS at cheaper settings scored against the dataset's reference runs of the
-same parameters (`bench.solver_variants`). One panel per quantity (drainage time, residual, outflow); the
+answer measured here), LIGGGHTS at cheaper settings scored against the dataset's reference runs of the
+same parameters (`bench.solver_variants`), and with `--gns-ckpt` the particle-based GNS baseline rolled out
+over whole test trajectories (`bench.gns_points`). One panel per quantity (drainage time, residual, outflow); the
 Pareto front of each panel is what users should choose from.
 """
 
@@ -17,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from neuraldem.bench import plots
+from neuraldem.bench.gns_points import gns_point
 from neuraldem.bench.hopper_runs import HOPPER_ERRORS, EvaluatedRun, collect_runs, time_to_answer
 from neuraldem.bench.hopper_solver import dataset_scene, default_workdir, split_records
 from neuraldem.bench.pareto import pareto_front
@@ -133,6 +135,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--reuse-solver", type=Path, default=None,
                    help="take the LIGGGHTS points from an earlier speed_accuracy.json instead of running")
     p.add_argument("--skip-solver", action="store_true", help="surrogate points only")
+    p.add_argument("--gns-ckpt", type=Path, nargs="+", default=[],
+                   help="GNS checkpoints of the same scene (experiment=gns_hopper): rolled out as chart points")
+    p.add_argument("--gns-sims", type=int, default=3, help="test simulations each GNS is rolled out on")
     p.add_argument("--workdir", type=Path, default=None, help=f"solver runs (default <data dir>/bench/{NAME})")
     p.add_argument("--out", type=Path, default=None, help=f"default results/bench/{NAME}.json (+ .png, .md)")
     a = p.parse_args(argv)
@@ -152,7 +157,7 @@ def main(argv: list[str]) -> int:
         if old.get("scene") != runs[0].data_name:
             raise DataError(f"--reuse-solver {a.reuse_solver} holds LIGGGHTS points of scene {old.get('scene')!r}, "
                             f"the runs are of {runs[0].data_name!r}: pass results of the same scene")
-        solver = [p for p in old["points"] if p["method"] != "surrogate"]
+        solver = [p for p in old["points"] if p["method"] == "liggghts"]
         reference = old.get("reference") or {}
         notes.append(f"LIGGGHTS points taken from {a.reuse_solver} (not re-run)")
     if run_solver:
@@ -161,9 +166,14 @@ def main(argv: list[str]) -> int:
         for v in variants:
             v.apply(base)
         find_liggghts()
+    checks.positive_int("gns_sims", a.gns_sims)
+    for ckpt in a.gns_ckpt:
+        if not Path(ckpt).is_file():
+            raise DataError(f"--gns-ckpt {ckpt}: no such checkpoint file")
     machine = machine_info()
     warning = warn_if_busy(machine)
     points = surrogate_points(runs, a.repeats, a.threads, a.dataset)
+    points += [gns_point(c, a.gns_sims, a.dataset, a.threads) for c in a.gns_ckpt]
     if run_solver:
         solver = solver_points(dataset, variants, a.solver_sims, runs[0].split, a.workdir or default_workdir(NAME))
         reference = reference_time(dataset, solver)

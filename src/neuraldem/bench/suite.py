@@ -1,6 +1,6 @@
 """Every chart and table in one command, and redrawing them from their results files.
 
-`python -m neuraldem.bench all --runs DIR... --ckpt CKPT [--dataset DIR] [--fb-ckpt CKPT...] [--gns-fb-ckpt
+`python -m neuraldem.bench all --runs DIR... --ckpt CKPT [--dataset DIR] [--gns-hopper-ckpt CKPT...] [--fb-ckpt CKPT...] [--gns-fb-ckpt
 CKPT...] [--fb-runs DIR...] [--fb-dataset DIR] [--no-solver] [--out-dir DIR]` runs hopper_speed, hopper_scaling,
 speed_accuracy and right_sizing in turn (with --runs and --ckpt), then fb_speed (the first --fb-ckpt against
 DPMFoam) and fb_stability (every --fb-ckpt, one series each) (with --fb-ckpt), gns_stability at the same
@@ -31,7 +31,8 @@ def default_out_dir() -> Path:
 def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_dir: Path, no_solver: bool,
          repeats: int, threads: int, skip_unevaluated: bool = False, fb_ckpts: list[Path] | None = None,
          fb_dataset: Path | None = None, fb_labels: list[str] | None = None,
-         fb_runs: list[Path] | None = None, gns_fb_ckpts: list[Path] | None = None) -> list[tuple[str, list[str]]]:
+         fb_runs: list[Path] | None = None, gns_fb_ckpts: list[Path] | None = None,
+         gns_hopper_ckpts: list[Path] | None = None) -> list[tuple[str, list[str]]]:
     """The benchmark commands `all` runs, in order (name, argv): the hopper's with `runs` and `ckpt`, the
     fluidized bed's with `fb_ckpts`."""
     if bool(runs) != (ckpt is not None):
@@ -40,7 +41,10 @@ def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_d
     if not runs and not fb_ckpts and not fb_runs:
         raise ConfigError("nothing to run: give --runs DIR --ckpt CKPT (hopper) and/or --fb-ckpt CKPT / "
                           "--fb-runs DIR (fluidized bed)")
-    steps = _hopper_plan(runs, ckpt, dataset, out_dir, no_solver, repeats, threads, skip_unevaluated) if runs else []
+    if gns_hopper_ckpts and not runs:
+        raise ConfigError("--gns-hopper-ckpt adds the GNS to the hopper's speed-accuracy chart: give --runs and --ckpt too")
+    steps = (_hopper_plan(runs, ckpt, dataset, out_dir, no_solver, repeats, threads, skip_unevaluated,
+                          gns_hopper_ckpts or []) if runs else [])
     fb_data = ["--dataset", str(fb_dataset)] if fb_dataset else []
     if fb_ckpts:
         # fb_speed times the surrogate on 1 thread and on every core by itself; --threads is the hopper's
@@ -70,7 +74,8 @@ def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_d
 
 
 def _hopper_plan(runs: list[Path], ckpt: Path, dataset: Path | None, out_dir: Path, no_solver: bool,
-                 repeats: int, threads: int, skip_unevaluated: bool) -> list[tuple[str, list[str]]]:
+                 repeats: int, threads: int, skip_unevaluated: bool,
+                 gns_ckpts: list[Path]) -> list[tuple[str, list[str]]]:
     common = ["--repeats", str(repeats), "--threads", str(threads)]
     data = ["--dataset", str(dataset)] if dataset else []
     runs_args = ["--runs", *map(str, runs)]
@@ -79,6 +84,8 @@ def _hopper_plan(runs: list[Path], ckpt: Path, dataset: Path | None, out_dir: Pa
     accuracy = [*runs_args, *data, *common, "--out", str(out_dir / "speed_accuracy.json")]
     if skip_unevaluated:
         accuracy.append("--skip-unevaluated")
+    if gns_ckpts:
+        accuracy += ["--gns-ckpt", *map(str, gns_ckpts)]
     if no_solver:
         speed.append("--reuse-dataset")
         scaling += _reuse_or_skip(out_dir / "hopper_scaling.json")
@@ -105,6 +112,8 @@ def run_all(argv: list[str]) -> int:
     p.add_argument("--fb-dataset", type=Path, default=None, help="dataset dir of the fluidized-bed checkpoints' scene")
     p.add_argument("--gns-fb-ckpt", type=Path, nargs="+", default=None,
                    help="GNS checkpoints of the bed (experiment=gns_fb): their stability map beside --fb-ckpt's")
+    p.add_argument("--gns-hopper-ckpt", type=Path, nargs="+", default=None,
+                   help="GNS checkpoints of the hopper (experiment=gns_hopper): points of its speed-accuracy chart")
     p.add_argument("--fb-runs", type=Path, nargs="+", default=None,
                    help="folders holding evaluated fluidized-bed runs: the bed's speed-accuracy chart and right-sizing")
     p.add_argument("--no-solver", action="store_true",
@@ -116,7 +125,8 @@ def run_all(argv: list[str]) -> int:
     a = p.parse_args(argv)
     out_dir = a.out_dir or default_out_dir()
     for name, args in plan(a.runs, a.ckpt, a.dataset, out_dir, a.no_solver, a.repeats, a.threads,
-                           a.skip_unevaluated, a.fb_ckpt, a.fb_dataset, a.fb_labels, a.fb_runs, a.gns_fb_ckpt):
+                           a.skip_unevaluated, a.fb_ckpt, a.fb_dataset, a.fb_labels, a.fb_runs, a.gns_fb_ckpt,
+                           a.gns_hopper_ckpt):
         print(f"==> python -m neuraldem.bench {name} {' '.join(args)}", flush=True)
         rc = entry_point(name)(args)
         if rc != 0:

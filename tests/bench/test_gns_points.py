@@ -1,0 +1,90 @@
+"""The GNS as a point of the hopper's speed-accuracy chart, on the real tiny LIGGGHTS dataset: exact
+accelerations give zero error, a rollout that breaks gives no error and says why, the wrong scene is refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from neuraldem.bench.gns_points import exit_times, gns_point
+from neuraldem.data.manifest import require_dataset
+from neuraldem.errors import ConfigError
+from neuraldem.eval.gns_rollout import load_gns_checkpoint
+from tests.helpers import train_tiny_gns
+
+pytestmark = pytest.mark.solver
+
+
+@pytest.fixture(scope="module")
+def hopper_gns(hopper_tiny_dataset, tmp_path_factory):
+    return train_tiny_gns(hopper_tiny_dataset, "hopper_tiny", tmp_path_factory.mktemp("gns") / "hopper.ckpt")
+
+
+def stored_oracle(dataset, sim_id: str):
+    """The stored run's own accelerations (as in tests/eval/test_gns_rollout.py)."""
+    from neuraldem.data.gns_datamodule import ParticleRun
+
+    m = require_dataset(dataset, "hopper_tiny")
+    with ParticleRun(dataset / str(m.record(sim_id).file), "hopper", m.scene) as run:
+        x, dt = run.positions(), run.dt
+
+    def accelerate(step, inputs):
+        k = 2 + step - 1  # history 2
+        alive = np.isfinite(x[k]).all(axis=1)
+        a = (x[k + 1] - 2 * x[k] + x[k - 1])[alive] / dt**2
+        return np.where(np.isfinite(a), a, [0.0, 0.0, -1e4])
+
+    return accelerate
+
+
+def first_test_sim(dataset, ckpt) -> str:
+    meta = load_gns_checkpoint(ckpt).metadata
+    m = require_dataset(dataset, "hopper_tiny")
+    return (m.split_ids(meta["split"], "test") or m.split_ids(meta["split"], "val"))[0]
+
+
+def test_exact_accelerations_score_zero_error(hopper_gns, hopper_tiny_dataset):
+    sim = first_test_sim(hopper_tiny_dataset, hopper_gns)
+    p = gns_point(hopper_gns, n_sims=1, dataset_dir=hopper_tiny_dataset, label="oracle",
+                  accelerate=stored_oracle(hopper_tiny_dataset, sim))
+    assert p["method"] == "GNS" and p["n_failed"] == 0 and p["n_sims"] == 1
+    assert set(p["errors"]) == {"drainage_mae_pct_of_mean", "residual_mae_pp", "outflow_rel_err_pct"}
+    for key, value in p["errors"].items():
+        assert value == pytest.approx(0.0, abs=1e-6), key
+    s = p["simulations"][0]
+    assert s["sim_id"] == sim and s["steps_done"] == s["steps"] and s["failed_at"] is None
+    assert s["truth"]["residual_fraction"] < 1.0  # the tiny hopper drains: the zero is not trivial
+    assert p["time_to_answer_s"] > 0 and p["size"]["parameters"] > 0
+
+
+def test_a_rollout_that_breaks_has_no_error_and_says_why(hopper_gns, hopper_tiny_dataset):
+    exact = stored_oracle(hopper_tiny_dataset, first_test_sim(hopper_tiny_dataset, hopper_gns))
+    p = gns_point(hopper_gns, n_sims=1, dataset_dir=hopper_tiny_dataset,
+                  accelerate=lambda step, inputs: np.full_like(exact(step, inputs), np.nan))
+    assert p["errors"] == {} and p["n_failed"] == 1
+    assert "NaN" in p["failures"][0]["reason"] or "particle count" in p["failures"][0]["reason"]
+    assert p["failures"][0]["reason"].startswith("step 1:")
+
+
+def test_the_trained_model_gives_a_point(hopper_gns, hopper_tiny_dataset):
+    p = gns_point(hopper_gns, n_sims=1, dataset_dir=hopper_tiny_dataset)
+    s = p["simulations"][0]
+    # a 3-step model may leave the box; either it answered (finite errors) or it says where it failed
+    if p["n_failed"]:
+        assert p["errors"] == {} and s["failure"]
+    else:
+        assert all(np.isfinite(v) for v in p["errors"].values())
+        assert s["steps_done"] == s["steps"]
+
+
+def test_a_bed_gns_is_refused(fb_tiny_dataset, tmp_path):
+    ckpt = train_tiny_gns(fb_tiny_dataset, "fb_tiny", tmp_path / "fb.ckpt")
+    with pytest.raises(ConfigError, match="gns_hopper"):
+        gns_point(ckpt, n_sims=1)
+
+
+def test_exit_times_are_the_first_missing_snapshot():
+    times = np.array([0.0, 0.5, 1.0])
+    pos = np.zeros((3, 2, 3))
+    pos[2, 0] = np.nan
+    np.testing.assert_array_equal(exit_times(times, pos), [1.0, np.nan])
