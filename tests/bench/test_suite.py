@@ -18,7 +18,7 @@ from tests.bench.test_hopper_scaling import HAND_MADE
 
 def test_plan_measures_everything_by_default(tmp_path: Path):
     steps = dict(plan([Path("/runs")], Path("/c.ckpt"), None, tmp_path, no_solver=False, repeats=5, threads=1))
-    assert list(steps) == ["hopper_speed", "hopper_scaling", "speed_accuracy", "right_sizing"]
+    assert list(steps) == ["hopper_speed", "hopper_scaling", "speed_accuracy", "right_sizing", "hopper_stability"]
     assert "--reuse-dataset" not in steps["hopper_speed"] and "--skip-solver" not in steps["speed_accuracy"]
     assert steps["right_sizing"][:2] == ["--from", str(tmp_path / "speed_accuracy.json")]
     assert steps["hopper_speed"][steps["hopper_speed"].index("--repeats") + 1] == "5"
@@ -44,12 +44,14 @@ def test_all_without_solver_then_render(evaluated_runs: Path, tiny_checkpoint: P
             str(hopper_tiny_dataset), "--no-solver", "--repeats", "1", "--out-dir", str(tmp_path)]
     assert bench_main(argv) == 0
     names = {"hopper_speed.json", "hopper_speed.md", "hopper_scaling.json", "hopper_scaling.png",
-             "speed_accuracy.json", "speed_accuracy.png", "speed_accuracy.md", "right_sizing.json", "right_sizing.md"}
+             "speed_accuracy.json", "speed_accuracy.png", "speed_accuracy.md", "right_sizing.json", "right_sizing.md",
+             "hopper_stability.json", "hopper_stability.png", "hopper_stability.md"}
     assert names <= {p.name for p in tmp_path.iterdir()}
-    for name in ("hopper_scaling.png", "speed_accuracy.png", "right_sizing.md"):
+    for name in ("hopper_scaling.png", "speed_accuracy.png", "right_sizing.md", "hopper_stability.png"):
         (tmp_path / name).unlink()
     assert bench_main(["render", "--out-dir", str(tmp_path)]) == 0
     assert (tmp_path / "hopper_scaling.png").is_file() and (tmp_path / "right_sizing.md").is_file()
+    assert (tmp_path / "hopper_stability.png").is_file()
 
 
 def test_render_from_a_results_file(tmp_path: Path):
@@ -186,6 +188,8 @@ def test_plan_with_a_gns_of_the_hopper(tmp_path: Path):
     chart = steps["speed_accuracy"]
     assert chart[chart.index("--gns-ckpt") + 1:chart.index("--gns-ckpt") + 3] == ["/g1.ckpt", "/g2.ckpt"]
     assert "--gns-ckpt" not in steps["hopper_speed"]
+    stability = steps["hopper_stability"]
+    assert stability[stability.index("--gns-ckpt") + 1:] == ["/g1.ckpt", "/g2.ckpt"]
     with pytest.raises(ConfigError, match="--runs and --ckpt"):
         plan(None, None, None, tmp_path, no_solver=False, repeats=3, threads=1, fb_ckpts=[Path("/f.ckpt")],
              gns_hopper_ckpts=[Path("/g.ckpt")])

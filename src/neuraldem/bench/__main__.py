@@ -19,6 +19,9 @@ BENCHMARKS = {
                        "time to answer vs error: surrogate runs and cheaper LIGGGHTS settings, Pareto front"),
     "right_sizing": ("neuraldem.bench.right_sizing",
                      "the smallest model within 10 % of the best accuracy, per task, with its speed"),
+    "hopper_stability": ("neuraldem.bench.hopper_stability",
+                         "hopper stability map over cone angle x sliding friction (beyond the trained range): "
+                         "field surrogates, GNS, and the stored runs as the rule's control"),
     "fb_speed": ("neuraldem.bench.fb_speed",
                  "DPMFoam vs the fluidized-bed rollout per simulated second, side by side (speed-up ratios)"),
     "fb_speed_accuracy": ("neuraldem.bench.fb_speed_accuracy",

@@ -208,3 +208,31 @@ def fb_stability_figure(results: dict[str, Any], path: Path) -> Path:
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+def hopper_stability_figure(results: dict[str, Any], path: Path) -> Path:
+    """One panel per series: x = cone angle of the stored run, y = sliding friction; open circles stable over
+    the whole trajectory, crosses failed (labelled with the time of failure); the trained mu_s range shaded."""
+    series = results["series"]
+    fig, axes = plt.subplots(1, len(series), figsize=(4.2 * len(series), 4.0), squeeze=False, sharey=True)
+    lo, hi = results["trained_mu_s_range"]
+    for ax, s in zip(axes[0], series):
+        ax.axhspan(lo, hi, color="0.5", alpha=0.15, label="trained mu_s range")
+        ok = [p for p in s["points"] if not p["failed"]]
+        bad = [p for p in s["points"] if p["failed"]]
+        ax.plot([p["alpha"] for p in ok], [p["mu_s"] for p in ok], "o", mfc="none", color="C2",
+                label=f"stable ({len(ok)})")
+        ax.plot([p["alpha"] for p in bad], [p["mu_s"] for p in bad], "x", color="C3", ms=8,
+                label=f"failed ({len(bad)})")
+        for p in bad:
+            ax.annotate(f"{p['failed_at_time_s']:.2g} s", (p["alpha"], p["mu_s"]), fontsize=6, xytext=(4, 2),
+                        textcoords="offset points")
+        ax.set(title=f"{s['label']}\n({s['method']})", xlabel="cone angle alpha of the run [deg]")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=6)
+    axes[0][0].set_ylabel("sliding friction mu_s asked")
+    fig.suptitle(f"hopper stability: first unphysical time (limit {results['limit_pct']:g} %)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

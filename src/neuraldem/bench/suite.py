@@ -2,7 +2,8 @@
 
 `python -m neuraldem.bench all --runs DIR... --ckpt CKPT [--dataset DIR] [--gns-hopper-ckpt CKPT...] [--fb-ckpt CKPT...] [--gns-fb-ckpt
 CKPT...] [--fb-runs DIR...] [--fb-dataset DIR] [--no-solver] [--out-dir DIR]` runs hopper_speed, hopper_scaling,
-speed_accuracy and right_sizing in turn (with --runs and --ckpt), then fb_speed (the first --fb-ckpt against
+speed_accuracy, right_sizing and hopper_stability in turn (with --runs and --ckpt; --gns-hopper-ckpt adds the
+GNS to the chart and the map), then fb_speed (the first --fb-ckpt against
 DPMFoam) and fb_stability (every --fb-ckpt, one series each) (with --fb-ckpt), gns_stability at the same
 velocities and steps (with --gns-fb-ckpt; both maps then also go into one figure, stability_map.png), then
 fb_speed_accuracy (with --fb-runs); each also runs on its own. With --no-solver nothing runs LIGGGHTS or DPMFoam: solver costs come from the
@@ -91,8 +92,11 @@ def _hopper_plan(runs: list[Path], ckpt: Path, dataset: Path | None, out_dir: Pa
         scaling += _reuse_or_skip(out_dir / "hopper_scaling.json")
         accuracy += _reuse_or_skip(out_dir / "speed_accuracy.json")
     sizing = ["--from", str(out_dir / "speed_accuracy.json"), "--out", str(out_dir / "right_sizing.json")]
+    stability = ["--ckpt", str(ckpt), *data, "--out", str(out_dir / "hopper_stability.json")]
+    if gns_ckpts:
+        stability += ["--gns-ckpt", *map(str, gns_ckpts)]
     return [("hopper_speed", speed), ("hopper_scaling", scaling), ("speed_accuracy", accuracy),
-            ("right_sizing", sizing)]
+            ("right_sizing", sizing), ("hopper_stability", stability)]
 
 
 def _reuse_or_skip(previous: Path) -> list[str]:
@@ -150,15 +154,22 @@ def stability_map(out_dir: Path) -> Path | None:
 
 
 def render(argv: list[str]) -> int:
-    from neuraldem.bench import fb_speed, fb_speed_accuracy, hopper_speed, right_sizing, speed_accuracy
+    from neuraldem.bench import (
+        fb_speed,
+        fb_speed_accuracy,
+        hopper_speed,
+        hopper_stability,
+        right_sizing,
+        speed_accuracy,
+    )
 
     p = argparse.ArgumentParser(prog="python -m neuraldem.bench render", description="redraw from results")
     p.add_argument("--out-dir", type=Path, default=None, help="default results/bench")
     a = p.parse_args(argv)
     out_dir = a.out_dir or default_out_dir()
     written = []
-    for name in ("hopper_speed", "hopper_scaling", "speed_accuracy", "right_sizing", "fb_speed", "fb_stability",
-                 "gns_stability", "fb_speed_accuracy"):
+    for name in ("hopper_speed", "hopper_scaling", "speed_accuracy", "right_sizing", "hopper_stability", "fb_speed",
+                 "fb_stability", "gns_stability", "fb_speed_accuracy"):
         path = out_dir / f"{name}.json"
         if not path.is_file():
             continue
@@ -171,6 +182,9 @@ def render(argv: list[str]) -> int:
         elif name == "fb_speed":
             written.append(_write(path.with_suffix(".md"), fb_speed.render_markdown(results, payload["machine"])))
             written.append(plots.fb_speed_figure(results, path.with_suffix(".png")))
+        elif name == "hopper_stability":
+            written.append(plots.hopper_stability_figure(results, path.with_suffix(".png")))
+            written.append(_write(path.with_suffix(".md"), hopper_stability.render_markdown(results)))
         elif name in ("fb_stability", "gns_stability"):
             written.append(plots.fb_stability_figure(results, path.with_suffix(".png")))
         elif name == "fb_speed_accuracy":
