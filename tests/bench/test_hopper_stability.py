@@ -24,7 +24,7 @@ def fields(occupied_share: list[float], n: int = 100, outside: dict[int, int] | 
     t = len(occupied_share)
     occ = np.zeros((t, n))
     for k, share in enumerate(occupied_share):
-        occ[k, :int(round(share * n))] = 1.0
+        occ[k, :round(share * n)] = 1.0
     transport = np.zeros((t, n, 3)) + [0.0, 0.0, 1.0]
     for k, m in (outside or {}).items():
         transport[k, :m, 0] = 5.0

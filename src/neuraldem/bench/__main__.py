@@ -20,13 +20,13 @@ BENCHMARKS = {
     "right_sizing": ("neuraldem.bench.right_sizing",
                      "the smallest model within 10 % of the best accuracy, per task, with its speed"),
     "hopper_stability": ("neuraldem.bench.hopper_stability",
-                         "hopper stability map over cone angle x sliding friction (beyond the trained range): "
-                         "field surrogates, GNS, and the stored runs as the rule's control"),
+                         ("hopper stability map over cone angle x sliding friction (beyond the trained range): "
+                          "field surrogates, GNS, and the stored runs as the rule's control")),
     "fb_speed": ("neuraldem.bench.fb_speed",
                  "DPMFoam vs the fluidized-bed rollout per simulated second, side by side (speed-up ratios)"),
     "fb_speed_accuracy": ("neuraldem.bench.fb_speed_accuracy",
-                          "fluidized bed: rollout cost vs error of time averages and mixing, surrogates and "
-                          "cheaper DPMFoam; Pareto front, right-sizing"),
+                          ("fluidized bed: rollout cost vs error of time averages and mixing, surrogates and "
+                           "cheaper DPMFoam; Pareto front, right-sizing")),
     "fb_stability": ("neuraldem.bench.fb_stability",
                      "fluidized-bed stability map: steps to divergence / solid-volume drift across velocities"),
     "gns_stability": ("neuraldem.bench.gns_stability",

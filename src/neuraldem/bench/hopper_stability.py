@@ -210,8 +210,9 @@ def summary_lines(results: dict[str, Any]) -> list[str]:
 
 def render_markdown(results: dict[str, Any]) -> str:
     """Per series and cell: stable, or when and why it failed."""
-    lines = [f"Hopper stability map (limit {results['limit_pct']:g} %; trained mu_s range "
-             f"{results['trained_mu_s_range']}):", ""]
+    head = (f"Hopper stability map (limit {results['limit_pct']:g} %; trained mu_s range "
+            f"{results['trained_mu_s_range']}):")
+    lines = [head, ""]
     lines += [f"- {x}" for x in summary_lines(results)]
     lines += ["", "| series | sim | alpha [deg] | mu_s | in range | stable for [s] | failure |", "|---|---|---|---|---|---|---|"]
     for s in results["series"]:
