@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# The hopper checkpoints behind the speed-accuracy chart and right-sizing (issue 9, docs/benchmarks.md): the
+# micro-conditioned field model at three sizes, trained and evaluated one after another on one core, and the
+# particle-based GNS baseline on the other core at the same time.
+#   bash scripts/hopper_sizes.sh OUT_DIR [hydra overrides for the field models...]
+# Field runs land in OUT_DIR/fields/<name>/ (evaluated: `bench speed_accuracy --runs OUT_DIR/fields`), the GNS
+# in OUT_DIR/gns/ (`--gns-ckpt OUT_DIR/gns/checkpoints/last.ckpt`); logs beside them. A field run whose folder
+# holds evaluation/metrics.json, or a GNS with its last.ckpt, is skipped, so a killed sweep resumes.
+# FIELD_STEPS (default 2000) and GNS_STEPS (default 700) set the training steps.
+set -uo pipefail
+PY=${PYTHON:-python}
+out=$1; shift
+FIELD_STEPS=${FIELD_STEPS:-2000}
+GNS_STEPS=${GNS_STEPS:-700}
+export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 OMP_WAIT_POLICY=PASSIVE WANDB_MODE=offline
+mkdir -p "$out/fields"
+common=(trainer=cpu logger=csv callbacks.progress=null)
+
+field() {  # name, then overrides of that size
+  local name=$1; shift
+  local run="$out/fields/$name"
+  if [ -f "$run/evaluation/metrics.json" ]; then echo "skip $name (evaluated)"; return 0; fi
+  rm -rf "$run"
+  echo "start $name"
+  "$PY" -m neuraldem.train experiment=hopper_micro "$@" "${common[@]}" data.datamodule.batch_size=8 \
+    data.datamodule.n_queries=512 trainer.max_steps="$FIELD_STEPS" trainer.val_check_interval=500 \
+    hydra.run.dir="$run" "${EXTRA[@]}" > "$out/fields/$name.log" 2>&1
+}
+
+EXTRA=("$@")
+(
+  field hopper_tiny model=hopper_tiny && \
+  field hopper_base model=hopper_base && \
+  field hopper_base_tok32 model=hopper_base model.net.n_latent_tokens=32
+) &
+fields=$!
+if [ -f "$out/gns/checkpoints/last.ckpt" ]; then
+  echo "skip gns (trained)"
+else
+  rm -rf "$out/gns"
+  echo "start gns"
+  "$PY" -m neuraldem.train experiment=gns_hopper "${common[@]}" trainer.max_steps="$GNS_STEPS" \
+    trainer.val_check_interval=$((GNS_STEPS / 2)) model.scheduler.warmup_steps=50 hydra.run.dir="$out/gns" \
+    > "$out/gns.log" 2>&1 || { echo "gns failed: see $out/gns.log" >&2; wait "$fields"; exit 1; }
+fi
+wait "$fields" || { echo "a field run failed: see $out/fields/*.log" >&2; exit 1; }
+echo "done: $out/fields (evaluated), $out/gns"
