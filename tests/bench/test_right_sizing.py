@@ -44,6 +44,20 @@ def test_smallest_within_ten_percent():
     assert "Pick: **base-8tok**" in render_markdown(picks)
 
 
+def test_seeds_of_one_size_are_averaged_before_picking():
+    # tiny alone (seed 0) looks within 10 % of base, but its second seed is much worse: the mean decides
+    rows = [_row("base", 10.0, 800_000), _row("base_seed1", 12.0, 800_000, t=0.3),
+            _row("tiny", 10.5, 100_000, 8), _row("tiny_seed1", 15.5, 100_000, 8)]
+    pick = right_size(rows, METRIC)[0]
+    assert pick["best"]["label"] == "base + base_seed1 (mean of 2)" and pick["best"]["error"] == pytest.approx(11.0)
+    assert pick["pick"] == pick["best"] and pick["best"]["error_range"] == [10.0, 12.0]
+    assert pick["best"]["time_to_answer_s"] == pytest.approx(0.2)  # median of the repeats
+    assert [c["error"] for c in pick["candidates"]] == [pytest.approx(13.0), pytest.approx(11.0)]
+    assert "(10.00 - 12.00)" in render_markdown([pick])
+    # without the second seeds tiny would be picked
+    assert right_size(rows[::2], METRIC)[0]["pick"]["label"] == "tiny"
+
+
 def test_bad_tables():
     with pytest.raises(DataError, match="no run has a finite"):
         right_size([_row("broken", math.nan, 1)], METRIC)

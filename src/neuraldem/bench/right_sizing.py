@@ -3,7 +3,9 @@
 `python -m neuraldem.bench right_sizing (--runs DIR... | --from results/bench/speed_accuracy.json)
 [--metric drainage_mae_pct_of_mean] [--tolerance 0.10]` writes results/bench/right_sizing.json and .md.
 
-Runs are compared only with runs that answer the same task: the same dataset, split and conditioning.
+Runs are compared only with runs that answer the same task: the same dataset, split and conditioning. Runs
+of one task and one size (e.g. seeds) are one candidate: their errors averaged, their range kept, so one lucky
+run does not decide the size.
 "Within 10 %" means error <= 1.10 x the best error of the group. Among those, the smallest is the one with
 the fewest parameters, then the fewest latent tokens, then the fewest training query points, then the
 fastest answer: a bigger model is worth its cost only where it is measurably more accurate.
@@ -12,7 +14,9 @@ fastest answer: a bigger model is worth its cost only where it is measurably mor
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import statistics
 from pathlib import Path
 from typing import Any
 
@@ -40,13 +44,41 @@ def task_of(row: dict[str, Any]) -> tuple[str, str, tuple[str, ...]]:
     return (str(row.get("data_name")), str(row.get("split")), tuple(row.get("conditioning", [])))
 
 
+def merge_repeats(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Rows of the same task and size (repeats, e.g. seeds) as one row: errors averaged (NaN unless every
+    repeat has one), their [min, max] in `error_ranges`, the median time to answer, the labels joined."""
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for row in rows:
+        key = (task_of(row), json.dumps(row.get("size", {}), sort_keys=True, default=str))
+        groups.setdefault(key, []).append(row)
+    merged = []
+    for group in groups.values():
+        if len(group) == 1:
+            merged.append(group[0])
+            continue
+        errors, ranges = {}, {}
+        for k in sorted(set().union(*(r.get("errors", {}) for r in group))):
+            values = [_value(r.get("errors", {}).get(k)) for r in group]
+            ok = all(math.isfinite(v) for v in values)
+            errors[k] = statistics.fmean(values) if ok else math.nan
+            ranges[k] = [min(values), max(values)] if ok else None
+        times = [_value(r.get("time_to_answer_s")) for r in group]
+        labels = [r["label"] for r in group]
+        merged.append({**group[0], "label": f"{' + '.join(labels)} (mean of {len(group)})", "errors": errors,
+                       "error_ranges": ranges, "repeats": labels,
+                       "time_to_answer_s": statistics.median(times) if all(map(math.isfinite, times)) else None,
+                       "run_dir": [r.get("run_dir") for r in group]})
+    return merged
+
+
 def right_size(rows: list[dict[str, Any]], metric: str, tolerance: float = 0.10) -> list[dict[str, Any]]:
     """One pick per task (dataset, split, conditioning): the smallest row with error <= (1 + tolerance) x the
-    group's best error. Rows without a finite error are listed as left out."""
+    group's best error (repeats of one size averaged first, `merge_repeats`). Rows without a finite error are
+    listed as left out."""
     checks.one_of("metric", metric, HOPPER_ERRORS)
     checks.number("tolerance", tolerance, lo=0.0)
     tasks: dict[tuple, list[dict[str, Any]]] = {}
-    for row in rows:
+    for row in merge_repeats(rows):
         tasks.setdefault(task_of(row), []).append(row)
     picks = []
     for (data_name, split, conditioning), group in sorted(tasks.items()):
@@ -71,7 +103,8 @@ def right_size(rows: list[dict[str, Any]], metric: str, tolerance: float = 0.10)
 
 def _summary(row: dict[str, Any], metric: str) -> dict[str, Any]:
     return {"label": row["label"], "error": row["errors"][metric], "size": row.get("size", {}),
-            "time_to_answer_s": row.get("time_to_answer_s"), "run_dir": row.get("run_dir")}
+            "time_to_answer_s": row.get("time_to_answer_s"), "run_dir": row.get("run_dir"),
+            "error_range": (row.get("error_ranges") or {}).get(metric)}
 
 
 def render_markdown(picks: list[dict[str, Any]]) -> str:
@@ -89,8 +122,10 @@ def render_markdown(picks: list[dict[str, Any]]) -> str:
             mark = "pick" if c["label"] == t["pick"]["label"] else ("within" if c["label"] in t["within_tolerance"]
                                                                      else "")
             time_s = c["time_to_answer_s"]
+            spread = c.get("error_range")
+            error = f"{c['error']:.2f}" + (f" ({spread[0]:.2f} - {spread[1]:.2f})" if spread else "")
             lines.append(f"| {c['label']} | {_cell(s.get('parameters'), ',')} | {_cell(s.get('n_latent_tokens'))} | "
-                         f"{_cell(s.get('train_queries'))} | {_cell(time_s, '.3g')} | {c['error']:.2f} | {mark} |")
+                         f"{_cell(s.get('train_queries'))} | {_cell(time_s, '.3g')} | {error} | {mark} |")
         lines.append("")
     return "\n".join(lines)
 
