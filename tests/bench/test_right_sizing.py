@@ -78,6 +78,20 @@ def test_from_a_speed_accuracy_file(tmp_path: Path):
     assert "| base-8tok | 800,000 | 8 | 512 | 0.1 | 10.90 | pick |" in out.with_suffix(".md").read_text()
 
 
+def test_all_quantities_at_once(tmp_path: Path):
+    rows = [{**r, "method": "surrogate", "errors": {**r["errors"], "outflow_rel_err_pct": 1.0 / r["size"]["parameters"]}}
+            for r in TABLE]
+    src = write_results("speed_accuracy", {"points": rows}, command="test", path=tmp_path / "sa.json", machine={})
+    out = tmp_path / "rs.json"
+    assert bench_main(["right_sizing", "--from", str(src), "--metric", "all", "--out", str(out)]) == 0
+    picks = json.loads(out.read_text())["results"]["picks"]
+    by_metric = {(p["metric"], tuple(p["conditioning"])): p["pick"]["label"] for p in picks}
+    main = ("t", "alpha", "mu_s", "mu_r")
+    assert by_metric[(METRIC, main)] == "base-8tok"
+    assert by_metric[("outflow_rel_err_pct", main)] == "huge"  # the largest is far the most accurate there
+    assert not any(m == "residual_mae_pp" for m, _ in by_metric)  # no run has it: skipped, not an error
+
+
 def test_wrong_results_file_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture):
     other = write_results("hopper_speed", {}, command="test", path=tmp_path / "speed.json", machine={})
     assert bench_main(["right_sizing", "--from", str(other), "--out", str(tmp_path / "rs.json")]) == 2

@@ -1,7 +1,7 @@
 """Right-sizing: the smallest model within 10 % of the best accuracy, for each scene, with its speed.
 
 `python -m neuraldem.bench right_sizing (--runs DIR... | --from results/bench/speed_accuracy.json)
-[--metric drainage_mae_pct_of_mean] [--tolerance 0.10]` writes results/bench/right_sizing.json and .md.
+[--metric drainage_mae_pct_of_mean|residual_mae_pp|outflow_rel_err_pct|all] [--tolerance 0.10]` writes results/bench/right_sizing.json and .md.
 
 Runs are compared only with runs that answer the same task: the same dataset, split and conditioning. Runs
 of one task and one size (e.g. seeds) are one candidate: their errors averaged, their range kept, so one lucky
@@ -101,6 +101,19 @@ def right_size(rows: list[dict[str, Any]], metric: str, tolerance: float = 0.10)
     return picks
 
 
+def right_size_all(rows: list[dict[str, Any]], tolerance: float = 0.10) -> list[dict[str, Any]]:
+    """`right_size` for every practitioner's quantity that some run has a finite error of."""
+    picks = []
+    for metric in HOPPER_ERRORS:
+        try:
+            picks += right_size(rows, metric, tolerance)
+        except DataError:
+            continue
+    if not picks:
+        raise DataError("no run has a finite error of any quantity: nothing to right-size (check the evaluations)")
+    return picks
+
+
 def _summary(row: dict[str, Any], metric: str) -> dict[str, Any]:
     return {"label": row["label"], "error": row["errors"][metric], "size": row.get("size", {}),
             "time_to_answer_s": row.get("time_to_answer_s"), "run_dir": row.get("run_dir"),
@@ -139,7 +152,8 @@ def main(argv: list[str]) -> int:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--runs", type=Path, nargs="+", help="folders holding evaluated runs (timed here)")
     src.add_argument("--from", dest="from_file", type=Path, help="a speed_accuracy.json (its surrogate points)")
-    p.add_argument("--metric", default="drainage_mae_pct_of_mean", choices=list(HOPPER_ERRORS))
+    p.add_argument("--metric", default="drainage_mae_pct_of_mean", choices=[*HOPPER_ERRORS, "all"],
+                   help="the error to right-size by; all = one pick per quantity")
     p.add_argument("--tolerance", type=float, default=0.10, help="0.10 = within 10 %% of the best error")
     p.add_argument("--skip-unevaluated", action="store_true")
     p.add_argument("--repeats", type=int, default=3, help="timed answers per run (median), with --runs")
@@ -157,7 +171,7 @@ def main(argv: list[str]) -> int:
         runs, _ = collect_runs(a.runs, a.skip_unevaluated)
         rows = surrogate_points(runs, a.repeats, a.threads, None)
         source = "runs timed by this command"
-    picks = right_size(rows, a.metric, a.tolerance)
+    picks = right_size_all(rows, a.tolerance) if a.metric == "all" else right_size(rows, a.metric, a.tolerance)
     path = write_results(NAME, {"source": source, "picks": picks}, command=command_line(NAME, argv),
                          path=a.out or default_path(NAME), machine=machine)
     text = render_markdown(picks)

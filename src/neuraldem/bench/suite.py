@@ -91,7 +91,8 @@ def _hopper_plan(runs: list[Path], ckpt: Path, dataset: Path | None, out_dir: Pa
         speed.append("--reuse-dataset")
         scaling += _reuse_or_skip(out_dir / "hopper_scaling.json")
         accuracy += _reuse_or_skip(out_dir / "speed_accuracy.json")
-    sizing = ["--from", str(out_dir / "speed_accuracy.json"), "--out", str(out_dir / "right_sizing.json")]
+    sizing = ["--from", str(out_dir / "speed_accuracy.json"), "--metric", "all", "--out",
+              str(out_dir / "right_sizing.json")]
     stability = ["--ckpt", str(ckpt), *data, "--out", str(out_dir / "hopper_stability.json")]
     if gns_ckpts:
         stability += ["--gns-ckpt", *map(str, gns_ckpts)]
