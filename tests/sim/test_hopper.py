@@ -9,7 +9,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from neuraldem.errors import ConfigError
-from neuraldem.sim.hopper import HopperScene, run_hopper
+from neuraldem.sim.hopper import HopperScene, particle_balance, run_hopper
 from tests.helpers import REPO
 
 pytestmark = pytest.mark.solver
@@ -103,3 +103,11 @@ def test_bad_scene_values_name_the_key():
         HopperScene.from_config({"material": {"mu_s": -1.0}}, "data.scene")
     with pytest.raises(ConfigError, match="unknown key"):
         HopperScene.from_config({"n_particle": 10}, "data.scene")
+
+
+def test_particle_balance_allows_particles_in_flight_only_when_cut_off():
+    # 100 in, 60 still counted, 42 in the exit file: 2 crossed the sink but were not deleted yet
+    assert particle_balance(100, 60, 42, "max_time") == (0, 2)
+    assert particle_balance(100, 60, 42, "stall") == (-2, 0)  # a stalled run has no flow: a double count is wrong
+    assert particle_balance(100, 60, 37, "max_time") == (3, 0)  # 3 missing from both: lost, whatever the ending
+    assert particle_balance(100, 0, 100, "empty") == (0, 0)

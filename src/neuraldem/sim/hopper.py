@@ -307,14 +307,25 @@ def run_hopper(scene: HopperScene, alpha: float, mu_s: float, mu_r: float, workd
                              if line.startswith("NEURALDEM_CHUNK")]
     ended_by = "empty" if counts[-1] == 0 else ("stall" if len(counts) > 1 and counts[-1] == counts[-2]
                                                 else "max_time")
-    final_count = counts[-1]
     n_exited = int(np.isfinite(traj.exit_times).sum())
-    diag.update(ended_by=ended_by, n_exited=n_exited, n_lost=int(n_inserted - final_count - n_exited),
+    n_lost, n_in_flight = particle_balance(n_inserted, counts[-1], n_exited, ended_by)
+    diag.update(ended_by=ended_by, n_exited=n_exited, n_lost=n_lost, n_in_flight=n_in_flight,
                 particle_steps=_particle_steps(run.log))
     status, reason = classify(traj, scene, ended_by)
     if diag["n_lost"] != 0:
         status, reason = STATUS_FAILED, f"{diag['n_lost']} particles left the domain without passing the sink"
     return HopperRunResult(status, reason, run, traj, diag)
+
+
+def particle_balance(n_inserted: int, final_count: int, n_exited: int, ended_by: str) -> tuple[int, int]:
+    """(lost, in flight): particles that left the domain without passing the sink, and particles counted
+    twice, both exited (in the exit file) and still present (LIGGGHTS deletes them only at the next
+    re-neighbouring). Only a run cut off while flowing (`max_time`) can end with particles in flight; anywhere
+    else a double count is as wrong as a loss."""
+    balance = n_inserted - final_count - n_exited
+    if balance < 0 and ended_by == "max_time":
+        return 0, -balance
+    return balance, 0
 
 
 def _log_int(log: str, marker: str) -> int:
