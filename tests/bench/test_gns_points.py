@@ -64,6 +64,10 @@ def test_a_rollout_that_breaks_has_no_error_and_says_why(hopper_gns, hopper_tiny
     assert p["errors"] == {} and p["n_failed"] == 1
     assert "NaN" in p["failures"][0]["reason"] or "particle count" in p["failures"][0]["reason"]
     assert p["failures"][0]["reason"].startswith("step 1:")
+    # one step computed (and refused) stands for the whole trajectory's time, scaled, and says so
+    s = p["simulations"][0]
+    assert p["time_to_answer_s"] == pytest.approx(s["rollout_wall_s"] * s["steps"])
+    assert p["timing"]["source"].startswith("extrapolated")
 
 
 def test_the_trained_model_gives_a_point(hopper_gns, hopper_tiny_dataset):
