@@ -229,7 +229,9 @@ def hopper_stability_figure(results: dict[str, Any], path: Path) -> Path:
                         textcoords="offset points")
         ax.set(title=f"{s['label']}\n({s['method']})", xlabel="cone angle alpha of the run [deg]")
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=6)
+        ax.legend(fontsize=6, loc="upper center", ncol=3)
+    top = max(results["mu_s_values"] + [p["mu_s"] for s in series for p in s["points"]])
+    axes[0][0].set_ylim(-0.05 * top, 1.3 * top)  # headroom: the legend sits above the highest cells
     axes[0][0].set_ylabel("sliding friction mu_s asked")
     fig.suptitle(f"hopper stability: first unphysical time (limit {results['limit_pct']:g} %)", fontsize=9)
     fig.tight_layout()
