@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 from neuraldem.bench.gns_points import exit_times, gns_point
+from neuraldem.data.gns_datamodule import ParticleRun
 from neuraldem.data.manifest import require_dataset
 from neuraldem.errors import ConfigError
 from neuraldem.eval.gns_rollout import load_gns_checkpoint
-from tests.helpers import train_tiny_gns
+from tests.helpers import oracle, train_tiny_gns
 
 pytestmark = pytest.mark.solver
 
@@ -21,20 +22,10 @@ def hopper_gns(hopper_tiny_dataset, tmp_path_factory):
 
 
 def stored_oracle(dataset, sim_id: str):
-    """The stored run's own accelerations (as in tests/eval/test_gns_rollout.py)."""
-    from neuraldem.data.gns_datamodule import ParticleRun
-
+    """The stored run's own accelerations (history 2, as train_tiny_gns trains)."""
     m = require_dataset(dataset, "hopper_tiny")
     with ParticleRun(dataset / str(m.record(sim_id).file), "hopper", m.scene) as run:
-        x, dt = run.positions(), run.dt
-
-    def accelerate(step, inputs):
-        k = 2 + step - 1  # history 2
-        alive = np.isfinite(x[k]).all(axis=1)
-        a = (x[k + 1] - 2 * x[k] + x[k - 1])[alive] / dt**2
-        return np.where(np.isfinite(a), a, [0.0, 0.0, -1e4])
-
-    return accelerate
+        return oracle(run, 2)
 
 
 def first_test_sim(dataset, ckpt) -> str:

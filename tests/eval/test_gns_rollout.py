@@ -17,7 +17,7 @@ from neuraldem.eval.gns_rollout import (
     rollout,
     run_gns_rollout,
 )
-from tests.helpers import train_tiny_gns
+from tests.helpers import oracle, train_tiny_gns
 
 LENIENT = StabilityLimits(box_tolerance_d=1e6, overlap_fraction=0.0, max_overlaps=10**9)
 
@@ -36,19 +36,6 @@ def open_run(dataset: Path, name: str, sim: str) -> tuple[ParticleRun, object]:
     m = require_dataset(dataset, name)
     rec = m.record(sim)
     return ParticleRun(dataset / str(rec.file), m.kind, m.scene), rec
-
-
-def oracle(run: ParticleRun, h: int, start: int = 0):
-    """The stored run's own accelerations (particles leaving at the next snapshot are sent down the sink)."""
-    x = run.positions()
-
-    def accelerate(step, inputs):
-        k = start + h + step - 1
-        alive = np.isfinite(x[k]).all(axis=1)
-        a = (x[k + 1] - 2 * x[k] + x[k - 1])[alive] / run.dt**2
-        return np.where(np.isfinite(a), a, [0.0, 0.0, -1e4])
-
-    return accelerate
 
 
 @pytest.mark.solver

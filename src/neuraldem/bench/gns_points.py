@@ -3,7 +3,7 @@
 Each GNS checkpoint (experiment=gns_hopper) is rolled out over the whole stored trajectory of the first
 `n_sims` test simulations of its split (`eval.gns_rollout`, from the first H + 1 stored snapshots). Its
 drainage time, residual and outflow come from the predicted particles through the code that scores the
-cheaper-LIGGGHTS points (`datagen.hopper.trajectory_metrics`, truth from the stored run by `stored_metrics`),
+cheaper-LIGGGHTS points (`datagen.hopper.trajectory_metrics`, truth from the stored run the same way),
 so the GNS, LIGGGHTS and the field surrogates answer the same questions with the same rulers.
 
 Overlapping particles do not stop the rollout here (the chart asks what answer the baseline gives); the first
@@ -25,12 +25,12 @@ from typing import Any
 import numpy as np
 
 from neuraldem.bench.hopper_runs import HOPPER_ERRORS
+from neuraldem.bench.solver_variants import particle_evaluation
 from neuraldem.bench.timing import torch_threads
 from neuraldem.config import checks
 from neuraldem.data.gns_datamodule import ParticleRun
-from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import Manifest, SimRecord
-from neuraldem.datagen.hopper import MetricSettings, stored_metrics, trajectory_metrics
+from neuraldem.datagen.hopper import MetricSettings, trajectory_metrics
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.checkpoints import checkpoint_dataset
 from neuraldem.eval.gns_rollout import (
@@ -42,8 +42,9 @@ from neuraldem.eval.gns_rollout import (
     rollout,
 )
 from neuraldem.eval.hopper_eval import SimEvaluation, aggregate
-from neuraldem.eval.hopper_metrics import flow_regime
+from neuraldem.lit.gns_module import GnsModule
 from neuraldem.paths import data_dir
+from neuraldem.sim.hopper import HopperTrajectory
 
 # overlaps are counted (first overlap step recorded) but never stop a rollout of the chart
 CHART_LIMITS = StabilityLimits(max_overlaps=2**62)
@@ -56,16 +57,25 @@ def exit_times(times: np.ndarray, positions: np.ndarray) -> np.ndarray:
     return np.where(gone.any(axis=0), times[first], np.nan)
 
 
-def rollout_metrics(r: GnsRollout, path: Path, diameter: float, settings: MetricSettings) -> dict[str, float]:
+def rollout_metrics(r: GnsRollout, stored: HopperTrajectory, diameter: float,
+                    settings: MetricSettings) -> dict[str, float]:
     """Scene metrics of a GNS rollout through datagen's ruler (fields at the initial particle positions). The
     given snapshots are the stored ones (the rollout drops particles that left before its start from them)."""
-    with HopperFile(path) as f:
-        stored = f.load()
     positions = r.positions.copy()
     positions[:r.history + 1] = stored.positions[:r.history + 1]
     traj = dataclasses.replace(stored, times=r.times, positions=positions, velocities=None,
                                exit_times=exit_times(r.times, positions))
     return trajectory_metrics(traj, diameter, settings)
+
+
+def load_hopper_gns(ckpt: Path) -> GnsModule:
+    """A GNS checkpoint of the hopper; one of the bed (or not a GNS) is refused with a message."""
+    module = load_gns_checkpoint(Path(ckpt))
+    kind = module.metadata["scene_kind"]
+    if kind != "hopper":
+        raise ConfigError(f"--gns-ckpt {ckpt} is a GNS of the {kind} scene: the hopper benchmarks need one trained "
+                          "with experiment=gns_hopper")
+    return module
 
 
 def first_overlap_step(r: GnsRollout) -> int | None:
@@ -76,11 +86,8 @@ def gns_point(ckpt: Path, n_sims: int = 3, dataset_dir: Path | None = None, thre
               label: str | None = None, accelerate: Accelerator | None = None) -> dict[str, Any]:
     """One chart point for a GNS checkpoint (module docstring); `accelerate` replaces the model (tests)."""
     checks.positive_int("--gns-sims", n_sims)
-    module = load_gns_checkpoint(Path(ckpt))
+    module = load_hopper_gns(Path(ckpt))
     meta, norm = module.metadata, module.norm
-    if meta["scene_kind"] != "hopper":
-        raise ConfigError(f"--gns-ckpt {ckpt} is a GNS of the {meta['scene_kind']} scene: the hopper chart needs "
-                          "one trained with experiment=gns_hopper")
     dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), data_dir() / "datasets", dataset_dir)
     ids = m.split_ids(meta["split"], "test") or m.split_ids(meta["split"], "val")
     if not ids:
@@ -132,20 +139,15 @@ def _one_sim(rec: SimRecord, dataset_dir: Path, m: Manifest, norm: Any, step: Ac
         w0, c0 = time.perf_counter(), time.process_time()
         r = rollout(step, run, norm, scalars, steps, limits=CHART_LIMITS)
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+        # the stored run, from the file already open: the truth and the rollout's given snapshots
+        stored = run.f.load() if r.failed_at is None else None
     result: dict[str, Any] = {"sim_id": rec.sim_id, "params": dict(rec.params), "steps": steps,
                               "steps_done": r.steps_done, "failed_at": r.failed_at, "failure": r.failure,
                               "first_overlap_step": first_overlap_step(r), "max_overlaps": max(r.overlaps, default=0),
                               "rollout_wall_s": wall, "rollout_cpu_s": cpu}
-    if r.failed_at is not None:
+    if stored is None:
         return result, None
-    truth = stored_metrics(path, diameter, settings)
-    predicted = rollout_metrics(r, path, diameter, settings)
+    truth = trajectory_metrics(stored, diameter, settings)  # = datagen's stored_metrics
+    predicted = rollout_metrics(r, stored, diameter, settings)
     result.update(truth=truth, predicted=predicted)
-
-    def regime(x: dict[str, float]) -> dict[str, float]:
-        return {**x, "mass_flow": float(flow_regime(x["mass_flow_index"], settings.mass_flow_threshold) == "mass")}
-
-    ev = SimEvaluation(sim_id=rec.sim_id, params=dict(rec.params), truth=regime(truth), predicted=regime(predicted),
-                       transport_mse=float("nan"), residence_mse=float("nan"), stripes_truth=np.empty(0),
-                       stripes_predicted=np.empty(0))
-    return result, ev
+    return result, particle_evaluation(rec, truth, predicted, settings)

@@ -33,14 +33,15 @@ import numpy as np
 
 from neuraldem.bench import plots
 from neuraldem.bench.fb_stability import default_labels
-from neuraldem.bench.hopper_surrogate import answer, full_question, load_surrogate, surrogate_dataset
+from neuraldem.bench.gns_points import load_hopper_gns
+from neuraldem.bench.hopper_surrogate import Question, answer, full_question, load_surrogate, surrogate_dataset
 from neuraldem.bench.report import command_line, machine_info, resolve_out, write_results
 from neuraldem.config import checks
 from neuraldem.data.gns_datamodule import ParticleRun
 from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.errors import ConfigError, DataError
-from neuraldem.eval.gns_rollout import Accelerator, load_gns_checkpoint, model_accelerator, rollout
+from neuraldem.eval.gns_rollout import Accelerator, model_accelerator, rollout
 from neuraldem.eval.hopper_predict import DemPredictor, TrajectoryFields
 from neuraldem.paths import data_dir
 
@@ -93,8 +94,7 @@ def with_mu_s(rec: SimRecord, mu_s: float) -> SimRecord:
 
 def _box(dataset_dir: Path, rec: SimRecord) -> tuple[np.ndarray, np.ndarray]:
     with HopperFile(dataset_dir / str(rec.file)) as f:
-        g = f.geometry
-    return np.array([-g.radius, -g.radius, g.sink_z]), np.array([g.radius, g.radius, g.wall_height])
+        return f.geometry.box()
 
 
 def _cell(rec: SimRecord, mu_s: float, trained: tuple[float, float]) -> dict[str, Any]:
@@ -111,11 +111,11 @@ def field_series(ckpt: Path, label: str, sims: list[SimRecord], mu_s: list[float
     diameter = float(m.scene["hopper"]["material"]["diameter"])
     points = []
     for rec in sims:
+        q = full_question(m, dataset_dir, rec, s.predictor.norm)  # the run's positions, asked at every mu_s
         lo, hi = _box(dataset_dir, rec)
         for v in mu_s:
-            q = full_question(m, dataset_dir, with_mu_s(rec, v), s.predictor.norm)
-            points.append({**_cell(rec, v, trained),
-                           **field_check(answer(s, q), lo, hi, 0.5 * diameter, limit_pct)})
+            fields = answer(s, Question(with_mu_s(rec, v), q.times, q.points))
+            points.append({**_cell(rec, v, trained), **field_check(fields, lo, hi, 0.5 * diameter, limit_pct)})
     return {"label": label, "method": "field surrogate", "checkpoint": str(ckpt), "parameters": s.parameters,
             "conditioning": list(s.metadata["conditioning"]), "points": points}
 
@@ -129,9 +129,8 @@ def truth_series(sims: list[SimRecord], dataset_dir: Path, m: Manifest, limit_pc
     interval = float(m.scene["hopper"]["snapshot_interval"])
     points = []
     for rec in sims:
-        lo, hi = _box(dataset_dir, rec)
         with HopperFile(dataset_dir / str(rec.file)) as f:
-            pts, n = f.initial_positions(), f.n_snapshots
+            pts, n, (lo, hi) = f.initial_positions(), f.n_snapshots, f.geometry.box()
         times = np.round(np.arange(n) * interval, 9)
         points.append({**_cell(rec, rec.params["mu_s"], trained),
                        **field_check(dem.fields(rec, times, pts), lo, hi, 0.5 * diameter, limit_pct)})
@@ -140,11 +139,8 @@ def truth_series(sims: list[SimRecord], dataset_dir: Path, m: Manifest, limit_pc
 
 def gns_series(ckpt: Path, label: str, sims: list[SimRecord], mu_s: list[float], dataset_dir: Path, m: Manifest,
                steps: int | None, trained: tuple[float, float], accelerate: Accelerator | None = None) -> dict[str, Any]:
-    module = load_gns_checkpoint(ckpt)
+    module = load_hopper_gns(ckpt)
     meta, norm = module.metadata, module.norm
-    if meta["scene_kind"] != "hopper":
-        raise ConfigError(f"--gns-ckpt {ckpt} is a GNS of the {meta['scene_kind']} scene: give one trained with "
-                          "experiment=gns_hopper")
     if "mu_s" not in meta["conditioning"]:
         raise ConfigError(f"--gns-ckpt {ckpt} is conditioned on {meta['conditioning']}, without mu_s")
     step_fn = accelerate or model_accelerator(module)

@@ -105,7 +105,7 @@ def score_variant(variant: SolverVariant, base: HopperScene, records: list[SimRe
         predicted = trajectory_metrics(result.trajectory, scene.material.diameter, settings)
         post = Sample(time.perf_counter() - t0, time.process_time() - c0)
         costs.append(Sample(result.solver.wall_s + post.wall_s, result.solver.cpu_s + post.cpu_s))
-        evals.append(_evaluation(rec, truth, predicted, settings))
+        evals.append(particle_evaluation(rec, truth, predicted, settings))
         per_sim.append({"sim_id": rec.sim_id, "status": result.status, "truth": truth, "predicted": predicted,
                         "solver_wall_s": result.solver.wall_s, "solver_cpu_s": result.solver.cpu_s,
                         "metrics_wall_s": post.wall_s})
@@ -126,8 +126,10 @@ def score_variant(variant: SolverVariant, base: HopperScene, records: list[SimRe
     return out
 
 
-def _evaluation(rec: SimRecord, truth: dict[str, float], predicted: dict[str, float],
-                settings: MetricSettings) -> SimEvaluation:
+def particle_evaluation(rec: SimRecord, truth: dict[str, float], predicted: dict[str, float],
+                        settings: MetricSettings) -> SimEvaluation:
+    """A run scored from particles (no transport/residence fields) in the shape `eval.hopper_eval.aggregate`
+    takes, with each side's flow regime from its mass-flow index."""
     def with_regime(m: dict[str, float]) -> dict[str, float]:
         return {**m, "mass_flow": float(flow_regime(m["mass_flow_index"], settings.mass_flow_threshold) == "mass")}
 

@@ -64,8 +64,7 @@ class ParticleRun:
             g = self.f.geometry
             self.geometry: HopperGeometry | None = g
             self.diameters = np.full(self.f.n_particles, float(scene["hopper"]["material"]["diameter"]))
-            self.box_lo = np.array([-g.radius, -g.radius, g.sink_z])
-            self.box_hi = np.array([g.radius, g.radius, g.wall_height])
+            self.box_lo, self.box_hi = g.box()
             self.exit_z: float | None = g.sink_z  # below the sink plane a particle has left (as in the data)
             self.labels: np.ndarray | None = None
         else:

@@ -182,9 +182,9 @@ class HopperDataModule(L.LightningDataModule):
         for rec in train:
             with HopperFile(self.dataset_dir / str(rec.file)) as f:  # validates every training file once
                 p0 = f.initial_positions()
-                g = f.geometry
-                lo = np.minimum(lo, [-g.radius, -g.radius, g.sink_z])
-                hi = np.maximum(hi, [g.radius, g.radius, np.nanmax(p0[:, 2])])
+                box_lo, box_hi = f.geometry.box()
+                lo = np.minimum(lo, box_lo)
+                hi = np.maximum(hi, [box_hi[0], box_hi[1], np.nanmax(p0[:, 2])])  # up to the fill, not the wall top
                 horizon = max(horizon, float(f.times[-1]))
         dt = self.snapshot_interval
         values = {name: [r.conditioning()[name] for r in train if name in r.conditioning()]

@@ -135,9 +135,8 @@ class RefillDataModule(HopperDataModule):
         lo, hi, duration = np.full(3, np.inf), np.full(3, -np.inf), 0.0
         for rec in train:
             with RefillFile(self.dataset_dir / str(rec.file)) as f:  # validates every training file once
-                g = f.geometry
-                lo = np.minimum(lo, [-g.radius, -g.radius, g.sink_z])
-                hi = np.maximum(hi, [g.radius, g.radius, g.wall_height])
+                box_lo, box_hi = f.geometry.box()
+                lo, hi = np.minimum(lo, box_lo), np.maximum(hi, box_hi)
                 duration = max(duration, float(f.times[-1]))
         if self.window > duration:
             raise ConfigError(f"config value data.reference.window={self.window} is invalid: longer than the "

@@ -104,6 +104,11 @@ class HopperGeometry:
         return cls(radius=R, outlet_radius=ro, cone_height=hc, wall_height=hc + h_fill + 2.5 * d,
                    sink_z=-scene.sink_depth)
 
+    def box(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) corners of the box the particles live in: the cylinder's square, sink plane to wall top."""
+        return (np.array([-self.radius, -self.radius, self.sink_z]),
+                np.array([self.radius, self.radius, self.wall_height]))
+
     def write_meshes(self, folder: Path, n_segments: int) -> None:
         edge = 2 * math.pi * self.radius / n_segments
         profile = polyline((self.outlet_radius, 0.0), (self.radius, self.cone_height), edge)
