@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from neuraldem.bench import hopper_stability
+from neuraldem.bench.__main__ import main as bench_main
 from neuraldem.bench.gns_points import exit_times, gns_point
 from neuraldem.data.gns_datamodule import ParticleRun
 from neuraldem.data.manifest import require_dataset
@@ -72,10 +74,17 @@ def test_the_trained_model_gives_a_point(hopper_gns, hopper_tiny_dataset):
         assert s["steps_done"] == s["steps"]
 
 
-def test_a_bed_gns_is_refused(fb_tiny_dataset, tmp_path):
+def test_a_bed_gns_is_refused(fb_tiny_dataset, evaluated_runs, tiny_checkpoint, tmp_path, capsys):
     ckpt = train_tiny_gns(fb_tiny_dataset, "fb_tiny", tmp_path / "fb.ckpt")
     with pytest.raises(ConfigError, match="gns_hopper"):
         gns_point(ckpt, n_sims=1)
+    # the benchmarks refuse it before measuring anything
+    with pytest.raises(ConfigError, match="gns_hopper"):
+        hopper_stability.run([tiny_checkpoint], [ckpt])
+    out = tmp_path / "sa.json"
+    assert bench_main(["speed_accuracy", "--runs", str(evaluated_runs / "tiny"), "--skip-solver", "--gns-ckpt",
+                       str(ckpt), "--out", str(out)]) == 2
+    assert "gns_hopper" in capsys.readouterr().err and not out.exists()
 
 
 def test_exit_times_are_the_first_missing_snapshot():

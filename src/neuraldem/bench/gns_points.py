@@ -32,7 +32,7 @@ from neuraldem.data.gns_datamodule import ParticleRun
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.datagen.hopper import MetricSettings, trajectory_metrics
 from neuraldem.errors import ConfigError, DataError
-from neuraldem.eval.checkpoints import checkpoint_dataset
+from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, require_kind
 from neuraldem.eval.gns_rollout import (
     Accelerator,
     GnsRollout,
@@ -68,14 +68,20 @@ def rollout_metrics(r: GnsRollout, stored: HopperTrajectory, diameter: float,
     return trajectory_metrics(traj, diameter, settings)
 
 
+def require_hopper_gns(ckpt: Path, meta: dict[str, Any] | None = None) -> None:
+    """Refuse a checkpoint that is not a GNS of the hopper, with a message (from its metadata alone, so a
+    benchmark can check before it measures anything)."""
+    meta = checkpoint_metadata(Path(ckpt)) if meta is None else meta
+    require_kind(meta, "gns", Path(ckpt), "--gns-ckpt")
+    if meta["scene_kind"] != "hopper":
+        raise ConfigError(f"--gns-ckpt {ckpt} is a GNS of the {meta['scene_kind']} scene: the hopper benchmarks need "
+                          "one trained with experiment=gns_hopper")
+
+
 def load_hopper_gns(ckpt: Path) -> GnsModule:
-    """A GNS checkpoint of the hopper; one of the bed (or not a GNS) is refused with a message."""
-    module = load_gns_checkpoint(Path(ckpt))
-    kind = module.metadata["scene_kind"]
-    if kind != "hopper":
-        raise ConfigError(f"--gns-ckpt {ckpt} is a GNS of the {kind} scene: the hopper benchmarks need one trained "
-                          "with experiment=gns_hopper")
-    return module
+    """A GNS checkpoint of the hopper (`require_hopper_gns`)."""
+    require_hopper_gns(ckpt)
+    return load_gns_checkpoint(Path(ckpt))
 
 
 def first_overlap_step(r: GnsRollout) -> int | None:

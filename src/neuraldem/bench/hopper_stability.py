@@ -33,7 +33,7 @@ import numpy as np
 
 from neuraldem.bench import plots
 from neuraldem.bench.fb_stability import default_labels
-from neuraldem.bench.gns_points import load_hopper_gns
+from neuraldem.bench.gns_points import load_hopper_gns, require_hopper_gns
 from neuraldem.bench.hopper_surrogate import Question, answer, full_question, load_surrogate, surrogate_dataset
 from neuraldem.bench.report import command_line, machine_info, resolve_out, write_results
 from neuraldem.config import checks
@@ -172,6 +172,8 @@ def run(ckpts: list[Path], gns_ckpts: list[Path] | None = None, labels: list[str
     checks.number("--limit-pct", limit_pct, lo=0.0, lo_open=True)
     if gns_steps is not None:
         checks.positive_int("--gns-steps", gns_steps)
+    for c in gns_ckpts:  # before the field series spend minutes
+        require_hopper_gns(c)
     mu_s = sorted(float(v) for v in (mu_s or DEFAULT_MU_S))
     for i, v in enumerate(mu_s):
         checks.number(f"--mu-s[{i}]", v, lo=0.0)

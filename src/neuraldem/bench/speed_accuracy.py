@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from neuraldem.bench import plots
-from neuraldem.bench.gns_points import gns_point
+from neuraldem.bench.gns_points import gns_point, require_hopper_gns
 from neuraldem.bench.hopper_runs import HOPPER_ERRORS, EvaluatedRun, collect_runs, time_to_answer
 from neuraldem.bench.hopper_solver import dataset_scene, default_workdir, split_records
 from neuraldem.bench.pareto import pareto_front
@@ -166,10 +166,9 @@ def main(argv: list[str]) -> int:
         for v in variants:
             v.apply(base)
         find_liggghts()
-    checks.positive_int("gns_sims", a.gns_sims)
+    checks.positive_int("--gns-sims", a.gns_sims)
     for ckpt in a.gns_ckpt:
-        if not Path(ckpt).is_file():
-            raise DataError(f"--gns-ckpt {ckpt}: no such checkpoint file")
+        require_hopper_gns(ckpt)
     machine = machine_info()
     warning = warn_if_busy(machine)
     points = surrogate_points(runs, a.repeats, a.threads, a.dataset)
