@@ -70,6 +70,11 @@ def evaluate_refill(cfg: DictConfig) -> None:
           f"error {agg['layer_fraction_error']:.3f}, label agreement {agg['label_agreement']:.2f}, transport MSE "
           f"{agg['transport_mse']:.2e}, residence MSE {agg['residence_mse']:.2e}; outlet residence-time "
           f"distribution: Wasserstein {agg['rtd_wasserstein_s']:.3f} s, median error {agg['rtd_median_error_s']:+.3f} s")
+    base = result["persistence"]
+    print(f"persistence (nothing moved since t_ref), same scoring: layer-fraction error "
+          f"{base['layer_fraction_error']:.3f}, label agreement {base['label_agreement']:.2f}, transport MSE "
+          f"{base['transport_mse']:.2e}, residence MSE {base['residence_mse']:.2e}, RTD Wasserstein "
+          f"{base['rtd_wasserstein_s']:.3f} s")
     print(f"results in {cfg.paths.output_dir}")
 
 

@@ -13,7 +13,7 @@ from neuraldem.data.manifest import Manifest
 from neuraldem.data.refill_store import RefillFile
 from neuraldem.data.refill_targets import aggregated_residence, reset_times
 from neuraldem.errors import DataError
-from neuraldem.eval.refill_eval import dem_query, evaluate_refill_checkpoint
+from neuraldem.eval.refill_eval import PersistenceRefillQuery, dem_query, evaluate_refill_checkpoint
 
 pytestmark = pytest.mark.solver
 
@@ -33,6 +33,33 @@ def test_aggregation_across_resets_equals_direct_residence_on_liggghts_data(hopp
             direct = t - f.insert_times[rows]
             assert (direct > 0.2).sum() > 20  # material older than two windows is in the hopper
             np.testing.assert_allclose(agg, direct, atol=1e-6)
+
+
+def test_persistence_answer_is_exact_at_the_reference_time_and_not_later(hopper_refill_tiny_dataset: Path):
+    from neuraldem.data.normalization import HopperNormalizer
+    from neuraldem.data.refill_targets import reference_fields_at
+
+    m = Manifest.load(hopper_refill_tiny_dataset)
+    rec = m.usable()[0]
+    with RefillFile(hopper_refill_tiny_dataset / str(rec.file)) as f:
+        norm = HopperNormalizer(box_lo=[-1.0] * 3, box_hi=[1.0] * 3, horizon=0.25, scalar_lo={}, scalar_hi={})
+        still = PersistenceRefillQuery(f, norm, radius=0.006)
+        k_ref = 10
+        t_ref = float(f.times[k_ref])
+        rows_r, pos_r = f.frame(k_ref)
+        occ, transport, residence = still.fields(t_ref, t_ref, pos_r)
+        assert occ.min() == 1.0 and residence.max() == 0.0
+        truth = reference_fields_at(pos_r, t_ref, t_ref, rows_r, pos_r, rows_r, pos_r, f.insert_times, 0.006)
+        np.testing.assert_allclose(transport, truth.transport)
+        # later material has moved and new material has come in: the persistence answer is wrong
+        k = k_ref + 3  # 0.15 s: the tiny hopper turns its material over in ~0.3 s
+        rows_t, pos_t = f.frame(k)
+        later = reference_fields_at(pos_t, float(f.times[k]), t_ref, rows_t, pos_t, rows_r, pos_r, f.insert_times,
+                                    0.006)
+        _, transport, residence = still.fields(float(f.times[k]), t_ref, pos_t)
+        assert later.new.any() and np.any(residence[later.new] > later.residence[later.new])
+        old = later.occupied & ~later.new
+        assert np.median(np.linalg.norm(transport[old] - later.transport[old], axis=1)) > 0.001
 
 
 @pytest.fixture(scope="module")
@@ -66,6 +93,11 @@ def test_checkpoint_is_scored_with_metrics_and_figures(refill_checkpoint: Path, 
     sim = json.loads((out / "metrics.json").read_text())["simulations"][0]
     assert sim["rtd_median_particles_s"] > 0 and np.isfinite(sim["rtd_median_truth_s"])
     assert (out / "refill_transport.png").stat().st_size > 0 and (out / "refill_rtd.png").stat().st_size > 0
+    still = result["persistence"]  # scored the same way; material has moved and new material come in
+    assert still["n_sims"] == 1 and still["label_agreement"] < 1.0 and still["residence_mse"] > 0.0
+    with pytest.raises(DataError, match=r"refill.t_ref=1.9 s \+ horizon 0.25 s is past the end"):
+        evaluate_refill_checkpoint(refill_checkpoint, out, hopper_refill_tiny_dataset.parent,
+                                   dataset_dir=hopper_refill_tiny_dataset, t_ref=1.9)
     with pytest.raises(DataError, match=r"refill.horizon=1.0 must be in \(0, 0.25\] s"):
         evaluate_refill_checkpoint(refill_checkpoint, out, hopper_refill_tiny_dataset.parent,
                                    dataset_dir=hopper_refill_tiny_dataset, horizon=1.0)

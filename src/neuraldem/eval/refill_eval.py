@@ -8,7 +8,8 @@ Per held-out simulation:
    material at the outlet, aggregated across resets (`aggregated_residence`), pooled over the run: its
    distribution against the same computation on the DEM particles (and the particle RTD for reference).
 Both sides go through the same functions; the DEM side is a particle FieldQuery, the model side a
-`ModelRefillQuery`.
+`ModelRefillQuery`. A persistence answer (`PersistenceRefillQuery`: nothing moved since t_ref) is scored the
+same way, so the model's errors have a floor to be read against.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from neuraldem.data.hopper_fields import nearest_particle
 from neuraldem.data.manifest import SimRecord
 from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.data.refill_datamodule import reference_scalars
@@ -82,6 +84,33 @@ class ModelRefillQuery:
         occ, transport, residence = self.fields(t, float(self.resets[k]), points)
         off = occ < self.threshold
         residence = np.clip(residence, 0.0, t - float(self.resets[k]))
+        residence[off] = np.nan
+        transport[off] = np.nan
+        return residence, transport
+
+
+@dataclass
+class PersistenceRefillQuery:
+    """The answer that needs no model: the material found at t_ref has not moved since. Occupancy is the DEM
+    occupancy at t_ref, transport the query point itself, residence t - t_ref (no new material). It knows
+    only the state at the reference time, as the model does, and goes through the same scoring."""
+
+    file: RefillFile
+    norm: HopperNormalizer
+    radius: float
+    resets: np.ndarray = field(default_factory=lambda: np.zeros(1))
+    threshold: float = 0.5
+
+    def fields(self, t: float, t_ref: float, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        check_reference(t, t_ref)
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        _, pos_ref = self.file.frame(self.file.snapshot_index(t_ref))
+        occupied, _ = nearest_particle(points, pos_ref, self.radius)
+        return occupied.astype(np.float64), points.copy(), np.full(len(points), t - t_ref)
+
+    def __call__(self, k: int, t: float, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        occ, transport, residence = self.fields(t, float(self.resets[k]), points)
+        off = occ < self.threshold
         residence[off] = np.nan
         transport[off] = np.nan
         return residence, transport
@@ -230,20 +259,29 @@ def evaluate_refill_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, da
         raise DataError(f"refill.horizon={horizon} must be in (0, {window:g}] s, the window the model was trained on")
     hop = m.scene["hopper"]
     radius = float(meta["occupancy_radius_d"]) * float(hop["material"]["diameter"])
-    evals = []
+    evals, baselines = [], []
     for rec in records:
         with RefillFile(dataset_dir / str(rec.file)) as f:
             dt = float(f.times[1] - f.times[0])
             tr = t_ref if t_ref is not None else float(np.floor((f.times[-1] - horizon) / dt + 1e-9) * dt)
+            if tr + horizon > float(f.times[-1]) + 1e-6:
+                raise DataError(f"refill.t_ref={tr:g} s + horizon {horizon:g} s is past the end of {rec.sim_id} "
+                                f"({float(f.times[-1]):g} s): choose t_ref <= {float(f.times[-1]) - horizon:g} s")
             q = ModelRefillQuery(module.net, norm, list(meta["conditioning"]), rec, threshold=threshold, device=device)
             evals.append(evaluate_refill_sim(rec, f, q, radius, tr, horizon, window, time_stride=time_stride))
+            still = PersistenceRefillQuery(f, norm, radius, threshold=threshold)
+            baselines.append(evaluate_refill_sim(rec, f, still, radius, tr, horizon, window, time_stride=time_stride))
     agg = aggregate_refill(evals)
     out_dir.mkdir(parents=True, exist_ok=True)
     result = {"checkpoint": str(Path(ckpt).resolve()), "dataset": str(dataset_dir), "split": split, "part": part,
               "conditioning": meta["conditioning"], "window": window, "horizon": horizon, "aggregate": agg,
-              "simulations": [e.as_dict() for e in evals], "command": " ".join(sys.argv),
+              "persistence": aggregate_refill(baselines), "simulations": [e.as_dict() for e in evals],
+              "persistence_simulations": [e.as_dict() for e in baselines], "command": " ".join(sys.argv),
               "date_utc": datetime.now(UTC).isoformat(timespec="seconds")}
     atomic_write_json(out_dir / "metrics.json", result)
-    refill_plots.refill_transport_figure(evals[0], float(hop["material"]["diameter"]), out_dir / "refill_transport.png")
-    refill_plots.residence_distribution_figure(evals[0], out_dir / "refill_rtd.png")
+    for e in evals:  # one pair of figures per simulation, the first also under the plain names
+        suffix = "" if e is evals[0] else f"_{e.sim_id}"
+        refill_plots.refill_transport_figure(e, float(hop["material"]["diameter"]),
+                                             out_dir / f"refill_transport{suffix}.png")
+        refill_plots.residence_distribution_figure(e, out_dir / f"refill_rtd{suffix}.png")
     return result

@@ -1,0 +1,44 @@
+#!/usr/bin/env bash
+# The refilling-hopper study (issue 10, results/refill/README.md): experiment=hopper_refill trained at each size
+# of SIZES (default "hopper_tiny hopper_base"), all at once (one core each), each evaluated after training on
+# the held-out runs (transport 5 s after t_ref = the last full window, outlet residence over a reset rollout),
+# then once more from the opening (t_ref = 0, the transient the steady refill state does not show).
+#   bash scripts/refill_study.sh OUT_DIR [hydra overrides...]
+# Runs land in OUT_DIR/<size>/ (evaluation/ and evaluation_tref0/), logs beside them. A run whose folder holds
+# evaluation_tref0/metrics.json is skipped, so a killed study resumes. STEPS (default: the experiment's 2000)
+# sets the training steps. Needs the dataset: python -m neuraldem.datagen data=hopper_refill n_sims=16 workers=2
+set -uo pipefail
+PY=${PYTHON:-python}
+out=$1; shift
+SIZES=${SIZES:-"hopper_tiny hopper_base"}
+export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 OMP_WAIT_POLICY=PASSIVE WANDB_MODE=offline
+mkdir -p "$out"
+steps=()
+[ -n "${STEPS:-}" ] && steps=(trainer.max_steps="$STEPS")
+
+one() {  # size [overrides...]
+  local name=$1; shift
+  local run="$out/$name"
+  if [ -f "$run/evaluation_tref0/metrics.json" ]; then echo "skip $name (evaluated)"; return 0; fi
+  if [ ! -f "$run/evaluation/metrics.json" ]; then
+    rm -rf "$run"
+    echo "start $name"
+    "$PY" -m neuraldem.train experiment=hopper_refill model="$name" trainer=cpu logger=csv callbacks.progress=null \
+      "${steps[@]}" hydra.run.dir="$run" "$@" > "$out/$name.log" 2>&1 || { echo "$name failed: $out/$name.log"; return 1; }
+  fi
+  local ckpt data  # the checkpoint and dataset the first evaluation used
+  ckpt=$("$PY" -c "import json,sys; print(json.load(open(sys.argv[1]))['checkpoint'])" "$run/evaluation/metrics.json")
+  data=$("$PY" -c "import json,sys; print(json.load(open(sys.argv[1]))['dataset'])" "$run/evaluation/metrics.json")
+  "$PY" -m neuraldem.evaluate ckpt="$ckpt" dataset_dir="$data" refill.t_ref=0 hydra.run.dir="$run/evaluation_tref0" \
+    >> "$out/$name.log" 2>&1 || { echo "$name t_ref=0 evaluation failed: $out/$name.log"; return 1; }
+  echo "done $name"
+}
+
+pids=()
+for name in $SIZES; do
+  one "$name" "$@" &
+  pids+=($!)
+done
+rc=0
+for p in "${pids[@]}"; do wait "$p" || rc=1; done
+exit $rc
