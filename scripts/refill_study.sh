@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# The refilling-hopper study (issue 10, results/refill/README.md): experiment=hopper_refill trained at each size
-# of SIZES (default "hopper_tiny hopper_base"), all at once (one core each), each evaluated after training on
+# The refilling-hopper study (issue 10, results/refill/README.md): experiment=hopper_refill trained for each
+# variant of SIZES (default "hopper_tiny hopper_base"; hopper_tiny_tref = tiny also conditioned on t_ref, the
+# conditioning ablation), all at once (one core each), each evaluated after training on
 # the held-out runs (transport 5 s after t_ref = the last full window, outlet residence over a reset rollout),
 # then once more from the opening (t_ref = 0, the transient the steady refill state does not show).
 #   bash scripts/refill_study.sh OUT_DIR [hydra overrides...]
@@ -16,14 +17,26 @@ mkdir -p "$out"
 steps=()
 [ -n "${STEPS:-}" ] && steps=(trainer.max_steps="$STEPS")
 
-one() {  # size [overrides...]
+variant() {  # the overrides of a variant name
+  case $1 in
+    hopper_tiny|hopper_base|hopper_small) echo "model=$1" ;;
+    hopper_tiny_tref) echo "model=hopper_tiny data.conditioning=[dt_ref,t_ref,alpha,mu_s,mu_r]" ;;
+    *) echo "refill_study: unknown variant $1 (SIZES takes hopper_tiny hopper_base hopper_small hopper_tiny_tref)" >&2
+       return 1 ;;
+  esac
+}
+
+one() {  # variant [overrides...]
   local name=$1; shift
+  local ov
+  ov=$(variant "$name") || return 1
   local run="$out/$name"
   if [ -f "$run/evaluation_tref0/metrics.json" ]; then echo "skip $name (evaluated)"; return 0; fi
   if [ ! -f "$run/evaluation/metrics.json" ]; then
     rm -rf "$run"
     echo "start $name"
-    "$PY" -m neuraldem.train experiment=hopper_refill model="$name" trainer=cpu logger=csv callbacks.progress=null \
+    # shellcheck disable=SC2086  # the variant's overrides are separate words
+    "$PY" -m neuraldem.train experiment=hopper_refill $ov trainer=cpu logger=csv callbacks.progress=null \
       "${steps[@]}" hydra.run.dir="$run" "$@" > "$out/$name.log" 2>&1 || { echo "$name failed: $out/$name.log"; return 1; }
   fi
   local ckpt data  # the checkpoint and dataset the first evaluation used
