@@ -1,0 +1,94 @@
+"""`python -m neuraldem.eval.collect_refill_table STUDY_DIR... --out FILE.md`: the refilling hopper's errors
+against LIGGGHTS, model beside the persistence answer, one row per (run, evaluation).
+
+Finds every `evaluation*/metrics.json` of a refill checkpoint under the folders (`scripts/refill_study.sh`
+writes `evaluation/`, `evaluation_h1/` and `evaluation_tref0/` per run) and writes a markdown table plus a JSON
+file with the same numbers next to it. Errors are means over the held-out simulations: layer-fraction error
+(total variation, 0-1), label agreement (share of DEM-occupied points with the right layer / new label),
+transport RMS (position at t_ref, % of the scene box), residence RMS [s], and the outlet residence-time
+distribution (Wasserstein-1 distance and median error [s]).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from neuraldem.cli import report_user_errors
+from neuraldem.data.schema import atomic_write_json
+from neuraldem.errors import DataError
+
+HEADER = ("| run | conditioning | t_ref [s] | horizon [s] | layer-fraction error | label agreement | "
+          "transport RMS [% box] | residence RMS [s] | RTD Wasserstein [s] | RTD median error [s] |")
+
+
+def find_refill_results(folders: list[Path]) -> list[dict]:
+    found = []
+    for folder in folders:
+        for path in sorted(Path(folder).rglob("evaluation*/metrics.json")):
+            result = json.loads(path.read_text())
+            if "persistence" not in result or "horizon" not in result:
+                continue  # not a refill evaluation
+            result["path"] = str(path)
+            run = path.parent.parent
+            result["run"] = str(run.relative_to(folder)) if run != Path(folder) else run.name
+            found.append(result)
+    if not found:
+        raise DataError(f"no refill evaluation*/metrics.json under {[str(f) for f in folders]}: run "
+                        "scripts/refill_study.sh, or python -m neuraldem.evaluate on a refill checkpoint")
+    return found
+
+
+def reference_times(result: dict) -> str:
+    t = sorted({round(float(s["t_ref"]), 3) for s in result["simulations"]})
+    return "/".join(f"{v:g}" for v in t)
+
+
+def cells(agg: dict, window: float) -> list[str]:
+    """The error columns of one aggregate (normalised MSEs turned back into RMS values)."""
+    tr = 100.0 * np.sqrt(agg["transport_mse"])
+    res = window * np.sqrt(agg["residence_mse"])
+    return [f"{agg['layer_fraction_error']:.3f}", f"{agg['label_agreement']:.2f}", f"{tr:.1f}", f"{res:.2f}",
+            f"{agg['rtd_wasserstein_s']:.2f}", f"{agg['rtd_median_error_s']:+.2f}"]
+
+
+def render(results: list[dict]) -> str:
+    rows = sorted(results, key=lambda r: (r["run"], r["horizon"], reference_times(r)))
+    n = sorted({r["aggregate"]["n_sims"] for r in rows})
+    lines = [f"{'/'.join(map(str, n))} held-out simulations each; model / persistence (nothing moved since t_ref)",
+             "", HEADER, "|" + "---|" * 10]
+    for r in rows:
+        model, still = cells(r["aggregate"], r["window"]), cells(r["persistence"], r["window"])
+        pairs = [f"{a} / {b}" for a, b in zip(model, still)]
+        lines.append(f"| {r['run']} | {', '.join(r['conditioning'])} | {reference_times(r)} | {r['horizon']:g} | "
+                     + " | ".join(pairs) + " |")
+    lines.append("")
+    return "\n".join(lines)
+
+
+@report_user_errors
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m neuraldem.eval.collect_refill_table", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("folders", type=Path, nargs="+")
+    p.add_argument("--out", type=Path, required=True,
+                   help="markdown file (a .json with the same numbers is written beside it)")
+    a = p.parse_args(argv)
+    results = find_refill_results(a.folders)
+    text = render(results)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(text)
+    atomic_write_json(a.out.with_suffix(".json"), [
+        {k: r.get(k) for k in ("run", "conditioning", "window", "horizon", "aggregate", "persistence", "checkpoint",
+                               "dataset", "command", "date_utc", "path")} | {"t_ref": reference_times(r)}
+        for r in results])
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
