@@ -93,6 +93,11 @@ def test_checkpoint_is_scored_with_metrics_and_figures(refill_checkpoint: Path, 
     sim = json.loads((out / "metrics.json").read_text())["simulations"][0]
     assert sim["rtd_median_particles_s"] > 0 and np.isfinite(sim["rtd_median_truth_s"])
     assert (out / "refill_transport.png").stat().st_size > 0 and (out / "refill_rtd.png").stat().st_size > 0
+    import meshio
+
+    later = meshio.read(out / "vtk" / f"{sim['sim_id']}_refill_transport_0001.vtu")
+    assert set(later.point_data) == {"label_dem", "label_model"} and len(later.points) > 0
+    assert "timestep" in (out / "vtk" / f"{sim['sim_id']}_refill_transport.pvd").read_text()
     still = result["persistence"]  # scored the same way; material has moved and new material come in
     assert still["n_sims"] == 1 and still["label_agreement"] < 1.0 and still["residence_mse"] > 0.0
     with pytest.raises(DataError, match=r"refill.t_ref=1.9 s \+ horizon 0.25 s is past the end"):

@@ -230,6 +230,20 @@ def aggregate_refill(evals: list[RefillSimEvaluation]) -> dict[str, float]:
             "rtd_median_error_s": mean("rtd_median_error_s")}
 
 
+def write_refill_vtk(e: RefillSimEvaluation, folder: Path) -> Path:
+    """ParaView series of one simulation: the DEM particles at t_ref (reference layer), then at t_ref + horizon
+    with the DEM and the model's label (layer index, -1 new material, -2 predicted empty)."""
+    from neuraldem.eval.vtk_export import write_point_series
+
+    d = e.figure_data
+    ref = {"label_dem": d["labels_ref"], "label_model": d["labels_ref"]}
+    later = {"label_dem": d["labels_truth"], "label_model": d["labels_predicted"]}
+    return write_point_series(folder, f"{e.sim_id}_refill_transport", np.array([e.t_ref, e.t_ref + e.horizon]),
+                              [d["points_ref"], d["points_t"]],
+                              [{k: v.astype(np.int32) for k, v in ref.items()},
+                               {k: v.astype(np.int32) for k, v in later.items()}])
+
+
 def load_refill_checkpoint(path: Path, device: str = "cpu") -> Any:
     from neuraldem.lit.hopper_module import HopperModule
 
@@ -240,8 +254,9 @@ def load_refill_checkpoint(path: Path, device: str = "cpu") -> Any:
 def evaluate_refill_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_dir: Path | None = None,
                                split: str | None = None, part: str = "test", max_sims: int | None = None,
                                t_ref: float | None = None, horizon: float | None = None, threshold: float = 0.5,
-                               time_stride: int = 1, device: str = "cpu") -> dict[str, Any]:
-    """Score a refill checkpoint on one split part; writes metrics.json and the figures into out_dir.
+                               time_stride: int = 1, device: str = "cpu", vtk: bool = True) -> dict[str, Any]:
+    """Score a refill checkpoint on one split part; writes metrics.json, the figures and (vtk) the first
+    simulation's labelled particles for ParaView into out_dir.
     Defaults: horizon = the model's window, t_ref = the last snapshot time that leaves `horizon` to the end."""
     from neuraldem.eval import refill_plots
 
@@ -284,4 +299,6 @@ def evaluate_refill_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, da
         refill_plots.refill_transport_figure(e, float(hop["material"]["diameter"]),
                                              out_dir / f"refill_transport{suffix}.png")
         refill_plots.residence_distribution_figure(e, out_dir / f"refill_rtd{suffix}.png")
+    if vtk:
+        write_refill_vtk(evals[0], out_dir / "vtk")
     return result
