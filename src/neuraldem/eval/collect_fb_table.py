@@ -8,16 +8,14 @@ numbers next to the markdown.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from neuraldem.cli import report_user_errors
-from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
-from neuraldem.eval.run_results import find_results
+from neuraldem.eval.run_results import find_results, table_main
 
 
 def run_name(result: dict) -> str:
@@ -72,27 +70,22 @@ def render(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def fb_results(folders: list[Path]) -> list[dict]:
+    results = [r for r in find_results(folders) if "trained_velocity_range" in r]
+    if not results:
+        raise DataError(f"no fluidized-bed evaluation under {[str(f) for f in folders]} (only other kinds): "
+                        "train with experiment=fb (evaluate=true) or run python -m neuraldem.evaluate ckpt=...")
+    return results
+
+
+def summary(r: dict) -> dict:
+    return {"run": run_name(r), **{k: r.get(k) for k in ("training", "aggregate", "trajectories", "checkpoint",
+                                                          "dataset", "machine", "command", "date_utc", "path")}}
+
+
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m neuraldem.eval.collect_fb_table", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("folders", type=Path, nargs="+")
-    p.add_argument("--out", type=Path, required=True,
-                   help="markdown file (a .json with the same numbers is written beside it)")
-    a = p.parse_args(argv)
-    results = [r for r in find_results(a.folders) if "trained_velocity_range" in r]
-    if not results:
-        raise DataError(f"no fluidized-bed evaluation under {[str(f) for f in a.folders]} (only other kinds): "
-                        "train with experiment=fb (evaluate=true) or run python -m neuraldem.evaluate ckpt=...")
-    text = render(results)
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(text)
-    atomic_write_json(a.out.with_suffix(".json"), [
-        {"run": run_name(r), **{k: r.get(k) for k in ("training", "aggregate", "trajectories", "checkpoint",
-                                                       "dataset", "machine", "command", "date_utc", "path")}}
-        for r in results])
-    print(text)
-    return 0
+    return table_main(argv, "neuraldem.eval.collect_fb_table", __doc__, fb_results, render, summary)
 
 
 if __name__ == "__main__":

@@ -7,14 +7,12 @@ split with one row per conditioning, plus a JSON file with the same numbers next
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 from neuraldem.cli import report_user_errors
-from neuraldem.data.schema import atomic_write_json
 from neuraldem.eval.hopper_report import TABLE_HEADER
-from neuraldem.eval.run_results import find_results
+from neuraldem.eval.run_results import find_results, table_main
 
 ROW_ORDER = (["t", "alpha", "mu_s", "mu_r"], ["t", "alpha", "theta"], ["t", "alpha", "repose"],
              ["t", "alpha", "theta", "repose"], ["t", "alpha", "mu_s", "mu_r", "theta", "repose"])
@@ -43,23 +41,14 @@ def render(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def summary(r: dict) -> dict:
+    return {k: r[k] for k in ("split", "conditioning", "aggregate", "checkpoint", "dataset", "machine", "command",
+                              "date_utc", "path")}
+
+
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m neuraldem.eval.collect_hopper_table", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("folders", type=Path, nargs="+")
-    p.add_argument("--out", type=Path, required=True,
-                   help="markdown file (a .json with the same numbers is written beside it)")
-    a = p.parse_args(argv)
-    results = find_results(a.folders)
-    text = render(results)
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(text)
-    atomic_write_json(a.out.with_suffix(".json"), [
-        {k: r[k] for k in ("split", "conditioning", "aggregate", "checkpoint", "dataset", "machine", "command",
-                           "date_utc", "path")} for r in results])
-    print(text)
-    return 0
+    return table_main(argv, "neuraldem.eval.collect_hopper_table", __doc__, find_results, render, summary)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,6 @@ distribution (Wasserstein-1 distance and median error [s]).
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -19,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from neuraldem.cli import report_user_errors
-from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
+from neuraldem.eval.run_results import table_main
 
 HEADER = ("| run | conditioning | t_ref [s] | horizon [s] | layer-fraction error | label agreement | "
           "transport RMS [% box] | residence RMS [s] | RTD Wasserstein [s] | RTD median error [s] |")
@@ -70,24 +69,14 @@ def render(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def summary(r: dict) -> dict:
+    return {k: r.get(k) for k in ("run", "conditioning", "window", "horizon", "aggregate", "persistence",
+                                  "checkpoint", "dataset", "command", "date_utc", "path")} | {"t_ref": reference_times(r)}
+
+
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m neuraldem.eval.collect_refill_table", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("folders", type=Path, nargs="+")
-    p.add_argument("--out", type=Path, required=True,
-                   help="markdown file (a .json with the same numbers is written beside it)")
-    a = p.parse_args(argv)
-    results = find_refill_results(a.folders)
-    text = render(results)
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(text)
-    atomic_write_json(a.out.with_suffix(".json"), [
-        {k: r.get(k) for k in ("run", "conditioning", "window", "horizon", "aggregate", "persistence", "checkpoint",
-                               "dataset", "command", "date_utc", "path")} | {"t_ref": reference_times(r)}
-        for r in results])
-    print(text)
-    return 0
+    return table_main(argv, "neuraldem.eval.collect_refill_table", __doc__, find_refill_results, render, summary)
 
 
 if __name__ == "__main__":

@@ -3,10 +3,13 @@ evaluate=true writes), for the tables that compare runs."""
 
 from __future__ import annotations
 
+import argparse
 import json
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 
+from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 
 
@@ -31,3 +34,22 @@ def find_results(folders: list[Path]) -> list[dict]:
         raise DataError(f"no evaluation/metrics.json under {[str(f) for f in folders]}: train with "
                         "evaluate=true (the hopper and fb experiments do) or run python -m neuraldem.evaluate")
     return found
+
+
+def table_main(argv: list[str] | None, prog: str, doc: str | None, collect: Callable[[list[Path]], list[dict]],
+               render: Callable[[list[dict]], str], summary: Callable[[dict], dict]) -> int:
+    """The command line of the collectors: `prog FOLDER... --out FILE.md` writes render(results) to FILE.md and
+    summary(result) of every result to FILE.json beside it, and prints the table."""
+    p = argparse.ArgumentParser(prog=f"python -m {prog}", description=doc,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("folders", type=Path, nargs="+")
+    p.add_argument("--out", type=Path, required=True,
+                   help="markdown file (a .json with the same numbers is written beside it)")
+    a = p.parse_args(argv)
+    results = collect(a.folders)
+    text = render(results)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(text)
+    atomic_write_json(a.out.with_suffix(".json"), [summary(r) for r in results])
+    print(text)
+    return 0
