@@ -65,23 +65,27 @@ def hopper_tiny_dataset(data_root: Path) -> Path:
     return pipe.dataset_dir
 
 
+def train_briefly(module, dm, path: Path) -> Path:
+    """Train `module` for 3 steps (no validation) and save it to `path`: a checkpoint for plumbing tests."""
+    import lightning as L
+
+    trainer = L.Trainer(max_steps=3, accelerator="cpu", logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0)
+    trainer.fit(module, datamodule=dm)
+    trainer.save_checkpoint(path)
+    return path
+
+
 @pytest.fixture(scope="session")
 def tiny_checkpoint(hopper_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A HopperModule trained for 3 steps on the tiny dataset (for evaluation plumbing, not accuracy)."""
-    import lightning as L
-
     from neuraldem.data.hopper_datamodule import HopperDataModule
     from neuraldem.lit.hopper_module import HopperModule
     from neuraldem.models.registry import net_config
 
     dm = HopperDataModule(str(hopper_tiny_dataset), "hopper_tiny", ["t", "alpha", "mu_s", "mu_r"], n_queries=32)
-    module = HopperModule(net_config("hopper_tiny"), datamodule=dm)
-    trainer = L.Trainer(max_steps=3, accelerator="cpu", logger=False, enable_checkpointing=False,
-                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0)
-    trainer.fit(module, datamodule=dm)
-    path = tmp_path_factory.mktemp("ckpt") / "tiny.ckpt"
-    trainer.save_checkpoint(path)
-    return path
+    return train_briefly(HopperModule(net_config("hopper_tiny"), datamodule=dm), dm,
+                         tmp_path_factory.mktemp("ckpt") / "tiny.ckpt")
 
 
 @pytest.fixture(scope="session")
@@ -101,21 +105,14 @@ def fb_tiny_case(fb_tiny_dataset: Path) -> Path:
 @pytest.fixture(scope="session")
 def fb_tiny_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A FluidizedBedModule trained for 3 steps on fb_tiny (for rollout/evaluation plumbing, not accuracy)."""
-    import lightning as L
-
     from neuraldem.data.fb_datamodule import FluidizedBedDataModule
     from neuraldem.lit.fb_module import FluidizedBedModule
     from neuraldem.models.registry import net_config
 
     torch.manual_seed(0)
     dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2)
-    module = FluidizedBedModule(net_config("fb_tiny"), datamodule=dm)
-    trainer = L.Trainer(max_steps=3, accelerator="cpu", logger=False, enable_checkpointing=False,
-                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0)
-    trainer.fit(module, datamodule=dm)
-    path = tmp_path_factory.mktemp("ckpt") / "fb_tiny.ckpt"
-    trainer.save_checkpoint(path)
-    return path
+    return train_briefly(FluidizedBedModule(net_config("fb_tiny"), datamodule=dm), dm,
+                         tmp_path_factory.mktemp("ckpt") / "fb_tiny.ckpt")
 
 
 @pytest.fixture(scope="session")
@@ -136,3 +133,16 @@ def hopper_refill_tiny_dataset(data_root: Path) -> Path:
     m = generate(pipe, DatagenOptions(n_sims=4, workers=1, progress=False))
     assert all(r.status == "ok" for r in m.simulations[:4]), [(r.sim_id, r.status, r.reason) for r in m.simulations]
     return pipe.dataset_dir
+
+
+@pytest.fixture(scope="session")
+def refill_tiny_checkpoint(hopper_refill_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A refill HopperModule trained for 3 steps on hopper_refill_tiny (window 0.25 s; plumbing, not accuracy)."""
+    from neuraldem.data.refill_datamodule import RefillDataModule
+    from neuraldem.lit.hopper_module import HopperModule
+    from neuraldem.models.registry import net_config
+
+    dm = RefillDataModule(str(hopper_refill_tiny_dataset), "hopper_refill_tiny", ["dt_ref", "alpha", "mu_s", "mu_r"],
+                          window=0.25, n_queries=32, batch_size=2)
+    return train_briefly(HopperModule(net_config("hopper_tiny"), datamodule=dm), dm,
+                         tmp_path_factory.mktemp("ckpt") / "refill.ckpt")

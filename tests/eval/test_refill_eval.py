@@ -62,29 +62,10 @@ def test_persistence_answer_is_exact_at_the_reference_time_and_not_later(hopper_
         assert np.median(np.linalg.norm(transport[old] - later.transport[old], axis=1)) > 0.001
 
 
-@pytest.fixture(scope="module")
-def refill_checkpoint(hopper_refill_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    import lightning as L
-
-    from neuraldem.data.refill_datamodule import RefillDataModule
-    from neuraldem.lit.hopper_module import HopperModule
-    from neuraldem.models.registry import net_config
-
-    dm = RefillDataModule(str(hopper_refill_tiny_dataset), "hopper_refill_tiny", ["dt_ref", "alpha", "mu_s", "mu_r"],
-                          window=0.25, n_queries=32, batch_size=2)
-    module = HopperModule(net_config("hopper_tiny"), datamodule=dm)
-    trainer = L.Trainer(max_steps=3, accelerator="cpu", logger=False, enable_checkpointing=False,
-                        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0)
-    trainer.fit(module, datamodule=dm)
-    path = tmp_path_factory.mktemp("ckpt") / "refill.ckpt"
-    trainer.save_checkpoint(path)
-    return path
-
-
-def test_checkpoint_is_scored_with_metrics_and_figures(refill_checkpoint: Path, hopper_refill_tiny_dataset: Path,
+def test_checkpoint_is_scored_with_metrics_and_figures(refill_tiny_checkpoint: Path, hopper_refill_tiny_dataset: Path,
                                                        tmp_path: Path):
     out = tmp_path / "eval"
-    result = evaluate_refill_checkpoint(refill_checkpoint, out, hopper_refill_tiny_dataset.parent,
+    result = evaluate_refill_checkpoint(refill_tiny_checkpoint, out, hopper_refill_tiny_dataset.parent,
                                         dataset_dir=hopper_refill_tiny_dataset, time_stride=4)
     agg = result["aggregate"]
     assert agg["n_sims"] == 1 and result["horizon"] == 0.25
@@ -101,8 +82,8 @@ def test_checkpoint_is_scored_with_metrics_and_figures(refill_checkpoint: Path, 
     still = result["persistence"]  # scored the same way; material has moved and new material come in
     assert still["n_sims"] == 1 and still["label_agreement"] < 1.0 and still["residence_mse"] > 0.0
     with pytest.raises(DataError, match=r"refill.t_ref=1.9 s \+ horizon 0.25 s is past the end"):
-        evaluate_refill_checkpoint(refill_checkpoint, out, hopper_refill_tiny_dataset.parent,
+        evaluate_refill_checkpoint(refill_tiny_checkpoint, out, hopper_refill_tiny_dataset.parent,
                                    dataset_dir=hopper_refill_tiny_dataset, t_ref=1.9)
     with pytest.raises(DataError, match=r"refill.horizon=1.0 must be in \(0, 0.25\] s"):
-        evaluate_refill_checkpoint(refill_checkpoint, out, hopper_refill_tiny_dataset.parent,
+        evaluate_refill_checkpoint(refill_tiny_checkpoint, out, hopper_refill_tiny_dataset.parent,
                                    dataset_dir=hopper_refill_tiny_dataset, horizon=1.0)

@@ -1,4 +1,4 @@
-"""The analysis notebook runs top to bottom on a real (tiny) checkpoint."""
+"""The analysis notebooks run top to bottom on real (tiny) checkpoints."""
 
 from __future__ import annotations
 
@@ -34,3 +34,15 @@ def test_fb_evaluation_notebook_runs(fb_tiny_checkpoint: Path, fb_tiny_dataset: 
     assert not model["conserve_solid_volume"] and projected["conserve_solid_volume"]
     assert abs(projected["trajectories"][0]["mass"]["max_drift_pct"]) < 1e-3  # float32 files
     assert (tmp_path / "model" / "metrics.json").is_file() and (tmp_path / "projected" / "report.md").is_file()
+
+
+def test_refill_evaluation_notebook_runs(refill_tiny_checkpoint: Path, hopper_refill_tiny_dataset: Path,
+                                         tmp_path: Path, monkeypatch):
+    matplotlib.use("Agg")
+    monkeypatch.setenv("NEURALDEM_DATA", str(hopper_refill_tiny_dataset.parent.parent))
+    monkeypatch.setenv("NEURALDEM_CKPT", str(refill_tiny_checkpoint))
+    monkeypatch.setenv("NEURALDEM_NOTEBOOK_OUT", str(tmp_path))
+    monkeypatch.setenv("NEURALDEM_NOTEBOOK_HORIZON", "0.1")
+    result = run_notebook("refill_evaluation.ipynb")["result"]
+    assert result["horizon"] == 0.1 and result["aggregate"]["n_sims"] == result["persistence"]["n_sims"] == 1
+    assert (tmp_path / "metrics.json").is_file() and (tmp_path / "refill_transport.png").is_file()
