@@ -73,6 +73,8 @@ def test_checkpoint_is_scored_with_metrics_and_figures(refill_tiny_checkpoint: P
     assert np.isfinite(agg["transport_mse"]) and np.isfinite(agg["residence_mse"])
     sim = json.loads((out / "metrics.json").read_text())["simulations"][0]
     assert sim["rtd_median_particles_s"] > 0 and np.isfinite(sim["rtd_median_truth_s"])
+    assert sim["rtd_answer_cpu_s"] > 0 and sim["solver_cpu_s"] == Manifest.load(hopper_refill_tiny_dataset).record(
+        sim["sim_id"]).cost["cpu_s"]
     assert (out / "refill_transport.png").stat().st_size > 0 and (out / "refill_rtd.png").stat().st_size > 0
     import meshio
 

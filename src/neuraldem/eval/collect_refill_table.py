@@ -6,7 +6,8 @@ writes `evaluation/`, `evaluation_h1/` and `evaluation_tref0/` per run) and writ
 file with the same numbers next to it. Errors are means over the held-out simulations: layer-fraction error
 (total variation, 0-1), label agreement (share of DEM-occupied points with the right layer / new label),
 transport RMS (position at t_ref, % of the scene box), residence RMS [s], and the outlet residence-time
-distribution (Wasserstein-1 distance and median error [s]).
+distribution (Wasserstein-1 distance and median error [s]); then what the model's outlet residence answer
+cost beside the LIGGGHTS run.
 """
 
 from __future__ import annotations
@@ -65,6 +66,14 @@ def render(results: list[dict]) -> str:
         pairs = [f"{a} / {b}" for a, b in zip(model, still)]
         lines.append(f"| {r['run']} | {', '.join(r['conditioning'])} | {reference_times(r)} | {r['horizon']:g} | "
                      + " | ".join(pairs) + " |")
+    lines += ["", "Cost of the outlet residence answer over a whole run (the reset rollout; one timing per run during the "
+              "evaluation, medians over the runs) against the LIGGGHTS run that gives it (manifest):", "",
+              "| run | horizon [s] | t_ref [s] | model [CPU s] | LIGGGHTS [CPU s] | ratio |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        a = r["aggregate"]
+        model, solver = a.get("rtd_answer_cpu_s", float("nan")), a.get("solver_cpu_s", float("nan"))
+        lines.append(f"| {r['run']} | {r['horizon']:g} | {reference_times(r)} | {model:.2f} | {solver:.0f} | "
+                     f"{solver / model:.0f}x |")
     lines.append("")
     return "\n".join(lines)
 

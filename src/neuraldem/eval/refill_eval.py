@@ -15,6 +15,7 @@ same way, so the model's errors have a floor to be read against.
 from __future__ import annotations
 
 import sys
+import time
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -159,6 +160,8 @@ class RefillSimEvaluation:
     rtd_truth: np.ndarray = field(repr=False)
     rtd_predicted: np.ndarray = field(repr=False)
     rtd_particles: np.ndarray = field(repr=False)
+    rtd_answer_cpu_s: float = float("nan")  # CPU time of the reset rollout of the queried side (one timing)
+    solver_cpu_s: float = float("nan")  # LIGGGHTS CPU time of the whole run (manifest)
     figure_data: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     def as_dict(self) -> dict[str, Any]:
@@ -167,7 +170,8 @@ class RefillSimEvaluation:
                 "layer_fractions_predicted": self.fractions_predicted.tolist(),
                 "layer_fraction_error": rm.fraction_error(self.fractions_truth, self.fractions_predicted),
                 "label_agreement": self.label_agreement, "transport_mse": self.transport_mse,
-                "residence_mse": self.residence_mse, **self.rtd,
+                "residence_mse": self.residence_mse, **self.rtd, "rtd_answer_cpu_s": self.rtd_answer_cpu_s,
+                "solver_cpu_s": self.solver_cpu_s,
                 "rtd_median_truth_s": float(np.median(self.rtd_truth)) if self.rtd_truth.size else float("nan"),
                 "rtd_median_particles_s": float(np.median(self.rtd_particles)) if self.rtd_particles.size
                 else float("nan")}
@@ -201,7 +205,9 @@ def evaluate_refill_sim(rec: SimRecord, f: RefillFile, model: ModelRefillQuery, 
     times = f.times[::time_stride]
     model.resets = resets
     agg_truth = rollout_outlet_residence(dem_query(f, resets, radius), resets, times, pts, new_tolerance)
+    started = time.process_time()
     agg_pred = rollout_outlet_residence(model, resets, times, pts, new_tolerance)
+    answer_cpu_s = time.process_time() - started
     inside = np.ones(len(pts), dtype=bool)
     rtd_t = rm.outlet_residence_samples(np.isfinite(agg_truth), agg_truth, inside)
     rtd_p = rm.outlet_residence_samples(np.isfinite(agg_pred), agg_pred, inside)
@@ -213,12 +219,18 @@ def evaluate_refill_sim(rec: SimRecord, f: RefillFile, model: ModelRefillQuery, 
         transport_mse=float(np.mean(d_tr**2)) if d_tr.size else float("nan"),
         residence_mse=float(np.mean(d_res**2)) if d_res.size else float("nan"),
         rtd=rm.rtd_scores(rtd_t, rtd_p), rtd_truth=rtd_t, rtd_predicted=rtd_p, rtd_particles=rtd_particles,
+        rtd_answer_cpu_s=answer_cpu_s, solver_cpu_s=float(rec.cost.get("cpu_s", float("nan"))),
         figure_data={"points_ref": pos_r, "labels_ref": rm.layer_labels(np.ones(len(pos_r), bool), pos_r[:, 2],
                                                                          np.zeros(len(pos_r), bool), edges),
                      "points_t": pos_t, "labels_truth": lab_t, "labels_predicted": lab_p})
 
 
 def aggregate_refill(evals: list[RefillSimEvaluation]) -> dict[str, float]:
+    def median(key: str) -> float:
+        vals = np.array([e.as_dict()[key] for e in evals], dtype=np.float64)
+        vals = vals[np.isfinite(vals)]
+        return float(np.median(vals)) if vals.size else float("nan")
+
     def mean(key: str) -> float:
         vals = np.array([e.as_dict()[key] for e in evals], dtype=np.float64)
         vals = vals[np.isfinite(vals)]
@@ -227,7 +239,8 @@ def aggregate_refill(evals: list[RefillSimEvaluation]) -> dict[str, float]:
     return {"n_sims": len(evals), "layer_fraction_error": mean("layer_fraction_error"),
             "label_agreement": mean("label_agreement"), "transport_mse": mean("transport_mse"),
             "residence_mse": mean("residence_mse"), "rtd_wasserstein_s": mean("rtd_wasserstein_s"),
-            "rtd_median_error_s": mean("rtd_median_error_s")}
+            "rtd_median_error_s": mean("rtd_median_error_s"), "rtd_answer_cpu_s": median("rtd_answer_cpu_s"),
+            "solver_cpu_s": median("solver_cpu_s")}
 
 
 def write_refill_vtk(e: RefillSimEvaluation, folder: Path) -> Path:
