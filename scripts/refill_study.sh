@@ -3,17 +3,17 @@
 # variant of SIZES (default "hopper_tiny hopper_base"; hopper_tiny_tref = tiny also conditioned on t_ref, the
 # conditioning ablation), all at once (one core each), each evaluated after training on
 # the held-out runs (transport 5 s after t_ref = the last full window, outlet residence over a reset rollout),
-# then 1 s after t_ref = T - 1 s (evaluation_h1) and from the opening (t_ref = 0, evaluation_tref0: the
-# transient the steady refill state does not show).
+# then SHORT seconds after t_ref = T - SHORT (evaluation_h1, evaluation_h2) and the first SHORT horizon from the
+# opening (t_ref = 0, evaluation_tref0: the transient the steady refill state does not show).
 #   bash scripts/refill_study.sh OUT_DIR [hydra overrides...]
-# Runs land in OUT_DIR/<size>/ (evaluation/, evaluation_h1/, evaluation_tref0/), logs beside them. A run whose folder holds
+# Runs land in OUT_DIR/<size>/ (evaluation/, evaluation_h<H>/, evaluation_tref0/), logs beside them. A run whose folder holds
 # evaluation_tref0/metrics.json is skipped, so a killed study resumes. STEPS (default: the experiment's 2000)
-# sets the training steps, SHORT (default 1) the short horizon. Needs the dataset: python -m neuraldem.datagen data=hopper_refill n_sims=16 workers=2
+# sets the training steps, SHORT (default "1 2") the short horizons. Needs the dataset: python -m neuraldem.datagen data=hopper_refill n_sims=16 workers=2
 set -uo pipefail
 PY=${PYTHON:-python}
 out=$1; shift
 SIZES=${SIZES:-"hopper_tiny hopper_base"}
-SHORT=${SHORT:-1}  # [s] the short horizon of evaluation_h1
+SHORT=${SHORT:-"1 2"}  # [s] the short horizons (evaluation_h<H>); the first one also from the opening
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 OMP_WAIT_POLICY=PASSIVE WANDB_MODE=offline
 mkdir -p "$out"
 steps=()
@@ -44,13 +44,18 @@ one() {  # variant [overrides...]
   local ckpt data  # the checkpoint and dataset the first evaluation used
   ckpt=$("$PY" -c "import json,sys; print(json.load(open(sys.argv[1]))['checkpoint'])" "$run/evaluation/metrics.json")
   data=$("$PY" -c "import json,sys; print(json.load(open(sys.argv[1]))['dataset'])" "$run/evaluation/metrics.json")
-  # 1 s after the last reference time: most material of the 5-s answer has left (median residence ~1.5 s)
-  if [ ! -f "$run/evaluation_h1/metrics.json" ]; then
-    "$PY" -m neuraldem.evaluate ckpt="$ckpt" dataset_dir="$data" refill.horizon="$SHORT" hydra.run.dir="$run/evaluation_h1" \
-      >> "$out/$name.log" 2>&1 || { echo "$name horizon=$SHORT evaluation failed: $out/$name.log"; return 1; }
-  fi
-  "$PY" -m neuraldem.evaluate ckpt="$ckpt" dataset_dir="$data" refill.t_ref=0 hydra.run.dir="$run/evaluation_tref0" \
-    >> "$out/$name.log" 2>&1 || { echo "$name t_ref=0 evaluation failed: $out/$name.log"; return 1; }
+  # shorter horizons after the last reference times: most material of the 5-s answer has been refilled since
+  # (median residence ~1.5 s), so the layers are read at SHORT seconds as well
+  local h first=""
+  for h in $SHORT; do
+    first=${first:-$h}
+    [ -f "$run/evaluation_h$h/metrics.json" ] && continue
+    "$PY" -m neuraldem.evaluate ckpt="$ckpt" dataset_dir="$data" refill.horizon="$h" hydra.run.dir="$run/evaluation_h$h" \
+      >> "$out/$name.log" 2>&1 || { echo "$name horizon=$h evaluation failed: $out/$name.log"; return 1; }
+  done
+  "$PY" -m neuraldem.evaluate ckpt="$ckpt" dataset_dir="$data" refill.t_ref=0 refill.horizon="$first" \
+    hydra.run.dir="$run/evaluation_tref0" >> "$out/$name.log" 2>&1 \
+    || { echo "$name t_ref=0 evaluation failed: $out/$name.log"; return 1; }
   echo "done $name"
 }
 
