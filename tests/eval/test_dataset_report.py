@@ -23,3 +23,13 @@ def test_report(hopper_tiny_dataset: Path, tmp_path: Path):
     assert summary["cpu_s_per_characterization"]["n"] == len(m.usable())
     assert (tmp_path / "metrics_over_parameters.png").stat().st_size > 10_000
     assert (tmp_path / "characterization.png").stat().st_size > 10_000
+
+
+def test_refill_report_has_the_refill_metrics(hopper_refill_tiny_dataset: Path, tmp_path: Path):
+    assert main([str(hopper_refill_tiny_dataset), "--out", str(tmp_path)]) == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    m = Manifest.load(hopper_refill_tiny_dataset)
+    medians = [r.metrics["exit_residence_median"] for r in m.usable()]
+    assert summary["metrics"]["exit_residence_median"]["max"] == max(medians)
+    assert "drainage_time" not in summary["metrics"] and summary["flow_regimes"] == {}  # a refill never drains
+    assert (tmp_path / "metrics_over_parameters.png").stat().st_size > 10_000

@@ -25,6 +25,13 @@ from neuraldem.machine import machine_info
 
 METRICS = {"drainage_time": "drainage time [s]", "residual_fraction": "residual fraction",
            "outflow_rate": "outflow rate [N0/s]", "mass_flow_index": "mass-flow index"}
+REFILL_METRICS = {"outflow_rate": "outflow rate [N0/s]", "exit_residence_median": "exit residence, median [s]",
+                  "exit_residence_p90": "exit residence, p90 [s]", "level_mean": "fill level [N/N0]"}
+
+
+def metric_names(m: Manifest) -> dict[str, str]:
+    """The ground-truth metrics of the dataset's kind (a refilling hopper never drains)."""
+    return REFILL_METRICS if m.kind == "hopper_refill" else METRICS
 
 
 def _stats(values: list[float]) -> dict[str, float]:
@@ -44,10 +51,10 @@ def summarise(m: Manifest) -> dict[str, Any]:
         "cpu_s_per_characterization": _stats([r.cost.get("characterization_cpu_s") for r in ok]),
         "particle_steps_per_cpu_s": _stats([r.cost["particle_steps"] / r.cost["cpu_s"] for r in ok
                                             if r.cost.get("cpu_s")]),
-        "metrics": {k: _stats([r.metrics.get(k) for r in ok]) for k in METRICS},
+        "metrics": {k: _stats([r.metrics.get(k) for r in ok]) for k in metric_names(m)},
         "macro": {k: _stats([r.macro.get(k) for r in ok]) for k in ("theta", "repose")},
-        "flow_regimes": dict(Counter("mass" if r.metrics.get("mass_flow_index", -1) > 0.5 else "funnel"
-                                     for r in ok)),
+        "flow_regimes": dict(Counter("mass" if r.metrics["mass_flow_index"] > 0.5 else "funnel"
+                                     for r in ok if "mass_flow_index" in r.metrics)),
         "not_ok": [{"sim_id": r.sim_id, "status": r.status, "params": r.params, "reason": r.reason}
                    for r in m.simulations if r.status not in ("ok", "pending")],
     }
@@ -60,8 +67,9 @@ def plot_parameter_space(m: Manifest, path: Path) -> None:
     theta = np.array([r.macro.get("theta", np.nan) for r in ok])
     mu_s = np.array([r.params["mu_s"] for r in ok])
     y, ylabel = (theta, "theta [deg]") if np.isfinite(theta).all() else (mu_s, "mu_s")
-    fig, axes = plt.subplots(1, len(METRICS), figsize=(4.2 * len(METRICS), 3.8), sharey=True)
-    for ax, (key, label) in zip(axes, METRICS.items()):
+    names = metric_names(m)
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.8), sharey=True)
+    for ax, (key, label) in zip(axes, names.items()):
         c = np.array([r.metrics.get(key, np.nan) for r in ok])
         sc = ax.scatter(alpha, y, c=c, s=22, cmap="viridis")
         fig.colorbar(sc, ax=ax)
