@@ -7,7 +7,8 @@
 # opening (t_ref = 0, evaluation_tref0: the transient the steady refill state does not show).
 #   bash scripts/refill_study.sh OUT_DIR [hydra overrides...]
 # Runs land in OUT_DIR/<size>/ (evaluation/, evaluation_h<H>/, evaluation_tref0/), logs beside them. A run whose folder holds
-# evaluation_tref0/metrics.json is skipped, so a killed study resumes. STEPS (default: the experiment's 2000)
+# evaluation_tref0/metrics.json is skipped, so a killed study resumes; REEVALUATE=1 scores trained runs afresh
+# (every evaluation, with the current evaluation code) without retraining. STEPS (default: the experiment's 2000)
 # sets the training steps, SHORT (default "1 2") the short horizons. Needs the dataset: python -m neuraldem.datagen data=hopper_refill n_sims=16 workers=2
 set -uo pipefail
 PY=${PYTHON:-python}
@@ -18,6 +19,16 @@ export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 OMP_WAIT_POLICY=PASSIVE WANDB_MODE=of
 mkdir -p "$out"
 steps=()
 [ -n "${STEPS:-}" ] && steps=(trainer.max_steps="$STEPS")
+
+field() {  # key run: a value of the run's first evaluation (the checkpoint it kept, the dataset)
+  "$PY" -c "import json,sys; print(json.load(open(sys.argv[1]))[sys.argv[2]])" "$2/evaluation/metrics.json" "$1"
+}
+
+evaluation() {  # run ckpt dataset out_dir [overrides...]: one neuraldem.evaluate of the run's test runs
+  local run=$1 ckpt=$2 data=$3 dir=$4; shift 4
+  "$PY" -m neuraldem.evaluate ckpt="$ckpt" dataset_dir="$data" hydra.run.dir="$dir" "$@" >> "$run.log" 2>&1 \
+    || { echo "$(basename "$run") evaluation $(basename "$dir") failed: $run.log"; return 1; }
+}
 
 variant() {  # the overrides of a variant name
   case $1 in
@@ -33,6 +44,10 @@ one() {  # variant [overrides...]
   local ov
   ov=$(variant "$name") || return 1
   local run="$out/$name"
+  if [ "${REEVALUATE:-0}" = 1 ] && [ -f "$run/evaluation/metrics.json" ]; then  # trained: score it afresh
+    rm -rf "$run"/evaluation_h* "$run/evaluation_tref0"
+    evaluation "$run" "$(field checkpoint "$run")" "$(field dataset "$run")" "$run/evaluation" || return 1
+  fi
   if [ -f "$run/evaluation_tref0/metrics.json" ]; then echo "skip $name (evaluated)"; return 0; fi
   if [ ! -f "$run/evaluation/metrics.json" ]; then
     rm -rf "$run"
@@ -41,21 +56,17 @@ one() {  # variant [overrides...]
     "$PY" -m neuraldem.train experiment=hopper_refill $ov trainer=cpu logger=csv callbacks.progress=null \
       "${steps[@]}" hydra.run.dir="$run" "$@" > "$out/$name.log" 2>&1 || { echo "$name failed: $out/$name.log"; return 1; }
   fi
-  local ckpt data  # the checkpoint and dataset the first evaluation used
-  ckpt=$("$PY" -c "import json,sys; print(json.load(open(sys.argv[1]))['checkpoint'])" "$run/evaluation/metrics.json")
-  data=$("$PY" -c "import json,sys; print(json.load(open(sys.argv[1]))['dataset'])" "$run/evaluation/metrics.json")
+  local ckpt data h first=""  # the checkpoint and dataset the first evaluation used
+  ckpt=$(field checkpoint "$run")
+  data=$(field dataset "$run")
   # shorter horizons after the last reference times: most material of the 5-s answer has been refilled since
   # (median residence ~1.5 s), so the layers are read at SHORT seconds as well
-  local h first=""
   for h in $SHORT; do
     first=${first:-$h}
     [ -f "$run/evaluation_h$h/metrics.json" ] && continue
-    "$PY" -m neuraldem.evaluate ckpt="$ckpt" dataset_dir="$data" refill.horizon="$h" hydra.run.dir="$run/evaluation_h$h" \
-      >> "$out/$name.log" 2>&1 || { echo "$name horizon=$h evaluation failed: $out/$name.log"; return 1; }
+    evaluation "$run" "$ckpt" "$data" "$run/evaluation_h$h" refill.horizon="$h" || return 1
   done
-  "$PY" -m neuraldem.evaluate ckpt="$ckpt" dataset_dir="$data" refill.t_ref=0 refill.horizon="$first" \
-    hydra.run.dir="$run/evaluation_tref0" >> "$out/$name.log" 2>&1 \
-    || { echo "$name t_ref=0 evaluation failed: $out/$name.log"; return 1; }
+  evaluation "$run" "$ckpt" "$data" "$run/evaluation_tref0" refill.t_ref=0 refill.horizon="$first" || return 1
   echo "done $name"
 }
 

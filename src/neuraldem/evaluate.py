@@ -64,7 +64,8 @@ def evaluate_refill(cfg: DictConfig) -> None:
         Path(cfg.ckpt), out_dir=Path(cfg.paths.output_dir), datasets_dir=Path(cfg.paths.datasets_dir),
         dataset_dir=cfg.dataset_dir, split=cfg.split, part=cfg.part, max_sims=cfg.max_sims, t_ref=t_ref,
         horizon=horizon, threshold=cfg.threshold, time_stride=checks.positive_int("refill.time_stride", r.time_stride),
-        device=resolve_device(cfg.device), vtk=checks.boolean("vtk", cfg.vtk))
+        device=resolve_device(cfg.device), vtk=checks.boolean("vtk", cfg.vtk),
+        new_tolerance=None if r.new_tolerance is None else checks.number("refill.new_tolerance", r.new_tolerance, lo=0.0))
     agg = result["aggregate"]
     print(f"{agg['n_sims']} {cfg.part} simulations, transport {result['horizon']:g} s after t_ref: layer-fraction "
           f"error {agg['layer_fraction_error']:.3f}, label agreement {agg['label_agreement']:.2f}, transport MSE "

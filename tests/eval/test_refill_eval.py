@@ -83,6 +83,10 @@ def test_checkpoint_is_scored_with_metrics_and_figures(refill_tiny_checkpoint: P
     assert "timestep" in (out / "vtk" / f"{sim['sim_id']}_refill_transport.pvd").read_text()
     still = result["persistence"]  # scored the same way; material has moved and new material come in
     assert still["n_sims"] == 1 and still["label_agreement"] < 1.0 and still["residence_mse"] > 0.0
+    assert result["new_tolerance_s"] == pytest.approx(0.02 * 0.25)  # MODEL_NEW_TOLERANCE of the window
+    with pytest.raises(DataError, match=r"refill.new_tolerance=2 \(of the 0.25-s window\) must be >= 0 and shorter"):
+        evaluate_refill_checkpoint(refill_tiny_checkpoint, out, hopper_refill_tiny_dataset.parent,
+                                   dataset_dir=hopper_refill_tiny_dataset, new_tolerance=2.0)
     with pytest.raises(DataError, match=r"refill.t_ref=1.9 s \+ horizon 0.25 s is past the end"):
         evaluate_refill_checkpoint(refill_tiny_checkpoint, out, hopper_refill_tiny_dataset.parent,
                                    dataset_dir=hopper_refill_tiny_dataset, t_ref=1.9)
