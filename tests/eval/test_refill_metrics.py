@@ -20,7 +20,11 @@ from neuraldem.eval.refill_metrics import (
 
 
 def test_layers_by_reference_height_and_new_material():
-    edges = reference_layer_edges(np.array([0.0, 0.4]), n_layers=4)  # layers 0.1 m thick
+    edges = reference_layer_edges(np.linspace(0.0, 0.4, 101), n_layers=4)  # evenly spread: layers 0.1 m thick
+    np.testing.assert_allclose(edges, [0.0, 0.1, 0.2, 0.3, 0.4])
+    # equal shares: two stragglers far above do not stretch the layers of a bed between 0 and 0.4 m
+    bed = np.concatenate([np.linspace(0.0, 0.4, 998), [2.0, 3.0]])
+    assert reference_layer_edges(bed, n_layers=4)[3] == pytest.approx(0.3, abs=0.002)
     occupied = np.array([True, True, True, True, False])
     transport_z = np.array([0.05, 0.15, 0.39, np.nan, np.nan])
     new = np.array([False, False, False, True, False])

@@ -2,8 +2,8 @@
 surrogate go through the same functions.
 
 - layer labels: occupied points labelled by the height their material had at the reference time t_ref
-  (`n_layers` bands between the lowest and highest reference height), material inserted after t_ref is a
-  class of its own ("new", gray in the figure).
+  (`n_layers` bands by height holding equal shares of the material at t_ref), material inserted after t_ref is
+  a class of its own ("new", gray in the figure).
 - layer fractions: share of the occupied points in each layer and in "new"; the error between two sets of
   fractions is their total-variation distance (0 = identical, 1 = disjoint).
 - residence-time distribution (RTD) of exiting material: the aggregated residence of the material found in
@@ -23,11 +23,14 @@ NEW, EMPTY = -1, -2  # labels of new material and of unoccupied points
 
 
 def reference_layer_edges(reference_z: np.ndarray, n_layers: int = 8) -> np.ndarray:
+    """Edges of `n_layers` layers that hold equal shares of the material at t_ref. Equal heights between the
+    lowest and highest particle would spend layers on the few refilled particles still falling at the top
+    and on the stream below the outlet."""
     z = np.asarray(reference_z, dtype=np.float64)
     z = z[np.isfinite(z)]
     if z.size == 0:
         raise DataError("no material with a reference height: cannot define layers")
-    return np.linspace(float(z.min()), float(z.max()), n_layers + 1)
+    return np.quantile(z, np.linspace(0.0, 1.0, n_layers + 1))
 
 
 def layer_labels(occupied: np.ndarray, transport_z: np.ndarray, new: np.ndarray, edges: np.ndarray) -> np.ndarray:
