@@ -31,8 +31,8 @@ def test_rows_give_rms_values_model_beside_persistence(tmp_path: Path):
     assert proc.returncode == 0, proc.stderr
     text = out.read_text()
     # transport: sqrt(0.0004) = 2 % of the box (persistence sqrt(0.01) = 10 %); residence 5 s x sqrt(0.01) = 0.5 s
-    assert "| hopper_tiny | dt_ref, alpha | 15 | 5 | 0.100 / 0.100 | 0.80 / 0.80 | 2.0 / 10.0 | 0.50 / 1.00 |" in text
-    assert "| hopper_tiny | dt_ref, alpha | 0 | 5 |" in text
+    assert "| hopper_tiny | test | dt_ref, alpha | 15 | 5 | 0.100 / 0.100 | 0.80 / 0.80 | 2.0 / 10.0 | 0.50 / 1.00 |" in text
+    assert "| hopper_tiny | test | dt_ref, alpha | 0 | 5 |" in text
     assert "| hopper_tiny | 5 | 15 | 2.00 | 600 | 300x |" in text
     assert len(json.loads(out.with_suffix(".json").read_text())) == 2
 
@@ -40,3 +40,14 @@ def test_rows_give_rms_values_model_beside_persistence(tmp_path: Path):
 def test_nothing_found_is_one_clear_line(tmp_path: Path):
     proc = run_module("neuraldem.eval.collect_refill_table", str(tmp_path), "--out", str(tmp_path / "t.md"))
     assert proc.returncode == 2 and "no refill evaluation" in proc.stderr
+
+
+def test_runs_of_one_name_in_two_folders_are_told_apart(tmp_path: Path):
+    _write(tmp_path / "study" / "hopper_tiny" / "evaluation", [15.0], 5.0)
+    _write(tmp_path / "study_seed1" / "hopper_tiny" / "evaluation", [15.0], 5.0)
+    out = tmp_path / "table.md"
+    proc = run_module("neuraldem.eval.collect_refill_table", str(tmp_path / "study"), str(tmp_path / "study_seed1"),
+                      "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    text = out.read_text()
+    assert "| study/hopper_tiny | test |" in text and "| study_seed1/hopper_tiny | test |" in text

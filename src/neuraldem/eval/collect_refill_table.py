@@ -20,14 +20,14 @@ import numpy as np
 
 from neuraldem.cli import report_user_errors
 from neuraldem.errors import DataError
-from neuraldem.eval.run_results import table_main
+from neuraldem.eval.run_results import disambiguate, table_main
 
-HEADER = ("| run | conditioning | t_ref [s] | horizon [s] | layer-fraction error | label agreement | "
+HEADER = ("| run | part | conditioning | t_ref [s] | horizon [s] | layer-fraction error | label agreement | "
           "transport RMS [% box] | residence RMS [s] | RTD Wasserstein [s] | RTD median error [s] |")
 
 
 def find_refill_results(folders: list[Path]) -> list[dict]:
-    found = []
+    found, roots = [], []
     for folder in folders:
         for path in sorted(Path(folder).rglob("evaluation*/metrics.json")):
             result = json.loads(path.read_text())
@@ -37,6 +37,8 @@ def find_refill_results(folders: list[Path]) -> list[dict]:
             run = path.parent.parent
             result["run"] = str(run.relative_to(folder)) if run != Path(folder) else run.name
             found.append(result)
+            roots.append(Path(folder))
+    disambiguate(found, roots)
     if not found:
         raise DataError(f"no refill evaluation*/metrics.json under {[str(f) for f in folders]}: run "
                         "scripts/refill_study.sh, or python -m neuraldem.evaluate on a refill checkpoint")
@@ -57,14 +59,14 @@ def cells(agg: dict, window: float) -> list[str]:
 
 
 def render(results: list[dict]) -> str:
-    rows = sorted(results, key=lambda r: (r["run"], r["horizon"], reference_times(r)))
+    rows = sorted(results, key=lambda r: (r["run"], r.get("part", "test"), r["horizon"], reference_times(r)))
     n = sorted({r["aggregate"]["n_sims"] for r in rows})
-    lines = [f"{'/'.join(map(str, n))} held-out simulations each; model / persistence (nothing moved since t_ref)",
-             "", HEADER, "|" + "---|" * 10]
+    lines = [f"{'/'.join(map(str, n))} held-out simulations per row; model / persistence (nothing moved since t_ref)",
+             "", HEADER, "|" + "---|" * 11]
     for r in rows:
         model, still = cells(r["aggregate"], r["window"]), cells(r["persistence"], r["window"])
         pairs = [f"{a} / {b}" for a, b in zip(model, still)]
-        lines.append(f"| {r['run']} | {', '.join(r['conditioning'])} | {reference_times(r)} | {r['horizon']:g} | "
+        lines.append(f"| {r['run']} | {r.get('part', 'test')} | {', '.join(r['conditioning'])} | {reference_times(r)} | {r['horizon']:g} | "
                      + " | ".join(pairs) + " |")
     lines += ["", "Cost of the outlet residence answer over a whole run (the reset rollout; one timing per run during the "
               "evaluation, medians over the runs) against the LIGGGHTS run that gives it (manifest):", "",

@@ -5,12 +5,21 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
+
+
+def disambiguate(found: list[dict], roots: list[Path]) -> None:
+    """Where two folders hold runs of one name (e.g. two seeds of one sweep), prefix each with its folder's name."""
+    folders: dict[str, set[Path]] = {}
+    for result, folder in zip(found, roots):
+        folders.setdefault(result["run"], set()).add(folder)
+    for result, folder in zip(found, roots):
+        if len(folders[result["run"]]) > 1:
+            result["run"] = f"{folder.resolve().name}/{result['run']}"
 
 
 def find_results(folders: list[Path]) -> list[dict]:
@@ -26,10 +35,7 @@ def find_results(folders: list[Path]) -> list[dict]:
                 else path.parent.parent.name
             found.append(result)
             roots.append(Path(folder))
-    counts = Counter(r["run"] for r in found)
-    for result, folder in zip(found, roots):
-        if counts[result["run"]] > 1:
-            result["run"] = f"{folder.resolve().name}/{result['run']}"
+    disambiguate(found, roots)
     if not found:
         raise DataError(f"no evaluation/metrics.json under {[str(f) for f in folders]}: train with "
                         "evaluate=true (the hopper and fb experiments do) or run python -m neuraldem.evaluate")
