@@ -9,7 +9,7 @@ from typing import Any
 
 import torch
 
-from neuraldem.data.manifest import Manifest, require_dataset
+from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
 from neuraldem.errors import DataError
 
 TRAIN_HINT = {"hopper": "experiment=hopper_micro", "fluidized_bed": "experiment=fb",
@@ -55,6 +55,15 @@ def checkpoint_dataset(meta: dict[str, Any], ckpt: Path, datasets_dir: Path,
     m = require_dataset(dataset_dir, meta["data_name"])
     check_scene(meta, m, Path(ckpt), dataset_dir)
     return dataset_dir, m
+
+
+def split_records(m: Manifest, dataset_dir: Path, split: str, part: str,
+                  max_sims: int | None = None) -> list[SimRecord]:
+    """The simulations of one part of a split (the first `max_sims`); refused when there are none."""
+    records = [m.record(i) for i in m.split_ids(split, part)][:max_sims]
+    if not records:
+        raise DataError(f"no {part} simulations in split {split!r} of {dataset_dir}")
+    return records
 
 
 def differing_keys(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> list[str]:

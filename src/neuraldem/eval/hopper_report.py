@@ -16,7 +16,7 @@ from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.eval import hopper_plots
-from neuraldem.eval.checkpoints import checkpoint_dataset
+from neuraldem.eval.checkpoints import checkpoint_dataset, split_records
 from neuraldem.eval.hopper_eval import SimEvaluation, aggregate, evaluate_sims
 from neuraldem.eval.hopper_metrics import layer_edges
 from neuraldem.eval.hopper_predict import DemPredictor, ModelPredictor, time_grid
@@ -73,9 +73,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     meta = module.metadata
     dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), datasets_dir, dataset_dir)
     split = split or meta["split"]
-    records = [m.record(i) for i in m.split_ids(split, part)][:max_sims]
-    if not records:
-        raise DataError(f"no {part} simulations in split {split!r} of {dataset_dir}")
+    records = split_records(m, dataset_dir, split, part, max_sims)
     norm = HopperNormalizer.from_dict(meta["normalizer"])
     hop = m.scene["hopper"]
     times = time_grid(norm.horizon, float(hop["snapshot_interval"]))

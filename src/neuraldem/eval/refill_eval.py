@@ -40,8 +40,7 @@ from neuraldem.data.refill_targets import (
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.eval import refill_metrics as rm
-from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, require_kind
-
+from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, require_kind, split_records
 
 # A model's material counts as new when its predicted residence falls short of t - t_ref by more than this
 # fraction of the window (the residence is regressed in units of the window, so its errors scale with it). A
@@ -290,9 +289,7 @@ def evaluate_refill_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, da
     meta = module.metadata
     dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), datasets_dir, dataset_dir)
     split = split or meta["split"]
-    records = [m.record(i) for i in m.split_ids(split, part)][:max_sims]
-    if not records:
-        raise DataError(f"no {part} simulations in split {split!r} of {dataset_dir}")
+    records = split_records(m, dataset_dir, split, part, max_sims)
     norm = HopperNormalizer.from_dict(meta["normalizer"])
     window = float(meta["reference"]["window"])
     horizon = window if horizon is None else float(horizon)
