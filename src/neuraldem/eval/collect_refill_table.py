@@ -12,7 +12,6 @@ cost beside the LIGGGHTS run.
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
@@ -20,7 +19,7 @@ import numpy as np
 
 from neuraldem.cli import report_user_errors
 from neuraldem.errors import DataError
-from neuraldem.eval.run_results import disambiguate, table_main
+from neuraldem.eval.run_results import scan_results, table_main
 
 HEADER = ("| run | part | conditioning | t_ref [s] | horizon [s] | layer-fraction error | label agreement | "
           "transport RMS [% box] | residence RMS [s] | RTD Wasserstein [s] | RTD median error [s] |")
@@ -30,19 +29,12 @@ COST_NOTE = ("Cost of the outlet residence answer over a whole run (the reset ro
              "evaluation, medians over the runs) against the LIGGGHTS run that gives it (manifest):")
 
 
+def is_refill(result: dict) -> bool:
+    return "persistence" in result and "horizon" in result
+
+
 def find_refill_results(folders: list[Path]) -> list[dict]:
-    found, roots = [], []
-    for folder in folders:
-        for path in sorted(Path(folder).rglob("evaluation*/metrics.json")):
-            result = json.loads(path.read_text())
-            if "persistence" not in result or "horizon" not in result:
-                continue  # not a refill evaluation
-            result["path"] = str(path)
-            run = path.parent.parent
-            result["run"] = str(run.relative_to(folder)) if run != Path(folder) else run.name
-            found.append(result)
-            roots.append(Path(folder))
-    disambiguate(found, roots)
+    found = scan_results(folders, "evaluation*/metrics.json", keep=is_refill)
     if not found:
         raise DataError(f"no refill evaluation*/metrics.json under {[str(f) for f in folders]}: run "
                         "scripts/refill_study.sh, or python -m neuraldem.evaluate on a refill checkpoint")

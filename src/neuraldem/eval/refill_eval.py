@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -184,10 +185,11 @@ class RefillSimEvaluation:
                 else float("nan")}
 
 
-def evaluate_refill_sim(rec: SimRecord, f: RefillFile, model: ModelRefillQuery, radius: float, t_ref: float,
+def evaluate_refill_sim(rec: SimRecord, f: RefillFile, queries: Sequence[Any], radius: float, t_ref: float,
                         horizon: float, window: float, n_layers: int = 8, outlet_height: float | None = None,
-                        time_stride: int = 1, new_tolerance: float | None = None) -> RefillSimEvaluation:
-    """`new_tolerance` [s]: the queried side's material counts as new when its residence is shorter than t - t_ref
+                        time_stride: int = 1, new_tolerance: float | None = None) -> list[RefillSimEvaluation]:
+    """One evaluation per query (a model, the persistence answer, ...) against the DEM side, computed once.
+    `new_tolerance` [s]: the queried side's material counts as new when its residence is shorter than t - t_ref
     by more than this (default half a snapshot interval, exact for DEM; a model's regressed residence needs
     more, see MODEL_NEW_TOLERANCE). The DEM side always uses half a snapshot interval."""
     dt = float(f.times[1] - f.times[0])
@@ -202,56 +204,56 @@ def evaluate_refill_sim(rec: SimRecord, f: RefillFile, model: ModelRefillQuery, 
     truth = reference_fields_at(pos_t, t, t_ref, rows_t, pos_t, rows_r, pos_r, f.insert_times, radius)
     edges = rm.reference_layer_edges(pos_r[:, 2], n_layers)
     lab_t = rm.layer_labels(truth.occupied, truth.transport[:, 2], truth.new, edges)
-    occ_p, tr_p, res_p = model.fields(t, t_ref, pos_t)
-    lab_p = model_labels(occ_p, tr_p, res_p, horizon, edges, model.threshold, new_tolerance)
-    box = np.asarray(model.norm.box_hi) - np.asarray(model.norm.box_lo)
     old = truth.occupied & ~truth.new
-    d_tr = ((tr_p - truth.transport) / box)[old]
-    d_res = ((res_p - truth.residence) / model.norm.horizon)[truth.occupied]
+    labels_ref = rm.layer_labels(np.ones(len(pos_r), bool), pos_r[:, 2], np.zeros(len(pos_r), bool), edges)
     # 2. rollout from the opening with resets every window: residence of the material at the outlet
     g = f.geometry
     height = outlet_height if outlet_height is not None else g.outlet_radius
     pts = outlet_points(g.outlet_radius, height, 0.5 * radius / 0.6)
     resets = reset_times(0.0, float(f.times[-1]), window)
     times = f.times[::time_stride]
-    model.resets = resets
     agg_truth = rollout_outlet_residence(dem_query(f, resets, radius), resets, times, pts, dem_tolerance)
-    started = time.process_time()
-    agg_pred = rollout_outlet_residence(model, resets, times, pts, new_tolerance)
-    answer_cpu_s = time.process_time() - started
     inside = np.ones(len(pts), dtype=bool)
     rtd_t = rm.outlet_residence_samples(np.isfinite(agg_truth), agg_truth, inside)
-    rtd_p = rm.outlet_residence_samples(np.isfinite(agg_pred), agg_pred, inside)
     rtd_particles = rm.particle_exit_residence(f.exit_times, np.maximum(f.insert_times, 0.0))
-    return RefillSimEvaluation(
-        sim_id=rec.sim_id, params={**rec.params, **rec.macro}, t_ref=t_ref, horizon=horizon,
-        fractions_truth=rm.layer_fractions(lab_t, n_layers), fractions_predicted=rm.layer_fractions(lab_p, n_layers),
-        label_agreement=rm.label_agreement(lab_t, lab_p),
-        transport_mse=float(np.mean(d_tr**2)) if d_tr.size else float("nan"),
-        residence_mse=float(np.mean(d_res**2)) if d_res.size else float("nan"),
-        rtd=rm.rtd_scores(rtd_t, rtd_p), rtd_truth=rtd_t, rtd_predicted=rtd_p, rtd_particles=rtd_particles,
-        rtd_answer_cpu_s=answer_cpu_s, solver_cpu_s=float(rec.cost.get("cpu_s", float("nan"))),
-        figure_data={"points_ref": pos_r, "labels_ref": rm.layer_labels(np.ones(len(pos_r), bool), pos_r[:, 2],
-                                                                         np.zeros(len(pos_r), bool), edges),
-                     "points_t": pos_t, "labels_truth": lab_t, "labels_predicted": lab_p})
+    evals = []
+    for query in queries:
+        occ_p, tr_p, res_p = query.fields(t, t_ref, pos_t)
+        lab_p = model_labels(occ_p, tr_p, res_p, horizon, edges, query.threshold, new_tolerance)
+        box = np.asarray(query.norm.box_hi) - np.asarray(query.norm.box_lo)
+        d_tr = ((tr_p - truth.transport) / box)[old]
+        d_res = ((res_p - truth.residence) / query.norm.horizon)[truth.occupied]
+        query.resets = resets
+        started = time.process_time()
+        agg_pred = rollout_outlet_residence(query, resets, times, pts, new_tolerance)
+        answer_cpu_s = time.process_time() - started
+        rtd_p = rm.outlet_residence_samples(np.isfinite(agg_pred), agg_pred, inside)
+        evals.append(RefillSimEvaluation(
+            sim_id=rec.sim_id, params={**rec.params, **rec.macro}, t_ref=t_ref, horizon=horizon,
+            fractions_truth=rm.layer_fractions(lab_t, n_layers),
+            fractions_predicted=rm.layer_fractions(lab_p, n_layers), label_agreement=rm.label_agreement(lab_t, lab_p),
+            transport_mse=float(np.mean(d_tr**2)) if d_tr.size else float("nan"),
+            residence_mse=float(np.mean(d_res**2)) if d_res.size else float("nan"),
+            rtd=rm.rtd_scores(rtd_t, rtd_p), rtd_truth=rtd_t, rtd_predicted=rtd_p, rtd_particles=rtd_particles,
+            rtd_answer_cpu_s=answer_cpu_s, solver_cpu_s=float(rec.cost.get("cpu_s", float("nan"))),
+            figure_data={"points_ref": pos_r, "labels_ref": labels_ref, "points_t": pos_t, "labels_truth": lab_t,
+                         "labels_predicted": lab_p}))
+    return evals
 
 
 def aggregate_refill(evals: list[RefillSimEvaluation]) -> dict[str, float]:
-    def median(key: str) -> float:
-        vals = np.array([e.as_dict()[key] for e in evals], dtype=np.float64)
-        vals = vals[np.isfinite(vals)]
-        return float(np.median(vals)) if vals.size else float("nan")
+    rows = [e.as_dict() for e in evals]
 
-    def mean(key: str) -> float:
-        vals = np.array([e.as_dict()[key] for e in evals], dtype=np.float64)
+    def pooled(key: str, reduce: Callable[[np.ndarray], Any] = np.mean) -> float:
+        vals = np.array([r[key] for r in rows], dtype=np.float64)
         vals = vals[np.isfinite(vals)]
-        return float(vals.mean()) if vals.size else float("nan")
+        return float(reduce(vals)) if vals.size else float("nan")
 
-    return {"n_sims": len(evals), "layer_fraction_error": mean("layer_fraction_error"),
-            "label_agreement": mean("label_agreement"), "transport_mse": mean("transport_mse"),
-            "residence_mse": mean("residence_mse"), "rtd_wasserstein_s": mean("rtd_wasserstein_s"),
-            "rtd_median_error_s": mean("rtd_median_error_s"), "rtd_answer_cpu_s": median("rtd_answer_cpu_s"),
-            "solver_cpu_s": median("solver_cpu_s")}
+    return {"n_sims": len(evals), "layer_fraction_error": pooled("layer_fraction_error"),
+            "label_agreement": pooled("label_agreement"), "transport_mse": pooled("transport_mse"),
+            "residence_mse": pooled("residence_mse"), "rtd_wasserstein_s": pooled("rtd_wasserstein_s"),
+            "rtd_median_error_s": pooled("rtd_median_error_s"),
+            "rtd_answer_cpu_s": pooled("rtd_answer_cpu_s", np.median), "solver_cpu_s": pooled("solver_cpu_s", np.median)}
 
 
 def write_refill_vtk(e: RefillSimEvaluation, folder: Path) -> Path:
@@ -311,11 +313,11 @@ def evaluate_refill_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, da
                 raise DataError(f"refill.t_ref={tr:g} s + horizon {horizon:g} s is past the end of {rec.sim_id} "
                                 f"({float(f.times[-1]):g} s): choose t_ref <= {float(f.times[-1]) - horizon:g} s")
             q = ModelRefillQuery(module.net, norm, list(meta["conditioning"]), rec, threshold=threshold, device=device)
-            evals.append(evaluate_refill_sim(rec, f, q, radius, tr, horizon, window, time_stride=time_stride,
-                                             new_tolerance=new_tolerance))
             still = PersistenceRefillQuery(f, norm, radius, threshold=threshold)
-            baselines.append(evaluate_refill_sim(rec, f, still, radius, tr, horizon, window, time_stride=time_stride,
-                                                 new_tolerance=new_tolerance))
+            model_eval, still_eval = evaluate_refill_sim(rec, f, [q, still], radius, tr, horizon, window,
+                                                         time_stride=time_stride, new_tolerance=new_tolerance)
+            evals.append(model_eval)
+            baselines.append(still_eval)
     agg = aggregate_refill(evals)
     out_dir.mkdir(parents=True, exist_ok=True)
     result = {"checkpoint": str(Path(ckpt).resolve()), "dataset": str(dataset_dir), "split": split, "part": part,

@@ -22,20 +22,30 @@ def disambiguate(found: list[dict], roots: list[Path]) -> None:
             result["run"] = f"{folder.resolve().name}/{result['run']}"
 
 
-def find_results(folders: list[Path]) -> list[dict]:
-    """Every evaluation/metrics.json under the folders, each with its `path` and `run` (the run folder relative
-    to the folder it was found in, e.g. `fb_base/noise_pf`; where two folders hold runs of that name, e.g. two
-    seeds of one sweep, prefixed with the folder's name: `fb_study_seed1/fb_base/noise_pf`) added, in path order."""
+def scan_results(folders: list[Path], pattern: str = "evaluation/metrics.json",
+                 keep: Callable[[dict], bool] = lambda result: True) -> list[dict]:
+    """Every metrics file matching `pattern` under the folders that `keep` accepts, each with its `path` and
+    `run` (the run folder, the folder above the evaluation folder, relative to the folder it was found in, e.g.
+    `fb_base/noise_pf`; where two folders hold runs of that name, e.g. two seeds of one sweep, prefixed with the
+    folder's name: `fb_study_seed1/fb_base/noise_pf`) added, in path order. Possibly empty."""
     found, roots = [], []
     for folder in folders:
-        for path in sorted(Path(folder).rglob("evaluation/metrics.json")):
+        for path in sorted(Path(folder).rglob(pattern)):
             result = json.loads(path.read_text())
+            if not keep(result):
+                continue
             result["path"] = str(path)
-            result["run"] = str(path.parent.parent.relative_to(folder)) if path.parent.parent != Path(folder) \
-                else path.parent.parent.name
+            run = path.parent.parent
+            result["run"] = str(run.relative_to(folder)) if run != Path(folder) else run.name
             found.append(result)
             roots.append(Path(folder))
     disambiguate(found, roots)
+    return found
+
+
+def find_results(folders: list[Path]) -> list[dict]:
+    """Every evaluation/metrics.json under the folders (`scan_results`); refused when there is none."""
+    found = scan_results(folders)
     if not found:
         raise DataError(f"no evaluation/metrics.json under {[str(f) for f in folders]}: train with "
                         "evaluate=true (the hopper and fb experiments do) or run python -m neuraldem.evaluate")
