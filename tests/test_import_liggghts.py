@@ -10,7 +10,7 @@ from omegaconf import OmegaConf
 
 from neuraldem.data.hopper_store import HopperFile, write_hopper_file
 from neuraldem.data.manifest import Manifest
-from neuraldem.datagen.hopper import MetricSettings, stored_metrics
+from neuraldem.datagen.hopper import stored_metrics
 from neuraldem.sim.hopper import HopperScene, run_hopper
 from tests.helpers import REPO, run_module
 
@@ -47,7 +47,7 @@ def test_import_matches_datagen_conversion(liggghts_run, tmp_path: Path):
     rec = Manifest.load(tmp_path / "ds").record("mine")
     # datagen's own conversion of the same run: write, then score what was stored
     write_hopper_file(tmp_path / "datagen.h5", "mine", res.trajectory, {}, "test", 1e-5)
-    assert rec.metrics == stored_metrics(tmp_path / "datagen.h5", 0.01, MetricSettings())
+    assert rec.metrics == stored_metrics(tmp_path / "datagen.h5", 0.01)
     with HopperFile(tmp_path / "ds" / rec.file) as f:
         np.testing.assert_allclose(f.positions(), res.trajectory.positions, atol=1e-5)
 

@@ -46,8 +46,9 @@ def main(cfg: DictConfig) -> None:
     print(TABLE_HEADER)
     print(result["table_row"])
     agg = result["aggregate"]
-    print(f"{agg['n_sims']} {cfg.part} simulations: drainage MAE {agg['drainage_mae_s']:.3f} s "
-          f"({agg['drainage_mae_pct_of_mean']:.1f} % of the mean), residual MAE {agg['residual_mae_pp']:.2f} pp, "
+    print(f"{agg['n_sims']} {cfg.part} simulations: drainage t95 MAE {agg['drainage_t95_mae_s']:.3f} s "
+          f"({agg['drainage_t95_pct_of_mean']:.1f} % of the mean; 1 % rule {agg['drainage_mae_pct_of_mean']:.1f} %), "
+          f"residual MAE {agg['residual_mae_pp']:.2f} pp, "
           f"outflow error {agg['outflow_rel_err_pct']:.1f} %, flow regime accuracy "
           f"{100 * agg['flow_regime_accuracy']:.0f} %")
     print(f"results in {cfg.paths.output_dir}")

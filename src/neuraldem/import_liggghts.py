@@ -25,7 +25,7 @@ from neuraldem.cli import parse_assignments, report_user_errors
 from neuraldem.data.hopper_store import write_hopper_file
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import sha256
-from neuraldem.datagen.hopper import MetricSettings, stored_metrics
+from neuraldem.datagen.hopper import stored_metrics
 from neuraldem.errors import ConfigError
 from neuraldem.sim.hopper import HopperGeometry, trajectory_from_files
 
@@ -78,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
                      solver={"name": "LIGGGHTS", "version": "imported"}, parameters={"names": sorted(params)})
     rec = SimRecord(sim_id=a.sim_id, index=len(m.simulations), params=params, macro=macro, status="ok",
                     file=rel, sha256=sha256(a.dataset / rel),
-                    metrics=stored_metrics(a.dataset / rel, a.diameter, MetricSettings()),
+                    metrics=stored_metrics(a.dataset / rel, a.diameter),
                     diagnostics={"imported_from": str(a.dump.resolve())})
     m.simulations.append(rec)
     m.save(a.dataset)

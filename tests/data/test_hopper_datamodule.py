@@ -28,7 +28,8 @@ def test_targets_match_brute_force(dm: HopperDataModule):
     norm = dm.norm
     radius = dm.occupancy_radius_d * dm.particle_diameter
     checked = 0
-    for i in range(0, len(ds), max(1, len(ds) // 6)):
+    active = np.flatnonzero(ds.active_mask())  # the held tail repeats the last snapshot
+    for i in active[:: max(1, len(active) // 6)]:
         item = ds[i]
         s, k = ds.items[i]
         with HopperFile(ds.dir / ds.records[s].file) as f:
@@ -56,10 +57,56 @@ def test_targets_match_brute_force(dm: HopperDataModule):
 
 
 def test_occupancy_true_at_centres_false_far_away(dm: HopperDataModule):
-    item = dm.datasets["val"][0]  # t = 0: full hopper
-    n_near = dm.n_queries - int(round(dm.negative_fraction * dm.n_queries))
-    assert item["occupancy"][:n_near].min() == 1.0  # jittered centres are inside the radius
+    item = dm.datasets["val"][0]  # t = 0: full hopper, queries near the initial positions are occupied
+    n_near = dm.n_queries - int(round(dm.box_fraction * dm.n_queries))
+    assert dm.jitter_d < dm.occupancy_radius_d
+    assert item["occupancy"][:n_near].min() == 1.0
     assert 0.0 in item["occupancy"][n_near:].tolist()  # the box has empty space
+
+
+def test_query_points_do_not_depend_on_the_labels(dm: HopperDataModule, monkeypatch: pytest.MonkeyPatch):
+    """The same sample drawn with the particles in place and with the hopper emptied: identical query points,
+    different labels. Only the labels may depend on where the particles are."""
+    ds = dm.datasets["val"]
+    i = int(np.flatnonzero(ds.active_mask())[1])  # a snapshot with material in the hopper
+    full = ds[i]
+    f = ds._open(ds.items[i][0])[0]
+    monkeypatch.setattr(f, "positions", lambda k=None: np.full((f.n_particles, 3), np.nan))
+    empty = ds[i]
+    torch.testing.assert_close(full["occupancy_pos"], empty["occupancy_pos"])
+    assert full["occupancy"].sum() > 0 and empty["occupancy"].sum() == 0
+
+
+def test_mean_label_at_initial_positions_is_the_occupied_share(dm: HopperDataModule):
+    """Queries at the initial positions (no jitter): the share labelled occupied estimates the DEM count / N0
+    without bias, so a model fitting the labels reproduces the counts the metrics are made of."""
+    from neuraldem.data.hopper_datamodule import occupancy_labels, occupancy_queries
+    from neuraldem.data.hopper_fields import nearest_particle
+
+    rec = dm.records("train")[0]
+    with HopperFile(dm.dataset_dir / rec.file) as f:
+        initial = f.initial_positions()
+        k = f.n_snapshots // 2
+        pos = f.positions(k)
+    radius = dm.occupancy_radius_d * dm.particle_diameter
+    present = pos[np.isfinite(pos[:, 0])]
+    share = nearest_particle(initial, pos, radius)[0].mean()  # what the metrics count at this snapshot
+    assert 0.05 < share < 0.95
+    q = occupancy_queries(np.random.default_rng(0), initial, 20000, 0, 0.0, np.array(dm.norm.box_lo),
+                          np.array(dm.norm.box_hi))
+    labels = occupancy_labels(q, present, radius)
+    sigma = np.sqrt(share * (1 - share) / len(q))
+    assert abs(labels.mean() - share) < 4 * sigma
+
+
+def test_training_draws_a_tail_share_from_the_held_final_state(dm: HopperDataModule):
+    from neuraldem.data.hopper_datamodule import tail_weights
+
+    active = dm.datasets["train"].active_mask()
+    assert active.any() and (~active).any()
+    w = tail_weights(active, 0.1)
+    assert w[~active].sum() / w.sum() == pytest.approx(0.1)
+    assert np.all(tail_weights(np.ones(4, dtype=bool), 0.1) == 1.0)
 
 
 def test_scalars_normalised_on_train_split(dm: HopperDataModule):
@@ -80,6 +127,29 @@ def test_bad_config_values(hopper_tiny_dataset: Path, tmp_path: Path):
         HopperDataModule(str(hopper_tiny_dataset), "hopper_tiny", ["alpha", "t"])
     with pytest.raises(DataError, match="no dataset at"):
         HopperDataModule(str(tmp_path), "hopper_tiny", ["t", "alpha"]).setup()
+    with pytest.raises(ConfigError, match=r"data\.datamodule\.fold=5 is invalid: must be < n_folds=5"):
+        HopperDataModule(str(hopper_tiny_dataset), "hopper_tiny", ["t", "alpha"], fold=5)
+    with pytest.raises(ConfigError, match=r"data\.datamodule\.n_folds=1"):
+        HopperDataModule(str(hopper_tiny_dataset), "hopper_tiny", ["t", "alpha"], n_folds=1, fold=0)
+    with pytest.raises(ConfigError, match=r"data\.datamodule\.tail_share"):
+        HopperDataModule(str(hopper_tiny_dataset), "hopper_tiny", ["t", "alpha"], tail_share=1.5)
+
+
+def test_too_few_runs_for_cross_validation_say_so_in_one_line(hopper_tiny_dataset: Path):
+    dm = HopperDataModule(str(hopper_tiny_dataset), "hopper_tiny", ["t", "alpha"], fold=0, n_folds=5)
+    with pytest.raises(DataError) as err:
+        dm.setup()
+    msg = str(err.value)
+    assert "too few for 5-fold random cross-validation" in msg and "datagen" in msg and "\n" not in msg
+
+
+def test_cross_validation_fold_from_the_usable_runs(hopper_tiny_dataset: Path):
+    dm = HopperDataModule(str(hopper_tiny_dataset), "hopper_tiny", ["t", "alpha"], fold=1, n_folds=2)
+    dm.setup()
+    ids = dm.split_ids
+    assert set(ids["test"]).isdisjoint(ids["train"] + ids["val"]) and ids["val"]
+    meta = dm.checkpoint_metadata()
+    assert meta["fold"] == 1 and meta["split_ids"] == ids
 
 
 def test_query_points_outside_the_box(dm: HopperDataModule):

@@ -12,9 +12,9 @@ import torch
 from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import Manifest
 from neuraldem.errors import DataError
-from neuraldem.eval.hopper_eval import SCALARS, evaluate_sims
+from neuraldem.eval.hopper_eval import SCALARS, aggregate, evaluate_sims
 from neuraldem.eval.hopper_predict import DemPredictor, time_grid
-from neuraldem.eval.hopper_report import load_hopper_checkpoint
+from neuraldem.eval.hopper_report import dataset_metric_settings, load_hopper_checkpoint
 
 pytestmark = pytest.mark.solver
 
@@ -22,16 +22,23 @@ pytestmark = pytest.mark.solver
 def test_dem_through_the_prediction_path_reproduces_ground_truth(hopper_tiny_dataset: Path):
     m = Manifest.load(hopper_tiny_dataset)
     hop = m.scene["hopper"]
-    radius = 0.6 * hop["material"]["diameter"]
-    horizon = max(r.metrics["duration"] for r in m.usable()) + 1.0  # longer than every run: held final state
+    settings = dataset_metric_settings(m)
+    assert m.metric_settings == settings.as_dict()  # datagen recorded what it scored with
+    radius = settings.occupancy_radius_d * hop["material"]["diameter"]
+    horizon = hop["max_time"]  # the metrics' time range: runs that ended earlier hold their final state
+    assert max(r.metrics["duration"] for r in m.usable()) < horizon  # so the held state is exercised
     dem = DemPredictor(hopper_tiny_dataset, radius, horizon=horizon)
     times = time_grid(horizon, hop["snapshot_interval"])
-    evals = evaluate_sims(m.usable(), hopper_tiny_dataset, dem, dem, times, np.ones(3), horizon, progress=False)
+    evals = evaluate_sims(m.usable(), hopper_tiny_dataset, dem, dem, times, np.ones(3), horizon, settings,
+                          progress=False)
     for e, rec in zip(evals, m.usable()):
-        for key in SCALARS:
-            assert e.predicted[key] == e.truth[key]
+        for key in (*SCALARS, "mass_flow", "residual_fraction_particles"):
+            np.testing.assert_equal(e.predicted.get(key, e.truth[key]), e.truth[key])
             np.testing.assert_equal(e.truth[key], rec.metrics[key])  # == datagen's numbers (nan == nan)
         assert e.transport_mse == 0.0 and e.residence_mse == 0.0
+    agg = aggregate(evals)
+    assert agg["drainage_t95_pct_of_mean"] == 0.0 and agg["residual_mae_pp"] == 0.0
+    assert agg["outflow_rel_err_pct"] == 0.0 and agg["flow_regime_accuracy"] == 1.0
 
 
 def test_not_a_checkpoint(tmp_path: Path):

@@ -71,9 +71,10 @@ def test_flat_sticky_keeps_residue_steep_slippery_empties(flat_sticky, steep_sli
 
 
 def test_flow_regime_indicator_separates_funnel_from_mass_flow(flat_sticky, steep_slippery, scene):
-    from neuraldem.datagen.hopper import MetricSettings, trajectory_metrics
+    from neuraldem.datagen.hopper import trajectory_metrics
+    from neuraldem.eval.hopper_metrics import HopperMetricSettings
 
-    settings = MetricSettings()
+    settings = HopperMetricSettings()
     funnel = trajectory_metrics(flat_sticky.trajectory, scene.material.diameter, settings)["mass_flow_index"]
     mass = trajectory_metrics(steep_slippery.trajectory, scene.material.diameter, settings)["mass_flow_index"]
     assert mass > settings.mass_flow_threshold > funnel, (mass, funnel)

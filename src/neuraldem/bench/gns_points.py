@@ -30,7 +30,8 @@ from neuraldem.bench.timing import torch_threads
 from neuraldem.config import checks
 from neuraldem.data.gns_datamodule import ParticleRun
 from neuraldem.data.manifest import Manifest, SimRecord
-from neuraldem.datagen.hopper import MetricSettings, trajectory_metrics
+from neuraldem.datagen.hopper import trajectory_metrics
+from neuraldem.eval.hopper_metrics import HopperMetricSettings
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, require_kind
 from neuraldem.eval.gns_rollout import (
@@ -58,14 +59,14 @@ def exit_times(times: np.ndarray, positions: np.ndarray) -> np.ndarray:
 
 
 def rollout_metrics(r: GnsRollout, stored: HopperTrajectory, diameter: float,
-                    settings: MetricSettings) -> dict[str, float]:
+                    settings: HopperMetricSettings, horizon: float | None = None) -> dict[str, float]:
     """Scene metrics of a GNS rollout through datagen's ruler (fields at the initial particle positions). The
     given snapshots are the stored ones (the rollout drops particles that left before its start from them)."""
     positions = r.positions.copy()
     positions[:r.history + 1] = stored.positions[:r.history + 1]
     traj = dataclasses.replace(stored, times=r.times, positions=positions, velocities=None,
                                exit_times=exit_times(r.times, positions))
-    return trajectory_metrics(traj, diameter, settings)
+    return trajectory_metrics(traj, diameter, settings, horizon)
 
 
 def require_hopper_gns(ckpt: Path, meta: dict[str, Any] | None = None) -> None:
@@ -99,7 +100,7 @@ def gns_point(ckpt: Path, n_sims: int = 3, dataset_dir: Path | None = None, thre
     if not ids:
         raise DataError(f"split {meta['split']!r} of {dataset_dir} has no test or validation run")
     records = [m.record(i) for i in ids[:n_sims]]
-    settings = MetricSettings()  # as the cheaper-LIGGGHTS points are scored (bench.solver_variants)
+    settings = HopperMetricSettings()  # as the cheaper-LIGGGHTS points are scored (bench.solver_variants)
     diameter = float(m.scene["hopper"]["material"]["diameter"])
     step = accelerate or model_accelerator(module)
     evals, per_sim, failures, walls, cpus = [], [], [], [], []
@@ -136,7 +137,7 @@ def gns_point(ckpt: Path, n_sims: int = 3, dataset_dir: Path | None = None, thre
 
 
 def _one_sim(rec: SimRecord, dataset_dir: Path, m: Manifest, norm: Any, step: Accelerator, diameter: float,
-             settings: MetricSettings) -> tuple[dict[str, Any], SimEvaluation | None]:
+             settings: HopperMetricSettings) -> tuple[dict[str, Any], SimEvaluation | None]:
     path = dataset_dir / str(rec.file)
     with ParticleRun(path, "hopper", m.scene) as run:
         steps = run.n_snapshots - norm.history - 1
@@ -153,7 +154,8 @@ def _one_sim(rec: SimRecord, dataset_dir: Path, m: Manifest, norm: Any, step: Ac
                               "rollout_wall_s": wall, "rollout_cpu_s": cpu}
     if stored is None:
         return result, None
-    truth = trajectory_metrics(stored, diameter, settings)  # = datagen's stored_metrics
-    predicted = rollout_metrics(r, stored, diameter, settings)
+    horizon = m.scene.get("hopper", {}).get("max_time")
+    truth = trajectory_metrics(stored, diameter, settings, horizon)  # = datagen's stored_metrics
+    predicted = rollout_metrics(r, stored, diameter, settings, horizon)
     result.update(truth=truth, predicted=predicted)
     return result, particle_evaluation(rec, truth, predicted, settings)

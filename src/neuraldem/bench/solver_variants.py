@@ -28,7 +28,8 @@ from neuraldem.bench.hopper_runs import HOPPER_ERRORS
 from neuraldem.bench.hopper_solver import run_scene
 from neuraldem.bench.timing import Sample
 from neuraldem.data.manifest import SimRecord
-from neuraldem.datagen.hopper import MetricSettings, stored_metrics, trajectory_metrics
+from neuraldem.datagen.hopper import stored_metrics, trajectory_metrics
+from neuraldem.eval.hopper_metrics import HopperMetricSettings
 from neuraldem.errors import ConfigError
 from neuraldem.eval.hopper_eval import SimEvaluation, aggregate
 from neuraldem.eval.hopper_metrics import flow_regime
@@ -83,18 +84,19 @@ class SolverVariant:
 
 
 def score_variant(variant: SolverVariant, base: HopperScene, records: list[SimRecord], dataset_dir: Path,
-                  workdir: Path, settings: MetricSettings | None = None,
+                  workdir: Path, settings: HopperMetricSettings | None = None,
                   reference_cache: dict[str, dict[str, float]] | None = None) -> dict[str, Any]:
     """Run the variant for each record's parameters and seeds; errors against the stored reference runs.
 
     Time to answer = the run's wall time + computing the metrics from its particles (median over records)."""
-    settings = settings or MetricSettings()
+    settings = settings or HopperMetricSettings()
     scene = variant.apply(base)
     cache = {} if reference_cache is None else reference_cache
     evals, costs, failures, per_sim = [], [], [], []
     for rec in records:
         if rec.sim_id not in cache:
-            cache[rec.sim_id] = stored_metrics(Path(dataset_dir) / str(rec.file), base.material.diameter, settings)
+            cache[rec.sim_id] = stored_metrics(Path(dataset_dir) / str(rec.file), base.material.diameter, settings,
+                                              base.max_time)
         truth = cache[rec.sim_id]
         result = run_scene(scene, rec.params, Path(workdir) / f"{variant.kind}_{variant.factor:g}_{rec.sim_id}",
                            rec.index)
@@ -102,7 +104,7 @@ def score_variant(variant: SolverVariant, base: HopperScene, records: list[SimRe
             failures.append({"sim_id": rec.sim_id, "reason": result.reason})
             continue
         t0, c0 = time.perf_counter(), time.process_time()
-        predicted = trajectory_metrics(result.trajectory, scene.material.diameter, settings)
+        predicted = trajectory_metrics(result.trajectory, scene.material.diameter, settings, base.max_time)
         post = Sample(time.perf_counter() - t0, time.process_time() - c0)
         costs.append(Sample(result.solver.wall_s + post.wall_s, result.solver.cpu_s + post.cpu_s))
         evals.append(particle_evaluation(rec, truth, predicted, settings))
@@ -127,7 +129,7 @@ def score_variant(variant: SolverVariant, base: HopperScene, records: list[SimRe
 
 
 def particle_evaluation(rec: SimRecord, truth: dict[str, float], predicted: dict[str, float],
-                        settings: MetricSettings) -> SimEvaluation:
+                        settings: HopperMetricSettings) -> SimEvaluation:
     """A run scored from particles (no transport/residence fields) in the shape `eval.hopper_eval.aggregate`
     takes, with each side's flow regime from its mass-flow index."""
     def with_regime(m: dict[str, float]) -> dict[str, float]:

@@ -1,12 +1,18 @@
 """HopperDataModule: (simulation, time) samples with random query points, streamed from the HDF5 files.
 
 Targets per the paper (sec. 4.2), at query points in normalised coordinates:
-- occupancy: label of points near particles (centres jittered within the occupancy radius) and of points
-  drawn uniformly in the scene box (negatives, and whatever they hit);
+- occupancy: is a particle centre within the occupancy radius of the point. The points are drawn without
+  looking at the labels (`occupancy_queries`): the run's initial particle positions jittered by up to
+  `jitter_d` diameters, plus a `box_fraction` drawn uniformly in the scene box. The BCE optimum is then the
+  occupancy probability at each point, so soft counts at the initial positions (the metrics' query points)
+  are unbiased; drawing positives around the current particles made the model over-predict occupancy;
 - transport: for particles present at t, their initial position;
 - residence: for particles present at t, the time until they exit (the horizon if they never do).
-Every simulation is extended to the horizon by holding its final state (a drained or stalled hopper does
-not change), so the model is asked about one fixed time range.
+Every simulation is extended to the horizon (the scene's `max_time`) by holding its final state (a drained
+or stalled hopper does not change), so the model is asked about one fixed time range. Training draws a
+`tail_share` of its samples from that held tail and the rest from the active run, where the answers change.
+With `fold` set, train/val/test come from a cross-validation fold (`data.splits.cv_split`) instead of the
+manifest's split; the ids used travel in the checkpoint either way.
 """
 
 from __future__ import annotations
@@ -18,7 +24,7 @@ import lightning as L
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
-from torch.utils.data import DataLoader
+from torch.utils.data import DataLoader, WeightedRandomSampler
 
 from neuraldem.config import checks
 from neuraldem.data.file_samples import FileSamples
@@ -26,6 +32,7 @@ from neuraldem.data.hopper_fields import capped_exit_times
 from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
 from neuraldem.data.normalization import HopperNormalizer
+from neuraldem.data.splits import cv_split
 from neuraldem.errors import ConfigError, DataError
 
 CONDITIONING_NAMES = ("t", "alpha", "mu_s", "mu_r", "theta", "repose")
@@ -36,15 +43,17 @@ class HopperSnapshots(FileSamples):
     """All (simulation, snapshot) pairs of some simulations, on the horizon's time grid."""
 
     def __init__(self, dataset_dir: Path, records: list[SimRecord], conditioning: list[str],
-                 norm: HopperNormalizer, snapshot_interval: float, n_queries: int, negative_fraction: float,
-                 occupancy_radius: float, random_queries: bool, seed: int = 0, time_stride: int = 1):
+                 norm: HopperNormalizer, snapshot_interval: float, n_queries: int, box_fraction: float,
+                 jitter: float, occupancy_radius: float, random_queries: bool, seed: int = 0,
+                 time_stride: int = 1):
         self.dir = Path(dataset_dir)
         self.records = records
         self.conditioning = conditioning
         self.norm = norm
         self.dt = snapshot_interval
         self.n_queries = n_queries
-        self.n_negative = int(round(negative_fraction * n_queries))
+        self.n_box = int(round(box_fraction * n_queries))
+        self.jitter = jitter
         self.radius = occupancy_radius
         n_grid = int(round(norm.horizon / snapshot_interval)) + 1
         self.items = [(s, k) for s in range(len(records)) for k in range(0, n_grid, time_stride)]
@@ -57,6 +66,13 @@ class HopperSnapshots(FileSamples):
         f = HopperFile(self.dir / str(self.records[s].file), validate=False)  # validated in setup()
         return f, f.initial_positions(), capped_exit_times(f.exit_times, self.norm.horizon)
 
+    def active_mask(self) -> np.ndarray:
+        """(len,) True for samples inside their run (before the solver stopped it), False in the held tail."""
+        n_stored = []
+        for s in range(len(self.records)):
+            n_stored.append(self._open(s)[0].n_snapshots)
+        return np.array([k < n_stored[s] for s, k in self.items])
+
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         s, k = self.items[i]
         f, initial, exits = self._open(s)
@@ -67,7 +83,8 @@ class HopperSnapshots(FileSamples):
         q = self.n_queries
 
         lo, hi = np.asarray(self.norm.box_lo), np.asarray(self.norm.box_hi)
-        occ_pos, occ = occupancy_samples(rng, pos[present], q, self.n_negative, self.radius, lo, hi)
+        occ_pos = occupancy_queries(rng, initial, q, self.n_box, self.jitter, lo, hi)
+        occ = occupancy_labels(occ_pos, pos[present], self.radius)
 
         # transport / residence at the particles present now
         if len(present):
@@ -90,25 +107,48 @@ class HopperSnapshots(FileSamples):
         }
 
 
+def occupancy_queries(rng: np.random.Generator, initial: np.ndarray, n_queries: int, n_box: int, jitter: float,
+                      lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Occupancy query points that do not depend on the labels: `n_box` uniform in the box [lo, hi], the
+    rest at initial particle positions (the points the metrics are evaluated at) jittered within `jitter`."""
+    n_near = n_queries - n_box if len(initial) else 0
+    near = initial[rng.choice(len(initial), n_near)] + _in_ball(rng, n_near, jitter) if n_near else np.zeros((0, 3))
+    uniform = lo + rng.random((n_queries - n_near, 3)) * (hi - lo)
+    return np.clip(np.concatenate([near, uniform]), lo, hi)
+
+
+def occupancy_labels(points: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
+    """1 where a particle centre lies within `radius` of the point, else 0 (float32)."""
+    if not len(centres):
+        return np.zeros(len(points), dtype=np.float32)
+    dist, _ = cKDTree(centres).query(points, k=1, distance_upper_bound=radius)
+    return np.isfinite(dist).astype(np.float32)
+
+
 def occupancy_samples(rng: np.random.Generator, centres: np.ndarray, n_queries: int, n_negative: int,
                       radius: float, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Occupancy queries and labels: particle `centres` (n, 3) jittered within `radius`, plus `n_negative`
-    points drawn uniformly in the box [lo, hi], labelled by whether a centre lies within `radius`."""
+    """The refilling hopper's occupancy queries (label-dependent): particle `centres` jittered within
+    `radius`, plus `n_negative` points uniform in the box [lo, hi]. The draining hopper uses the unbiased
+    `occupancy_queries`; a refill model's occupancy is not scored by soft counts."""
     n_near = n_queries - n_negative if len(centres) else 0
     near = centres[rng.choice(len(centres), n_near)] + _in_ball(rng, n_near, radius) if n_near else np.zeros((0, 3))
     uniform = lo + rng.random((n_queries - n_near, 3)) * (hi - lo)
     occ_pos = np.clip(np.concatenate([near, uniform]), lo, hi)
-    occ = np.zeros(n_queries, dtype=np.float32)
-    if len(centres):
-        dist, _ = cKDTree(centres).query(occ_pos, k=1, distance_upper_bound=radius)
-        occ = np.isfinite(dist).astype(np.float32)
-    return occ_pos, occ
+    return occ_pos, occupancy_labels(occ_pos, centres, radius)
 
 
 def _in_ball(rng: np.random.Generator, n: int, radius: float) -> np.ndarray:
     v = rng.normal(size=(n, 3))
     v /= np.linalg.norm(v, axis=1, keepdims=True)
     return v * radius * rng.random((n, 1)) ** (1 / 3)
+
+
+def tail_weights(active: np.ndarray, tail_share: float) -> np.ndarray:
+    """Sampling weights that draw `tail_share` of the samples from the held tail, the rest from active runs."""
+    n_active, n_tail = int(active.sum()), int((~active).sum())
+    if n_tail == 0 or n_active == 0:
+        return np.ones(len(active))
+    return np.where(active, (1 - tail_share) / n_active, tail_share / n_tail)
 
 
 class HopperDataModule(L.LightningDataModule):
@@ -119,9 +159,10 @@ class HopperDataModule(L.LightningDataModule):
     FIRST_SCALAR = "t"  # the time scalar, always first
 
     def __init__(self, dataset_dir: str, name: str, conditioning: list[str], split: str = "random",
-                 batch_size: int = 8, n_queries: int = 1024, negative_fraction: float = 0.5,
-                 occupancy_radius_d: float = 0.6, num_workers: int = 0, seed: int = 0,
-                 eval_time_stride: int = 4):
+                 batch_size: int = 8, n_queries: int = 1024, box_fraction: float = 0.25, jitter_d: float = 0.5,
+                 tail_share: float = 0.1, occupancy_radius_d: float = 0.6, num_workers: int = 0, seed: int = 0,
+                 eval_time_stride: int = 4, fold: int | None = None, n_folds: int = 5, split_seed: int = 0,
+                 val_fraction: float = 0.1):
         super().__init__()
         self.dataset_dir = Path(dataset_dir)
         self.name = name
@@ -132,7 +173,20 @@ class HopperDataModule(L.LightningDataModule):
         self.split = checks.one_of("data.split", split, SPLITS)
         self.batch_size = checks.positive_int("data.datamodule.batch_size", batch_size)
         self.n_queries = checks.positive_int("data.datamodule.n_queries", n_queries)
-        self.negative_fraction = checks.fraction("data.datamodule.negative_fraction", negative_fraction)
+        self.box_fraction = checks.fraction("data.datamodule.box_fraction", box_fraction)
+        self.jitter_d = checks.number("data.datamodule.jitter_d", jitter_d, lo=0.0, hi=2.0)
+        self.tail_share = checks.fraction("data.datamodule.tail_share", tail_share)
+        self.n_folds = checks.positive_int("data.datamodule.n_folds", n_folds)
+        if self.n_folds < 2:
+            raise ConfigError(f"config value data.datamodule.n_folds={n_folds} is invalid: cross-validation "
+                              "needs >= 2 folds (override it, e.g. data.datamodule.n_folds=5)")
+        self.fold = None if fold is None else checks.positive_int("data.datamodule.fold", fold, allow_zero=True)
+        if self.fold is not None and self.fold >= self.n_folds:
+            raise ConfigError(f"config value data.datamodule.fold={fold} is invalid: must be < n_folds="
+                              f"{self.n_folds} (folds are 0 .. {self.n_folds - 1})")
+        self.split_seed = checks.positive_int("data.datamodule.split_seed", split_seed, allow_zero=True)
+        self.val_fraction = checks.fraction("data.datamodule.val_fraction", val_fraction)
+        self.split_ids: dict[str, list[str]] = {}
         self.occupancy_radius_d = checks.number("data.datamodule.occupancy_radius_d", occupancy_radius_d,
                                                 lo=0.5, hi=2.0, lo_open=True)
         self.num_workers = checks.positive_int("data.datamodule.num_workers", num_workers, allow_zero=True)
@@ -159,20 +213,32 @@ class HopperDataModule(L.LightningDataModule):
 
     def records(self, part: str) -> list[SimRecord]:
         assert self.manifest is not None
-        return [self.manifest.record(i) for i in self.manifest.split_ids(self.split, part)]
+        return [self.manifest.record(i) for i in self.split_ids[part]]
 
     def prepare_manifest(self) -> Manifest:
         if self.manifest is None:
             m = require_dataset(self.dataset_dir, self.name)
             if m.kind != self.KIND:
                 raise DataError(f"dataset {self.dataset_dir} holds {m.kind!r} data, not {self.KIND} data")
+            self.split_ids = self.choose_split(m)
             for part in ("train", "val", "test"):
-                if not m.splits.get(self.split, {}).get(part):
+                if not self.split_ids.get(part):
                     raise DataError(f"dataset {self.dataset_dir}: split {self.split!r} has no {part} "
                                     "simulations; generate more with python -m neuraldem.datagen "
                                     f"data={self.name} n_sims=N")
             self.manifest = m
         return self.manifest
+
+    def choose_split(self, m: Manifest) -> dict[str, list[str]]:
+        """The manifest's split, or one fold of a cross-validation over its usable runs."""
+        if self.fold is None:
+            return {part: m.split_ids(self.split, part) for part in ("train", "val", "test")}
+        alpha = m.parameters.get("ranges", {}).get("alpha")
+        if alpha is None:
+            alphas = [r.params["alpha"] for r in m.usable()]
+            alpha = [min(alphas), max(alphas)]
+        return cv_split(m.usable(), self.split, self.fold, self.n_folds, self.split_seed, self.val_fraction,
+                        (float(alpha[0]), float(alpha[1])), dataset=str(self.dataset_dir))
 
     def fit_normalizer(self) -> HopperNormalizer:
         """Scene box, horizon and scalar ranges from the training simulations only."""
@@ -186,6 +252,7 @@ class HopperDataModule(L.LightningDataModule):
                 lo = np.minimum(lo, box_lo)
                 hi = np.maximum(hi, [box_hi[0], box_hi[1], np.nanmax(p0[:, 2])])  # up to the fill, not the wall top
                 horizon = max(horizon, float(f.times[-1]))
+        horizon = max(horizon, float(self.scene["hopper"].get("max_time", 0.0)))  # the metrics' time range
         dt = self.snapshot_interval
         values = {name: [r.conditioning()[name] for r in train if name in r.conditioning()]
                   for name in self.conditioning if name != "t"}
@@ -210,8 +277,8 @@ class HopperDataModule(L.LightningDataModule):
         for part in ("train", "val", "test"):
             self.datasets[part] = HopperSnapshots(
                 self.dataset_dir, self.records(part), self.conditioning, self.norm, self.snapshot_interval,
-                self.n_queries, self.negative_fraction, self.occupancy_radius_d * self.particle_diameter,
-                random_queries=part == "train", seed=self.seed,
+                self.n_queries, self.box_fraction, self.jitter_d * self.particle_diameter,
+                self.occupancy_radius_d * self.particle_diameter, random_queries=part == "train", seed=self.seed,
                 time_stride=1 if part == "train" else self.eval_time_stride)
 
     def _loader(self, part: str, shuffle: bool) -> DataLoader:
@@ -220,7 +287,13 @@ class HopperDataModule(L.LightningDataModule):
                           drop_last=shuffle)
 
     def train_dataloader(self) -> DataLoader:
-        return self._loader("train", shuffle=True)
+        ds = self.datasets["train"]
+        if not isinstance(ds, HopperSnapshots):
+            return self._loader("train", shuffle=True)
+        weights = torch.from_numpy(tail_weights(ds.active_mask(), self.tail_share))
+        sampler = WeightedRandomSampler(weights, num_samples=len(ds), replacement=True)
+        return DataLoader(ds, batch_size=self.batch_size, sampler=sampler, num_workers=self.num_workers,
+                          persistent_workers=self.num_workers > 0, drop_last=True)
 
     def val_dataloader(self) -> DataLoader:
         return self._loader("val", shuffle=False)
@@ -232,5 +305,6 @@ class HopperDataModule(L.LightningDataModule):
         """What evaluation needs to use a trained model correctly (stored in every checkpoint)."""
         assert self.manifest is not None and self.norm is not None
         return {"kind": "hopper", "data_name": self.name, "scene": self.scene, "conditioning": self.conditioning,
-                "split": self.split, "normalizer": self.norm.to_dict(),
+                "split": self.split, "fold": self.fold, "n_folds": self.n_folds if self.fold is not None else None,
+                "split_ids": self.split_ids, "normalizer": self.norm.to_dict(),
                 "occupancy_radius_d": self.occupancy_radius_d}

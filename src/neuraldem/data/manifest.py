@@ -56,6 +56,8 @@ class Manifest:
     # settings of the macroscopic characterization behind `SimRecord.macro` (hopper); when they change,
     # the measurements are redone without rerunning the simulations
     characterization: dict[str, Any] | None = None
+    # settings of the metric functions behind `SimRecord.metrics`; datagen rescores when they change
+    metric_settings: dict[str, Any] | None = None
     schema_version: int = SCHEMA_VERSION
     created_utc: str = field(default_factory=lambda: _now())
     updated_utc: str = field(default_factory=lambda: _now())

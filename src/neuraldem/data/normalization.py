@@ -57,6 +57,18 @@ class HopperNormalizer:
     def time_back(self, u: np.ndarray | float) -> np.ndarray:
         return np.asarray(u, dtype=np.float64) * self.horizon
 
+    def outside_range(self, values: dict[str, float], names: list[str]) -> dict[str, list[float]]:
+        """The conditioning scalars outside the range seen in training: {name: [value, lo, hi]}. A model
+        still answers there, but the answer is an extrapolation and must be flagged as one."""
+        out = {}
+        for name in names:
+            if name == "t" or name not in values or name not in self.scalar_lo:
+                continue
+            lo, hi, v = self.scalar_lo[name], self.scalar_hi[name], float(values[name])
+            if v < lo - 1e-9 * max(1.0, abs(lo)) or v > hi + 1e-9 * max(1.0, abs(hi)):
+                out[name] = [v, lo, hi]
+        return out
+
     def scalars(self, values: dict[str, float], names: list[str], t: float) -> np.ndarray:
         out = []
         for name in names:

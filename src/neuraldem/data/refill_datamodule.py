@@ -110,8 +110,9 @@ class RefillDataModule(HopperDataModule):
     FIRST_SCALAR = "dt_ref"
 
     def __init__(self, dataset_dir: str, name: str, conditioning: list[str], window: float,
-                 random_reference: bool = True, **kwargs: Any):
+                 random_reference: bool = True, negative_fraction: float = 0.5, **kwargs: Any):
         super().__init__(dataset_dir, name, conditioning, **kwargs)
+        self.negative_fraction = checks.fraction("data.datamodule.negative_fraction", negative_fraction)
         self.window = checks.positive("data.reference.window", window)
         if not isinstance(random_reference, bool):
             raise ConfigError(f"config value data.datamodule.random_reference={random_reference!r} is invalid: "

@@ -57,3 +57,46 @@ def band_split(records: Sequence[SimRecord], alpha_band: tuple[float, float],
     rest = [r.sim_id for r in records if not inside(r)]
     parts = random_split(rest, {"val": val_fraction, "test": 0.0}, seed)
     return {"train": parts["train"], "val": parts["val"], "test": test}
+
+
+# ---- cross-validation: every run is tested exactly once (random) or every interior band once (band)
+CV_KINDS = ("random", "band")
+MIN_TEST_PER_FOLD = 2  # a fold's test part must hold at least this many runs
+MIN_REST = 3  # and the runs outside it (training + validation) at least this many
+
+
+def cv_test_sets(records: Sequence[SimRecord], kind: str, n_folds: int, seed: int,
+                 alpha_range: tuple[float, float]) -> list[list[str]]:
+    """The test runs of each fold.
+
+    random: the runs shuffled with `seed` and cut into `n_folds` parts of (nearly) equal size.
+    band: the alpha range cut into n_folds + 2 equal bands; fold k holds out the (k + 1)-th band, so every
+    fold asks the model to fill a gap inside the trained range (the outermost bands would be extrapolation).
+    """
+    ids = sorted(r.sim_id for r in records)
+    if kind == "random":
+        order = [ids[i] for i in np.random.default_rng(seed).permutation(len(ids))]
+        return [sorted(part) for part in np.array_split(np.array(order, dtype=object), n_folds)]
+    if kind != "band":
+        raise DataError(f"unknown cross-validation kind {kind!r}; known: {list(CV_KINDS)}")
+    edges = np.linspace(alpha_range[0], alpha_range[1], n_folds + 3)
+    return [sorted(r.sim_id for r in records if edges[k + 1] <= r.params["alpha"] < edges[k + 2])
+            for k in range(n_folds)]
+
+
+def cv_split(records: Sequence[SimRecord], kind: str, fold: int, n_folds: int, seed: int, val_fraction: float,
+             alpha_range: tuple[float, float], dataset: str = "the dataset") -> dict[str, list[str]]:
+    """train/val/test of one fold: test from `cv_test_sets`, val a seeded random share of the rest."""
+    if not 0 <= fold < n_folds:
+        raise DataError(f"cross-validation fold {fold} does not exist: folds are 0 .. {n_folds - 1}")
+    tests = cv_test_sets(records, kind, n_folds, seed, alpha_range)
+    too_small = [k for k, t in enumerate(tests) if len(t) < MIN_TEST_PER_FOLD]
+    n_rest_min = len(records) - max(len(t) for t in tests)
+    if too_small or n_rest_min < MIN_REST:
+        raise DataError(f"{dataset} has {len(records)} usable runs: too few for {n_folds}-fold {kind} "
+                        f"cross-validation (needs >= {MIN_TEST_PER_FOLD} test runs in every fold and >= "
+                        f"{MIN_REST} runs outside it); generate more with python -m neuraldem.datagen")
+    test = tests[fold]
+    rest = [r.sim_id for r in records if r.sim_id not in set(test)]
+    parts = random_split(rest, {"val": val_fraction, "test": 0.0}, seed + fold)
+    return {"train": parts["train"], "val": parts["val"], "test": test}

@@ -8,7 +8,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
+from tqdm import tqdm
 
 from neuraldem.config import checks
 from neuraldem.data.hopper_fields import trajectory_fields_at
@@ -19,7 +20,8 @@ from neuraldem.data.splits import auto_theta_band, band_split, random_split
 from neuraldem.datagen.driver import fresh_dir, simulation_done
 from neuraldem.datagen.sampling import latin_hypercube
 from neuraldem.errors import ConfigError, SolverError
-from neuraldem.eval.hopper_metrics import hopper_summary
+from neuraldem.eval.hopper_metrics import HopperMetricSettings, hopper_summary, metric_times
+from neuraldem.eval.hopper_predict import hold_final_state
 from neuraldem.sim import liggghts
 from neuraldem.sim.hopper import STATUS_FAILED, HopperScene, HopperTrajectory, run_hopper
 from neuraldem.sim.material import Material
@@ -28,47 +30,33 @@ from neuraldem.sim.material import Material
 PARAMETER_LIMITS = {"alpha": (0.0, 75.0), "mu_s": (0.0, 2.0), "mu_r": (0.0, 1.0)}
 
 
-@dataclass
-class MetricSettings:
-    occupancy_radius_d: float = 0.6  # occupancy radius in particle diameters (> 0.5: voids count as full)
-    n_layers: int = 8
-    drain_margin: float = 0.01
-    outflow_window: tuple[float, float] = (0.1, 0.6)
-    mass_flow_threshold: float = 0.5
-
-    @classmethod
-    def from_config(cls, cfg: Any, key: str) -> MetricSettings:
-        s = cls(**{k: (tuple(v) if isinstance(v, (list, tuple)) or OmegaConf.is_list(v) else v)
-                   for k, v in dict(cfg).items()})
-        checks.number(f"{key}.occupancy_radius_d", s.occupancy_radius_d, lo=0.5, hi=2.0, lo_open=True)
-        checks.positive_int(f"{key}.n_layers", s.n_layers)
-        checks.number(f"{key}.drain_margin", s.drain_margin, lo=0.0, hi=0.2, lo_open=True)
-        lo, hi = checks.interval(f"{key}.outflow_window", list(s.outflow_window))
-        if not 0.0 <= lo < hi <= 1.0:
-            raise ConfigError(f"config value {key}.outflow_window={list(s.outflow_window)} is invalid: "
-                                     "needs 0 <= lo < hi <= 1 (fractions of the drained material)")
-        checks.number(f"{key}.mass_flow_threshold", s.mass_flow_threshold, lo=-1.0, hi=1.0)
-        return s
-
-
-def trajectory_metrics(traj: HopperTrajectory, diameter: float, settings: MetricSettings) -> dict[str, float]:
-    """Ground-truth metrics through the same path as predictions: fields at the initial positions."""
+def trajectory_metrics(traj: HopperTrajectory, diameter: float,
+                       settings: HopperMetricSettings = HopperMetricSettings(),
+                       horizon: float | None = None) -> dict[str, float]:
+    """Ground-truth metrics through the same path as predictions: fields at the initial positions on the
+    metric time grid (0 .. `horizon`, the scene's max_time; default the run's own end), a run that ended
+    earlier holding its final state."""
     points = traj.positions[0]
-    occ, transport, _ = trajectory_fields_at(points, traj.times, traj.positions, traj.exit_times,
+    horizon = float(traj.times[-1]) if horizon is None else max(float(horizon), float(traj.times[-1]))
+    interval = float(np.round(traj.times[1] - traj.times[0], 9)) if len(traj.times) > 1 else horizon or 1.0
+    times = metric_times(horizon, interval)
+    positions = hold_final_state(traj.positions, len(times))
+    exits = np.where(np.isfinite(traj.exit_times), traj.exit_times, horizon)
+    occ, transport, _ = trajectory_fields_at(points, times, positions, exits,
                                              settings.occupancy_radius_d * diameter)
-    out = hopper_summary(traj.times, occ, transport[..., 2], points[:, 2], n_layers=settings.n_layers,
-                         drain_margin=settings.drain_margin)
+    out = hopper_summary(times, occ, transport[..., 2], points[:, 2], settings)
     # direct particle counts, for reference (not available to a field surrogate)
     out["residual_fraction_particles"] = float(np.mean(~np.isfinite(traj.exit_times)))
     out["duration"] = float(traj.times[-1])
     return out
 
 
-def stored_metrics(path: Path, diameter: float, settings: MetricSettings) -> dict[str, float]:
+def stored_metrics(path: Path, diameter: float, settings: HopperMetricSettings = HopperMetricSettings(),
+                   horizon: float | None = None) -> dict[str, float]:
     """Metrics of the trajectory as stored (quantised positions), so anyone recomputing them from the
     dataset gets exactly the manifest's numbers."""
     with HopperFile(path) as f:
-        return trajectory_metrics(f.load(), diameter, settings)
+        return trajectory_metrics(f.load(), diameter, settings, horizon)
 
 
 @dataclass
@@ -107,7 +95,7 @@ class HopperPipeline:
         self.position_resolution = checks.positive("data.storage.position_resolution",
                                                    c.storage.position_resolution)
         self.keep_raw = bool(c.storage.keep_raw)
-        self.metrics = MetricSettings.from_config(c.metrics, "data.metrics")
+        self.metrics = HopperMetricSettings.from_config(c.metrics, "data.metrics")
         self._solver_version: str | None = None
 
     # ---- manifest records
@@ -121,7 +109,9 @@ class HopperPipeline:
                                       "version": CACHE_VERSION}))
 
     def prepare(self, m: Manifest) -> None:
-        """New characterization settings invalidate the measurements, not the simulations."""
+        """New characterization settings invalidate the measurements, not the simulations; new metric
+        definitions are recomputed from the stored files (no solver run)."""
+        self.rescore(m)
         if not self.characterization_enabled:
             return
         current = self.characterization_record()
@@ -129,6 +119,20 @@ class HopperPipeline:
             for rec in m.simulations:
                 rec.macro = {}
         m.characterization = current
+
+    def rescore(self, m: Manifest) -> int:
+        """Recompute the metrics of every stored run whose manifest entry was scored with other settings."""
+        current = self.metrics.as_dict()
+        stale = [r for r in m.simulations if r.file is not None and r.metrics and m.metric_settings != current
+                 and (self.dataset_dir / r.file).is_file()]
+        for rec in tqdm(stale, desc=f"{self.name}: rescoring with the current metric settings", unit="sim",
+                        disable=not stale):
+            rec.metrics = self.score(self.dataset_dir / str(rec.file))
+        m.metric_settings = current
+        return len(stale)
+
+    def score(self, path: Path) -> dict[str, float]:
+        return stored_metrics(path, self.scene.material.diameter, self.metrics, self.scene.max_time)
 
     def incomplete(self, rec: SimRecord) -> bool:
         return self.characterization_enabled and not rec.macro
@@ -195,7 +199,7 @@ class HopperPipeline:
         write_hopper_file(self.dataset_dir / rel, rec.sim_id, result.trajectory, dict(p),
                           self.solver_version(), self.position_resolution)
         rec.file, rec.sha256 = rel, sha256(self.dataset_dir / rel)
-        rec.metrics = stored_metrics(self.dataset_dir / rel, self.scene.material.diameter, self.metrics)
+        rec.metrics = self.score(self.dataset_dir / rel)
         if not self.keep_raw:
             for name in ("dump.txt", "exits.txt"):
                 (workdir / name).unlink(missing_ok=True)

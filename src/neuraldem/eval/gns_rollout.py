@@ -188,8 +188,8 @@ def model_accelerator(module: GnsModule) -> Accelerator:
 
 
 # ---- metrics with the ground truth's functions
-def hopper_particle_metrics(times: np.ndarray, positions: np.ndarray, drain_margin: float = 0.01,
-                            n_layers: int = 8) -> dict[str, float]:
+def hopper_particle_metrics(times: np.ndarray, positions: np.ndarray,
+                            settings: hm.HopperMetricSettings = hm.HopperMetricSettings()) -> dict[str, float]:
     """`hopper_metrics.hopper_summary` with the particles as the points: occupied = present above the outlet
     plane (z >= 0), material = each particle's initial height."""
     with np.errstate(invalid="ignore"):
@@ -197,7 +197,7 @@ def hopper_particle_metrics(times: np.ndarray, positions: np.ndarray, drain_marg
     z0 = positions[0, :, 2]
     keep = np.isfinite(z0)
     transport_z = np.broadcast_to(z0[keep], occupied[:, keep].shape)
-    return hm.hopper_summary(times, occupied[:, keep], transport_z, z0[keep], n_layers, drain_margin)
+    return hm.hopper_summary(times, occupied[:, keep], transport_z, z0[keep], settings)
 
 
 def fb_particle_fields(run: ParticleRun, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -219,9 +219,9 @@ def score(r: GnsRollout, run: ParticleRun, manifest: Manifest) -> dict[str, Any]
     n = min(len(r.times), run.n_snapshots)
     truth = run.positions(slice(0, n))
     if run.kind == "hopper":
-        margin = float((manifest.parameters.get("metrics") or {}).get("drain_margin", 0.01))
-        pred_m = hopper_particle_metrics(r.times, r.positions, margin)
-        truth_m = hopper_particle_metrics(run.times[:n], truth, margin)
+        settings = hm.HopperMetricSettings.from_config(manifest.metric_settings or {})
+        pred_m = hopper_particle_metrics(r.times, r.positions, settings)
+        truth_m = hopper_particle_metrics(run.times[:n], truth, settings)
         return {"pred": pred_m, "truth": truth_m,
                 "abs_error": {k: abs(pred_m[k] - truth_m[k]) for k in pred_m}}
     from neuraldem.eval.fb_eval import FieldSeries, compare

@@ -17,6 +17,7 @@ from neuraldem.data.hopper_fields import trajectory_fields_at
 from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import SimRecord
 from neuraldem.data.normalization import HopperNormalizer
+from neuraldem.eval.hopper_metrics import metric_times
 
 
 @dataclass
@@ -31,9 +32,7 @@ class HopperPredictor(Protocol):
     def fields(self, rec: SimRecord, times: np.ndarray, points: np.ndarray) -> TrajectoryFields: ...
 
 
-def time_grid(horizon: float, interval: float) -> np.ndarray:
-    """Snapshot times 0, interval, ..., horizon (rounded like the stored times, so they compare equal)."""
-    return np.round(np.arange(int(round(horizon / interval)) + 1) * interval, 9)
+time_grid = metric_times  # the time grid every hopper answer is given on
 
 
 def hold_final_state(positions: np.ndarray, n_times: int) -> np.ndarray:
@@ -71,6 +70,10 @@ class ModelPredictor:
     conditioning: list[str]
     chunk_size: int = 16384
     device: str = "cpu"
+
+    def extrapolation(self, rec: SimRecord) -> dict[str, list[float]]:
+        """Conditioning scalars of `rec` outside the trained ranges: {name: [value, lo, hi]}."""
+        return self.norm.outside_range(rec.conditioning(), self.conditioning)
 
     @torch.no_grad()
     def fields(self, rec: SimRecord, times: np.ndarray, points: np.ndarray) -> TrajectoryFields:

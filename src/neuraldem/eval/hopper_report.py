@@ -11,14 +11,14 @@ import numpy as np
 import torch
 
 from neuraldem.data.hopper_store import HopperFile
-from neuraldem.data.manifest import Manifest
+from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.eval import hopper_plots
 from neuraldem.eval.checkpoints import checkpoint_dataset, split_records
 from neuraldem.eval.hopper_eval import SimEvaluation, aggregate, evaluate_sims
-from neuraldem.eval.hopper_metrics import layer_edges
+from neuraldem.eval.hopper_metrics import HopperMetricSettings, layer_edges
 from neuraldem.eval.hopper_predict import DemPredictor, ModelPredictor, time_grid
 from neuraldem.eval.vtk_export import write_point_series
 from neuraldem.lit.hopper_module import HopperModule
@@ -54,14 +54,16 @@ def load_hopper_checkpoint(path: Path, device: str = "cpu") -> HopperModule:
 
 def table_row(meta: dict[str, Any], agg: dict[str, float]) -> str:
     marks = " | ".join("x" if s in meta["conditioning"] else "-" for s in TABLE_SCALARS)
-    return (f"| {marks} | {agg['drainage_mae_s']:.3f} | {agg['residual_mae_pp']:.2f} | "
-            f"{agg['outflow_rel_err_pct']:.1f} | {100 * agg['transport_mse']:.3f} | "
+    return (f"| {marks} | {agg['drainage_t95_pct_of_mean']:.1f} | {agg['drainage_mae_pct_of_mean']:.1f} | "
+            f"{agg['residual_mae_pp']:.2f} | {agg['outflow_rel_err_pct']:.1f} | "
+            f"{100 * agg['flow_regime_accuracy']:.0f} | {100 * agg['transport_mse']:.3f} | "
             f"{1000 * agg['residence_mse']:.3f} |")
 
 
-TABLE_HEADER = ("| mu_s | mu_r | theta | repose (ffc substitute) | drainage MAE [s] | residual MAE [pp] | "
-                "outflow rel. error [%] | transport MSE [1e-2] | residence MSE [1e-3] |\n"
-                "|---|---|---|---|---|---|---|---|---|")
+TABLE_HEADER = ("| mu_s | mu_r | theta | repose (ffc substitute) | drainage t95 [% of mean] | drainage 1 % rule "
+                "[% of mean] | residual MAE [pp] | outflow rel. error [%] | flow regime [% right] | "
+                "transport MSE [1e-2] | residence MSE [1e-3] |\n"
+                "|---|---|---|---|---|---|---|---|---|---|---|")
 
 
 def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_dir: Path | None = None,
@@ -72,21 +74,23 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     module = load_hopper_checkpoint(ckpt, device)
     meta = module.metadata
     dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), datasets_dir, dataset_dir)
-    split = split or meta["split"]
-    records = split_records(m, dataset_dir, split, part, max_sims)
+    records, split = checkpoint_records(meta, m, dataset_dir, split, part, max_sims)
     norm = HopperNormalizer.from_dict(meta["normalizer"])
     hop = m.scene["hopper"]
     times = time_grid(norm.horizon, float(hop["snapshot_interval"]))
-    radius = float(meta["occupancy_radius_d"]) * float(hop["material"]["diameter"])
+    settings = dataset_metric_settings(m)
+    radius = settings.occupancy_radius_d * float(hop["material"]["diameter"])
     model = ModelPredictor(module.net, norm, list(meta["conditioning"]), device=device)
     truth = DemPredictor(dataset_dir, radius, horizon=norm.horizon)
     box = np.asarray(norm.box_hi) - np.asarray(norm.box_lo)
-    evals = evaluate_sims(records, dataset_dir, truth, model, times, box, norm.horizon, threshold=threshold,
+    evals = evaluate_sims(records, dataset_dir, truth, model, times, box, norm.horizon, settings,
                           keep_fields=len(records), progress=progress)
+    warn_extrapolation(evals)
     agg = aggregate(evals)
     out_dir.mkdir(parents=True, exist_ok=True)
     result = {
         "checkpoint": str(Path(ckpt).resolve()), "dataset": str(dataset_dir), "split": split, "part": part,
+        "fold": meta.get("fold"), "metric_settings": settings.as_dict(),
         "conditioning": meta["conditioning"], "aggregate": agg, "table_row": table_row(meta, agg),
         "simulations": [e.as_dict() for e in evals], "machine": machine_info(),
         "command": " ".join(sys.argv), "date_utc": datetime.now(UTC).isoformat(timespec="seconds"),
@@ -97,6 +101,35 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     if vtk:
         export_vtk(evals[0], m, dataset_dir, out_dir / "vtk", threshold)
     return result
+
+
+def checkpoint_records(meta: dict[str, Any], m: Manifest, dataset_dir: Path, split: str | None, part: str,
+                       max_sims: int | None) -> tuple[list[SimRecord], str]:
+    """The runs of `part` that the checkpoint was trained with (its recorded ids: a cross-validation fold,
+    or the manifest's split as it was at training time), or those of another split of the manifest."""
+    ids = (meta.get("split_ids") or {}).get(part)
+    if (split is None or split == meta["split"]) and ids:
+        missing = [i for i in ids if i not in {r.sim_id for r in m.usable()}]
+        if missing:
+            raise DataError(f"{dataset_dir} lacks {len(missing)} of the checkpoint's {part} runs (e.g. "
+                            f"{missing[0]}): evaluate on the dataset it was trained on")
+        records = [m.record(i) for i in ids][:max_sims]
+        return records, str(meta["split"])
+    split = split or meta["split"]
+    return split_records(m, dataset_dir, split, part, max_sims), split
+
+
+def dataset_metric_settings(m: Manifest) -> HopperMetricSettings:
+    """The metric settings the dataset's stored metrics were computed with (defaults for older datasets)."""
+    return HopperMetricSettings.from_config(m.metric_settings or {}, f"{m.name} manifest metric_settings")
+
+
+def warn_extrapolation(evals: list[SimEvaluation]) -> None:
+    """An answer outside the trained ranges is still given, but never silently."""
+    for e in evals:
+        if e.extrapolation:
+            where = ", ".join(f"{k}={v[0]:.3g} (trained {v[1]:.3g} .. {v[2]:.3g})" for k, v in e.extrapolation.items())
+            print(f"warning: {e.sim_id}: extrapolation, outside the trained range: {where}", file=sys.stderr)
 
 
 def write_figures(evals: list[SimEvaluation], m: Manifest, dataset_dir: Path, times: np.ndarray,
