@@ -7,11 +7,16 @@
 #      CPU:  JOBS=2 bash scripts/hopper_ablation.sh /data/grid model=hopper_base trainer=cpu logger=csv ...
 # Runs land in GRID_DIR/<experiment>-<split>/ (logs beside them); the table in GRID_DIR/table4.md (+ .json).
 # A run whose folder already holds evaluation/metrics.json is skipped, so a killed grid resumes.
+# Cross-validation: FOLDS="0 1 2 3 4" trains every fold (data.datamodule.fold=k, runs in
+# GRID_DIR/<experiment>-<split>-f<k>/) and the table is the cross-validated one of neuraldem.eval.hopper_cv
+# (constant, Gaussian process and field model on the same held-out runs; SEED_FLOOR=FILE adds the LIGGGHTS
+# seed-floor row). NEURALDEM_DATASET overrides the dataset dir the table reads (default: hopper_small).
 set -uo pipefail
 PY=${PYTHON:-python}
 JOBS=${JOBS:-10}
 SPLITS=${SPLITS:-"random band"}
 EXPERIMENTS=${EXPERIMENTS:-"hopper_micro hopper_theta hopper_ffc hopper_macro hopper_all"}
+FOLDS=${FOLDS:-}
 grid=$1; shift
 mkdir -p "$grid"
 if [ "$JOBS" -lt 10 ]; then export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}; fi
@@ -20,17 +25,31 @@ failed=0
 running=0
 for split in $SPLITS; do
   for exp in $EXPERIMENTS; do
-    run="$grid/$exp-$split"
-    if [ -f "$run/evaluation/metrics.json" ]; then echo "skip $exp-$split (evaluated)"; continue; fi
-    if [ "$running" -ge "$JOBS" ]; then wait -n || failed=$((failed + 1)); running=$((running - 1)); fi
-    echo "start $exp-$split"
-    rm -rf "$run"
-    "$PY" -m neuraldem.train experiment="$exp" data.split="$split" hydra.run.dir="$run" \
-      callbacks.progress=null "$@" > "$grid/$exp-$split.log" 2>&1 &
-    running=$((running + 1))
+    for fold in ${FOLDS:-none}; do
+      name="$exp-$split"; extra=()
+      if [ "$fold" != none ]; then name="$name-f$fold"; extra=(data.datamodule.fold="$fold"); fi
+      run="$grid/$name"
+      if [ -f "$run/evaluation/metrics.json" ]; then echo "skip $name (evaluated)"; continue; fi
+      if [ "$running" -ge "$JOBS" ]; then wait -n || failed=$((failed + 1)); running=$((running - 1)); fi
+      echo "start $name"
+      rm -rf "$run"
+      "$PY" -m neuraldem.train experiment="$exp" data.split="$split" hydra.run.dir="$run" \
+        callbacks.progress=null "${extra[@]}" "$@" > "$grid/$name.log" 2>&1 &
+      running=$((running + 1))
+    done
   done
 done
 while [ "$running" -gt 0 ]; do wait -n || failed=$((failed + 1)); running=$((running - 1)); done
 [ "$failed" -eq 0 ] || echo "hopper_ablation: $failed run(s) failed; see $grid/*.log" >&2
-"$PY" -m neuraldem.eval.collect_hopper_table "$grid" --out "$grid/table4.md"
+if [ -n "${NEURALDEM_NO_TABLE:-}" ]; then
+  :  # the caller makes the table (scripts/hopper_options.sh)
+elif [ -n "$FOLDS" ]; then
+  dataset=${NEURALDEM_DATASET:-$("$PY" -c 'from neuraldem.paths import data_dir; print(data_dir() / "datasets" / "hopper_small")')}
+  nsims=$(printf '%s\n' "$@" | sed -n 's/^data.datamodule.n_sims=//p' | tail -1)
+  # shellcheck disable=SC2086
+  "$PY" -m neuraldem.eval.hopper_cv "$grid" --dataset "$dataset" --splits $SPLITS --folds $FOLDS \
+    ${nsims:+--n-sims "$nsims"} ${SEED_FLOOR:+--seed-floor "$SEED_FLOOR"} --out "$grid/table4_cv.md"
+else
+  "$PY" -m neuraldem.eval.collect_hopper_table "$grid" --out "$grid/table4.md"
+fi
 exit "$failed"

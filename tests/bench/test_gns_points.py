@@ -12,6 +12,7 @@ from neuraldem.bench.gns_points import exit_times, gns_point
 from neuraldem.data.gns_datamodule import ParticleRun
 from neuraldem.data.manifest import require_dataset
 from neuraldem.errors import ConfigError
+from neuraldem.eval.hopper_eval import HOPPER_ERRORS
 from neuraldem.eval.gns_rollout import load_gns_checkpoint
 from tests.helpers import oracle, train_tiny_gns
 
@@ -41,7 +42,7 @@ def test_exact_accelerations_score_zero_error(hopper_gns, hopper_tiny_dataset):
     p = gns_point(hopper_gns, n_sims=1, dataset_dir=hopper_tiny_dataset, label="oracle",
                   accelerate=stored_oracle(hopper_tiny_dataset, sim))
     assert p["method"] == "GNS" and p["n_failed"] == 0 and p["n_sims"] == 1
-    assert set(p["errors"]) == {"drainage_mae_pct_of_mean", "residual_mae_pp", "outflow_rel_err_pct"}
+    assert set(p["errors"]) == set(HOPPER_ERRORS)
     for key, value in p["errors"].items():
         assert value == pytest.approx(0.0, abs=1e-6), key
     s = p["simulations"][0]

@@ -13,7 +13,7 @@ from neuraldem.bench.report import write_results
 from neuraldem.bench.right_sizing import render_markdown, right_size
 from neuraldem.errors import ConfigError, DataError
 
-METRIC = "drainage_mae_pct_of_mean"
+METRIC = "drainage_t95_pct_of_mean"
 
 
 def _row(label: str, error: float, parameters: int, tokens: int = 16, queries: int = 512, t: float = 0.1,
@@ -96,3 +96,16 @@ def test_wrong_results_file_is_one_line(tmp_path: Path, capsys: pytest.CaptureFi
     other = write_results("hopper_speed", {}, command="test", path=tmp_path / "speed.json", machine={})
     assert bench_main(["right_sizing", "--from", str(other), "--out", str(tmp_path / "rs.json")]) == 2
     assert "holds results of benchmark 'hopper_speed', not 'speed_accuracy'" in capsys.readouterr().err
+
+
+def test_a_scalar_baseline_is_a_candidate(tmp_path: Path):
+    """A Gaussian process within 10 % of the best field model answers the three numbers with far fewer
+    parameters: it is the pick ('no more model than the scene needs'); the constant, 30 % off, is not."""
+    points = [{**r, "method": "surrogate"} for r in TABLE]
+    points.append({**_row("gp, 5-fold CV", 10.5, 300, tokens=None, queries=None, t=0.003), "method": "Gaussian process"})
+    points.append({**_row("constant", 13.0, 15, tokens=None, queries=None, t=1e-4), "method": "constant (training mean)"})
+    src = write_results("speed_accuracy", {"points": points}, command="test", path=tmp_path / "sa.json", machine={})
+    out = tmp_path / "rs.json"
+    assert bench_main(["right_sizing", "--from", str(src), "--out", str(out)]) == 0
+    pick = next(p for p in json.loads(out.read_text())["results"]["picks"] if p["conditioning"][-1] == "mu_r")
+    assert pick["pick"]["label"] == "gp, 5-fold CV"

@@ -11,7 +11,8 @@ from tests.helpers import run_module
 def _write(folder: Path, split: str, conditioning: list[str], drainage: float) -> None:
     ev = folder / "evaluation"
     ev.mkdir(parents=True)
-    agg = {"n_sims": 3, "drainage_mae_s": drainage, "drainage_mae_pct_of_mean": 10.0, "residual_mae_pp": 1.0,
+    agg = {"n_sims": 3, "drainage_mae_s": drainage, "drainage_mae_pct_of_mean": 10.0, "drainage_t95_pct_of_mean": 8.0,
+           "residual_mae_pp": 1.0,
            "outflow_rel_err_pct": 5.0, "flow_regime_accuracy": 1.0, "transport_mse": 0.01, "residence_mse": 0.001}
     (ev / "metrics.json").write_text(json.dumps({
         "split": split, "conditioning": conditioning, "aggregate": agg, "table_row": f"| row {drainage} |",

@@ -12,9 +12,9 @@ import torch
 from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import Manifest
 from neuraldem.errors import DataError
-from neuraldem.eval.hopper_eval import SCALARS, aggregate, evaluate_sims
+from neuraldem.eval.hopper_eval import SCALARS, aggregate, dataset_metric_settings, evaluate_sims
 from neuraldem.eval.hopper_predict import DemPredictor, time_grid
-from neuraldem.eval.hopper_report import dataset_metric_settings, load_hopper_checkpoint
+from neuraldem.eval.hopper_report import load_hopper_checkpoint
 
 pytestmark = pytest.mark.solver
 
@@ -89,3 +89,26 @@ def test_evaluate_writes_everything(tiny_checkpoint: Path, hopper_tiny_dataset: 
     mesh = meshio.read(first)
     assert {"transport_layer", "residence_time", "occupancy"} <= set(mesh.point_data)
     assert "<Collection>" in pvd.read_text()
+
+
+def test_outside_the_trained_ranges_is_answered_and_flagged(tiny_checkpoint: Path, hopper_tiny_dataset: Path,
+                                                            tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+    """A run whose friction lies outside what the model was trained on still gets an answer, flagged as an
+    extrapolation (in metrics.json, the aggregate's count and a warning naming the scalar and the range)."""
+    import shutil
+
+    from neuraldem.eval.hopper_report import evaluate_checkpoint
+
+    other = tmp_path / "other"
+    shutil.copytree(hopper_tiny_dataset, other)
+    m = Manifest.load(other)
+    meta = torch.load(tiny_checkpoint, map_location="cpu", weights_only=False)["hyper_parameters"]["metadata"]
+    val_id = meta["split_ids"]["val"][0]
+    m.record(val_id).params["mu_s"] = 5.0
+    m.save(other)
+    result = evaluate_checkpoint(tiny_checkpoint, tmp_path / "out", tmp_path, dataset_dir=other, part="val",
+                                 vtk=False, progress=False)
+    flagged = {s["sim_id"]: s["extrapolation"] for s in result["simulations"]}
+    assert flagged[val_id]["mu_s"][0] == 5.0 and result["aggregate"]["n_extrapolated"] >= 1
+    assert np.isfinite(result["aggregate"]["drainage_t95_pct_of_mean"])  # answered all the same
+    assert f"{val_id}: extrapolation, outside the trained range: mu_s=5" in capsys.readouterr().err

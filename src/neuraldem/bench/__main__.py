@@ -33,6 +33,8 @@ BENCHMARKS = {
                       "the GNS baseline's stability map on the fluidized bed (fb_stability's JSON and figure)"),
     "all": ("neuraldem.bench.suite:run_all", "the hopper benchmarks above, and the fluidized bed's with --fb-ckpt"),
     "render": ("neuraldem.bench.suite:render", "redraw every figure and table from the results files"),
+    "seed_floor": ("neuraldem.bench.seed_floor",
+                   "LIGGGHTS rerun with other packing seeds: the noise floor of every hopper quantity"),
 }
 
 

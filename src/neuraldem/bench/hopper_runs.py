@@ -19,15 +19,11 @@ from omegaconf import OmegaConf
 from neuraldem.bench.hopper_surrogate import answer, full_question, load_surrogate, pick_record, surrogate_dataset
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock, Timing, time_call, torch_threads
 from neuraldem.errors import DataError
+from neuraldem.eval.hopper_eval import HOPPER_ERRORS
 from neuraldem.paths import data_dir
 
 METRICS = Path("evaluation") / "metrics.json"
 # practitioner's quantities: aggregate key in metrics.json -> chart label
-HOPPER_ERRORS = {
-    "drainage_mae_pct_of_mean": "drainage time error [% of mean]",
-    "residual_mae_pp": "residual error [percentage points]",
-    "outflow_rel_err_pct": "outflow rate error [%]",
-}
 EVALUATE_HINT = ("evaluate it with `python -m neuraldem.evaluate ckpt={run}/checkpoints/last.ckpt "
                  "hydra.run.dir={run}/evaluation`, or pass --skip-unevaluated")
 
@@ -85,6 +81,9 @@ def read_run(run_dir: Path) -> EvaluatedRun | None:
                         "the evaluation")
     if "drainage_mae_s" not in aggregate:
         return None  # another scene's metrics (kept out of hopper charts)
+    if "drainage_t95_pct_of_mean" not in aggregate:
+        raise DataError(f"{path} was scored with the metrics before drainage t95 (issue 19): re-run the "
+                        "evaluation with this neuraldem (python -m neuraldem.evaluate ckpt=...)")
     missing = [k for k in HOPPER_ERRORS if k not in aggregate]
     if missing:
         raise DataError(f"{path}: field 'aggregate' lacks {missing}: re-run the evaluation with this neuraldem")

@@ -62,7 +62,9 @@ def scaling_figure(results: dict[str, Any], path: Path) -> Path:
 
 
 METHOD_STYLE = {"surrogate": ("o", "C1"), "liggghts": ("s", "C0"), "GNS": ("D", "C3"), "DPMFoam, cheaper settings": ("s", "C0"),
-                "DPMFoam, another packing": ("^", "C2")}
+                "DPMFoam, another packing": ("^", "C2"), "constant (training mean)": ("v", "0.4"),
+                "Gaussian process": ("P", "C4"), "field model (CV)": ("*", "C1"),
+                "LIGGGHTS, another packing seed": ("^", "C0")}
 
 
 def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path:
@@ -89,6 +91,9 @@ def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path:
         front = [points[i] for i in results["pareto_front"][key]]
         ax.plot([p["time_to_answer_s"] for p in front], [p["errors"][key] for p in front], "k-", lw=1,
                 alpha=0.6, label="Pareto front", zorder=2)
+        floor = (results.get("floor") or {}).get(key)
+        if _finite(floor):
+            ax.axhline(floor, color="C0", ls=":", lw=1.2, label="LIGGGHTS seed floor (rerun, another packing)")
         ref = results.get("reference")
         if ref and _finite(ref.get("time_to_answer_s")):
             ax.axvline(ref["time_to_answer_s"], color="C0", ls="--", lw=1,

@@ -1,7 +1,9 @@
 """Right-sizing: the smallest model within 10 % of the best accuracy, for each scene, with its speed.
 
 `python -m neuraldem.bench right_sizing (--runs DIR... | --from results/bench/speed_accuracy.json)
-[--metric drainage_mae_pct_of_mean|residual_mae_pp|outflow_rel_err_pct|all] [--tolerance 0.10]` writes results/bench/right_sizing.json and .md.
+[--metric drainage_t95_pct_of_mean|drainage_mae_pct_of_mean|residual_mae_pp|outflow_rel_err_pct|all]
+[--tolerance 0.10]` writes results/bench/right_sizing.json and .md. Candidates are the field models and, from a
+speed_accuracy.json made with `--cv`, the scalar baselines (constant, Gaussian process).
 
 Runs are compared only with runs that answer the same task: the same dataset, split and conditioning. Runs
 of one task and one size (e.g. seeds) are one candidate: their errors averaged, their range kept, so one lucky
@@ -27,6 +29,9 @@ from neuraldem.config import checks
 from neuraldem.errors import DataError
 
 NAME = "right_sizing"
+# what may answer a practitioner's question: field models (timed or cross-validated) and the scalar baselines
+# (a Gaussian process on the scene scalars is the smallest model where the question is a few numbers)
+CANDIDATE_METHODS = ("surrogate", "field model (CV)", "Gaussian process", "constant (training mean)")
 
 
 def _value(v: Any) -> float:
@@ -49,7 +54,7 @@ def merge_repeats(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     repeat has one), their [min, max] in `error_ranges`, the median time to answer, the labels joined."""
     groups: dict[tuple, list[dict[str, Any]]] = {}
     for row in rows:
-        key = (task_of(row), json.dumps(row.get("size", {}), sort_keys=True, default=str))
+        key = (task_of(row), row.get("method"), json.dumps(row.get("size", {}), sort_keys=True, default=str))
         groups.setdefault(key, []).append(row)
     merged = []
     for group in groups.values():
@@ -152,7 +157,7 @@ def main(argv: list[str]) -> int:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--runs", type=Path, nargs="+", help="folders holding evaluated runs (timed here)")
     src.add_argument("--from", dest="from_file", type=Path, help="a speed_accuracy.json (its surrogate points)")
-    p.add_argument("--metric", default="drainage_mae_pct_of_mean", choices=[*HOPPER_ERRORS, "all"],
+    p.add_argument("--metric", default="drainage_t95_pct_of_mean", choices=[*HOPPER_ERRORS, "all"],
                    help="the error to right-size by; all = one pick per quantity")
     p.add_argument("--tolerance", type=float, default=0.10, help="0.10 = within 10 %% of the best error")
     p.add_argument("--skip-unevaluated", action="store_true")
@@ -165,8 +170,8 @@ def main(argv: list[str]) -> int:
     machine = machine_info()
     if a.from_file is not None:
         rows = [pt for pt in read_results(a.from_file, "speed_accuracy")["results"]["points"]
-                if pt["method"] == "surrogate"]
-        source = f"surrogate points of {a.from_file}"
+                if pt["method"] in CANDIDATE_METHODS and pt.get("conditioning")]
+        source = f"surrogate and scalar-baseline points of {a.from_file}"
     else:
         runs, _ = collect_runs(a.runs, a.skip_unevaluated)
         rows = surrogate_points(runs, a.repeats, a.threads, None)

@@ -7,12 +7,15 @@ Points: every evaluated surrogate run under the folders (errors from its evaluat
 answer measured here), LIGGGHTS at cheaper settings scored against the dataset's reference runs of the
 same parameters (`bench.solver_variants`), and with `--gns-ckpt` the particle-based GNS baseline rolled out
 over whole test trajectories (`bench.gns_points`). One panel per quantity (drainage time, residual, outflow); the
-Pareto front of each panel is what users should choose from.
+Pareto front of each panel is what users should choose from. With `--cv FILE.json` (the cross-validated table
+of `neuraldem.eval.hopper_cv`) the chart also holds the constant and Gaussian-process baselines and the field
+model at their cross-validated errors, and LIGGGHTS rerun with another packing seed, drawn as the floor line.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -34,10 +37,24 @@ from neuraldem.bench.solver_variants import DEFAULT_VARIANTS, SolverVariant, sco
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError, DataError
+from neuraldem.eval.hopper_cv import ROWS
 from neuraldem.paths import data_dir
 from neuraldem.sim.liggghts import find_liggghts
 
 NAME = "speed_accuracy"
+
+
+def read_cv(path: Path) -> dict[str, Any]:
+    if not Path(path).is_file():
+        raise DataError(f"--cv {path} does not exist: make it with python -m neuraldem.eval.hopper_cv --dataset DIR "
+                        "[GRID...] --out FILE.md (pass FILE.json)")
+    try:
+        cv = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as err:
+        raise DataError(f"--cv {path} is not valid JSON ({err}): write it again with neuraldem.eval.hopper_cv") from None
+    if "summary" not in cv or "folds" not in cv:
+        raise DataError(f"--cv {path} is not a cross-validation result of neuraldem.eval.hopper_cv (no summary)")
+    return cv
 
 
 def runs_of_one_scene(runs: list[EvaluatedRun], scene: str | None) -> list[EvaluatedRun]:
@@ -85,6 +102,34 @@ def reference_time(dataset_dir: Path, solver: list[dict[str, Any]]) -> dict[str,
     return {"time_to_answer_s": cpu[len(cpu) // 2], "source": "dataset manifest: CPU s recorded at datagen"}
 
 
+CV_METHODS = {"constant": "constant (training mean)", "gp": "Gaussian process", "field model": "field model (CV)"}
+
+
+def cv_points(cv: dict[str, Any], split: str, row: str, scene: str) -> tuple[list[dict[str, Any]], dict[str, float]]:
+    """Chart points of a cross-validated table (`neuraldem.eval.hopper_cv`): every method's mean error over the
+    folds at its measured time per answer, and the LIGGGHTS seed floor (its errors per quantity)."""
+    summary = cv.get("summary", {}).get(split, {}).get(row)
+    if not summary:
+        raise DataError(f"the cross-validation file has no {split}/{row} rows (has "
+                        f"{ {k: sorted(v) for k, v in cv.get('summary', {}).items()} }): pick them with --cv-split/--cv-row")
+    points = []
+    for method, s in summary.items():
+        kind = CV_METHODS.get(method) or (CV_METHODS["field model"] if method.startswith("field model") else method)
+        points.append({"method": kind, "label": f"{method}, {s['n_folds']}-fold CV",
+                       "data_name": scene, "split": split, "conditioning": ROWS[row],
+                       "errors": {k: s[k]["mean"] for k in HOPPER_ERRORS if k in s},
+                       "error_std": {k: s[k]["std"] for k in HOPPER_ERRORS if k in s},
+                       "size": {"parameters": s.get("n_parameters")},
+                       "time_to_answer_s": s["answer_s"]["mean"], "source": "cross-validation"})
+    floor = cv.get("seed_floor") or {}
+    if floor:
+        points.append({"method": "LIGGGHTS, another packing seed",
+                       "label": f"{floor['n_sets']} sets x {floor['n_seeds']} seeds",
+                       "errors": {k: floor[k]["mean"] for k in HOPPER_ERRORS if k in floor},
+                       "time_to_answer_s": floor["answer_s"]["mean"], "source": "bench seed_floor"})
+    return points, {k: floor[k]["mean"] for k in HOPPER_ERRORS if k in floor}
+
+
 def chart(points: list[dict[str, Any]]) -> dict[str, list[int]]:
     """Pareto front (indices into `points`) per quantity, over the points with a time and that error."""
     fronts = {}
@@ -123,7 +168,12 @@ def render_markdown(results: dict[str, Any]) -> str:
 
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog=f"python -m neuraldem.bench {NAME}", description=__doc__.split("\n")[0])
-    p.add_argument("--runs", type=Path, nargs="+", required=True, help="folders holding evaluated training runs")
+    p.add_argument("--runs", type=Path, nargs="+", default=[], help="folders holding evaluated training runs")
+    p.add_argument("--cv", type=Path, default=None,
+                   help="a cross-validated table (python -m neuraldem.eval.hopper_cv ... --out X.md: pass X.json): "
+                        "constant, Gaussian process and field model points, and the LIGGGHTS seed floor")
+    p.add_argument("--cv-split", default="random", choices=["random", "band"])
+    p.add_argument("--cv-row", default="micro", choices=["micro", "macro"])
     p.add_argument("--scene", default=None, help="dataset name, when the runs are of several")
     p.add_argument("--dataset", type=Path, default=None, help="dataset dir (default: the one the runs recorded)")
     p.add_argument("--skip-unevaluated", action="store_true", help="leave out runs without evaluation/metrics.json")
@@ -144,19 +194,24 @@ def main(argv: list[str]) -> int:
     checks.positive_int("repeats", a.repeats)
     checks.positive_int("threads", a.threads)
     variants = [SolverVariant.parse(s) for s in a.solver_variants]
-    runs, notes = collect_runs(a.runs, a.skip_unevaluated)
-    runs = runs_of_one_scene(runs, a.scene)
+    if not a.runs and a.cv is None:
+        raise ConfigError("nothing to chart: pass --runs FOLDER... (evaluated training runs) and/or --cv FILE.json")
+    cv = read_cv(a.cv) if a.cv is not None else None
+    runs, notes = collect_runs(a.runs, a.skip_unevaluated) if a.runs else ([], [])
+    runs = runs_of_one_scene(runs, a.scene) if runs else []
     dataset = a.dataset or next((r.dataset for r in runs if (r.dataset / "manifest.json").is_file()),
-                                data_dir() / "datasets" / runs[0].data_name)
+                                Path(cv["dataset"]) if cv else data_dir() / "datasets" / runs[0].data_name)
+    scene = runs[0].data_name if runs else dataset.name
+    split = runs[0].split if runs else a.cv_split
     # everything that can fail is checked before the first measurement
     solver: list[dict[str, Any]] = []
     reference: dict[str, Any] = {}
     run_solver = a.reuse_solver is None and not a.skip_solver
     if a.reuse_solver is not None:
         old = read_results(a.reuse_solver, NAME)["results"]
-        if old.get("scene") != runs[0].data_name:
+        if old.get("scene") != scene:
             raise DataError(f"--reuse-solver {a.reuse_solver} holds LIGGGHTS points of scene {old.get('scene')!r}, "
-                            f"the runs are of {runs[0].data_name!r}: pass results of the same scene")
+                            f"the runs are of {scene!r}: pass results of the same scene")
         solver = [p for p in old["points"] if p["method"] == "liggghts"]
         reference = old.get("reference") or {}
         notes.append(f"LIGGGHTS points taken from {a.reuse_solver} (not re-run)")
@@ -172,13 +227,19 @@ def main(argv: list[str]) -> int:
     machine = machine_info()
     warning = warn_if_busy(machine)
     points = surrogate_points(runs, a.repeats, a.threads, a.dataset)
+    floor: dict[str, float] = {}
+    if cv is not None:
+        cv_pts, floor = cv_points(cv, a.cv_split, a.cv_row, scene)
+        points += cv_pts
+        notes.append(f"constant / Gaussian process / field model (CV) points: {a.cv_split} folds, {a.cv_row} "
+                     f"conditioning, from {a.cv}; their times are the measured time per answer of one run")
     points += [gns_point(c, a.gns_sims, a.dataset, a.threads) for c in a.gns_ckpt]
     if run_solver:
-        solver = solver_points(dataset, variants, a.solver_sims, runs[0].split, a.workdir or default_workdir(NAME))
+        solver = solver_points(dataset, variants, a.solver_sims, split, a.workdir or default_workdir(NAME))
         reference = reference_time(dataset, solver)
     points += solver
-    results = {"scene": runs[0].data_name, "dataset": str(dataset), "quantities": HOPPER_ERRORS,
-               "points": points, "pareto_front": chart(points), "reference": reference,
+    results = {"scene": scene, "dataset": str(dataset), "quantities": HOPPER_ERRORS,
+               "points": points, "pareto_front": chart(points), "reference": reference, "floor": floor,
                "threads": {"surrogate_torch_threads": a.threads, "solver_threads": 1}, "notes": notes,
                "warning": warning}
     path = write_results(NAME, results, command=command_line(NAME, argv), path=a.out or default_path(NAME),

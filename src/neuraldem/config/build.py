@@ -6,7 +6,7 @@ from typing import Any
 
 import lightning as L
 from hydra.utils import instantiate
-from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, ProgressBar
+from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, ProgressBar, WeightAveraging
 from omegaconf import DictConfig
 
 from neuraldem.config import checks
@@ -80,6 +80,9 @@ def build_callbacks(cfg: DictConfig | None, with_logger: bool = True) -> list[An
     callbacks = _build_group("callbacks", cfg)
     if not with_logger:
         callbacks = [cb for cb in callbacks if not isinstance(cb, LearningRateMonitor)]
+    # weight averaging (EMA) last: it swaps the averaged weights in at the start of a validation and back at its
+    # end, so every other callback's validation hook (e.g. the practitioner validation) sees the averaged model
+    callbacks.sort(key=lambda cb: isinstance(cb, WeightAveraging))
     check_monitored_metrics(callbacks)
     return callbacks
 

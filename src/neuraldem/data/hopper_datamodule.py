@@ -143,6 +143,21 @@ def _in_ball(rng: np.random.Generator, n: int, radius: float) -> np.ndarray:
     return v * radius * rng.random((n, 1)) ** (1 / 3)
 
 
+def cv_records(m: Manifest, n_sims: int | None, dataset_dir: Path) -> list[SimRecord]:
+    """The usable runs among the first `n_sims` simulations of the parameter table (all usable runs for None);
+    refused while one of those is still pending, so every fold sees one fixed set of runs."""
+    if n_sims is None:
+        return m.usable()
+    if n_sims > len(m.simulations):
+        raise DataError(f"data.datamodule.n_sims={n_sims} but {dataset_dir} has {len(m.simulations)} simulations: "
+                        f"lower it or generate more with python -m neuraldem.datagen data={m.name} n_sims={n_sims}")
+    pending = [r.sim_id for r in m.simulations[:n_sims] if r.status == "pending"]
+    if pending:
+        raise DataError(f"{len(pending)} of the first {n_sims} simulations of {dataset_dir} are not finished (e.g. "
+                        f"{pending[0]}): wait for datagen, or lower data.datamodule.n_sims")
+    return [r for r in m.simulations[:n_sims] if r.usable]
+
+
 def tail_weights(active: np.ndarray, tail_share: float) -> np.ndarray:
     """Sampling weights that draw `tail_share` of the samples from the held tail, the rest from active runs."""
     n_active, n_tail = int(active.sum()), int((~active).sum())
@@ -162,7 +177,7 @@ class HopperDataModule(L.LightningDataModule):
                  batch_size: int = 8, n_queries: int = 1024, box_fraction: float = 0.25, jitter_d: float = 0.5,
                  tail_share: float = 0.1, occupancy_radius_d: float = 0.6, num_workers: int = 0, seed: int = 0,
                  eval_time_stride: int = 4, fold: int | None = None, n_folds: int = 5, split_seed: int = 0,
-                 val_fraction: float = 0.1):
+                 val_fraction: float = 0.1, n_sims: int | None = None):
         super().__init__()
         self.dataset_dir = Path(dataset_dir)
         self.name = name
@@ -186,6 +201,9 @@ class HopperDataModule(L.LightningDataModule):
                               f"{self.n_folds} (folds are 0 .. {self.n_folds - 1})")
         self.split_seed = checks.positive_int("data.datamodule.split_seed", split_seed, allow_zero=True)
         self.val_fraction = checks.fraction("data.datamodule.val_fraction", val_fraction)
+        # cross-validation over the first n_sims simulations of the parameter table: folds that stay the same
+        # while datagen adds runs (null = every usable run now)
+        self.n_sims = None if n_sims is None else checks.positive_int("data.datamodule.n_sims", n_sims)
         self.split_ids: dict[str, list[str]] = {}
         self.occupancy_radius_d = checks.number("data.datamodule.occupancy_radius_d", occupancy_radius_d,
                                                 lo=0.5, hi=2.0, lo_open=True)
@@ -233,11 +251,12 @@ class HopperDataModule(L.LightningDataModule):
         """The manifest's split, or one fold of a cross-validation over its usable runs."""
         if self.fold is None:
             return {part: m.split_ids(self.split, part) for part in ("train", "val", "test")}
+        records = cv_records(m, self.n_sims, self.dataset_dir)
         alpha = m.parameters.get("ranges", {}).get("alpha")
         if alpha is None:
-            alphas = [r.params["alpha"] for r in m.usable()]
+            alphas = [r.params["alpha"] for r in records]
             alpha = [min(alphas), max(alphas)]
-        return cv_split(m.usable(), self.split, self.fold, self.n_folds, self.split_seed, self.val_fraction,
+        return cv_split(records, self.split, self.fold, self.n_folds, self.split_seed, self.val_fraction,
                         (float(alpha[0]), float(alpha[1])), dataset=str(self.dataset_dir))
 
     def fit_normalizer(self) -> HopperNormalizer:

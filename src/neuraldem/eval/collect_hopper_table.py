@@ -31,11 +31,11 @@ def render(results: list[dict]) -> str:
         lines += [f"### split: {split} ({'/'.join(map(str, n))} test simulations)", "", TABLE_HEADER]
         lines += [r["table_row"] for r in rows]
         lines.append("")
-        lines.append("| conditioning | drainage MAE [% of mean] | flow-regime accuracy [%] | checkpoint |")
+        lines.append("| conditioning | drainage t95 [% of mean] | flow-regime accuracy [%] | checkpoint |")
         lines.append("|---|---|---|---|")
         for r in rows:
             a = r["aggregate"]
-            lines.append(f"| {', '.join(r['conditioning'])} | {a['drainage_mae_pct_of_mean']:.1f} | "
+            lines.append(f"| {', '.join(r['conditioning'])} | {a['drainage_t95_pct_of_mean']:.1f} | "
                          f"{100 * a['flow_regime_accuracy']:.0f} | {Path(r['checkpoint']).name} |")
         lines.append("")
     return "\n".join(lines)

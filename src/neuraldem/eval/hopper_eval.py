@@ -7,6 +7,7 @@ Gaussian process) and LIGGGHTS rerun with other packing seeds are all scored by 
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,7 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from neuraldem.data.hopper_store import HopperFile
-from neuraldem.data.manifest import SimRecord
+from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.eval.hopper_metrics import (
     SCALARS,
     HopperMetricSettings,
@@ -48,11 +49,17 @@ class SimEvaluation:
     fields_truth: TrajectoryFields | None = field(default=None, repr=False)
     fields_predicted: TrajectoryFields | None = field(default=None, repr=False)
     extrapolation: dict[str, list[float]] = field(default_factory=dict)  # scalars outside the trained range
+    answer_s: float = float("nan")  # wall time of the predictor's fields for this run
 
     def as_dict(self) -> dict[str, Any]:
         return {"sim_id": self.sim_id, "params": self.params, "truth": self.truth, "predicted": self.predicted,
                 "transport_mse": self.transport_mse, "residence_mse": self.residence_mse,
-                "extrapolation": self.extrapolation}
+                "extrapolation": self.extrapolation, "answer_s": self.answer_s}
+
+
+def dataset_metric_settings(m: Manifest) -> HopperMetricSettings:
+    """The metric settings the dataset's stored metrics were computed with (defaults for older datasets)."""
+    return HopperMetricSettings.from_config(m.metric_settings or {}, f"{m.name} manifest metric_settings")
 
 
 def summarise(fields: TrajectoryFields, initial_z: np.ndarray,
@@ -72,7 +79,9 @@ def evaluate_sims(records: list[SimRecord], dataset_dir: Path, truth: HopperPred
         with HopperFile(dataset_dir / str(rec.file)) as f:
             points, exits = f.initial_positions(), f.exit_times
         ft = truth.fields(rec, times, points)
+        t0 = time.perf_counter()
         fp = model.fields(rec, times, points)
+        answer_s = time.perf_counter() - t0
         st, stripes_t = summarise(ft, points[:, 2], settings)
         st["residual_fraction_particles"] = float(np.mean(~np.isfinite(exits)))
         sp, stripes_p = summarise(fp, points[:, 2], settings)
@@ -86,7 +95,7 @@ def evaluate_sims(records: list[SimRecord], dataset_dir: Path, truth: HopperPred
             residence_mse=float(np.mean(dr**2)) if dr.size else float("nan"),
             stripes_truth=stripes_t, stripes_predicted=stripes_p,
             fields_truth=ft if i < keep_fields else None, fields_predicted=fp if i < keep_fields else None,
-            extrapolation=flag(rec) if flag is not None else {}))
+            extrapolation=flag(rec) if flag is not None else {}, answer_s=answer_s))
     return out
 
 
@@ -125,7 +134,9 @@ def aggregate(evals: list[SimEvaluation]) -> dict[str, float]:
     out["transport_mse"] = float(np.nanmean([e.transport_mse for e in evals]))
     out["residence_mse"] = float(np.nanmean([e.residence_mse for e in evals]))
     out["n_extrapolated"] = int(sum(bool(e.extrapolation) for e in evals))
+    out["answer_s"] = float(np.median([e.answer_s for e in evals]))  # the field model's time per run
     return out
 
 
-__all__ = ["HOPPER_ERRORS", "SCALARS", "SimEvaluation", "aggregate", "evaluate_sims", "score_answers", "summarise"]
+__all__ = ["HOPPER_ERRORS", "SCALARS", "SimEvaluation", "aggregate", "dataset_metric_settings", "evaluate_sims",
+           "score_answers", "summarise"]

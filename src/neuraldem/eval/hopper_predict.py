@@ -6,7 +6,7 @@ code cannot tell them apart: feeding the DEM predictor through it must reproduce
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
@@ -71,16 +71,38 @@ class ModelPredictor:
     chunk_size: int = 16384
     device: str = "cpu"
 
+    box_tolerance: float = 0.05  # query points this far (share of the box) outside it are clipped and flagged
+    outside_box: dict[str, list[float]] = field(default_factory=dict)
+
     def extrapolation(self, rec: SimRecord) -> dict[str, list[float]]:
-        """Conditioning scalars of `rec` outside the trained ranges: {name: [value, lo, hi]}."""
-        return self.norm.outside_range(rec.conditioning(), self.conditioning)
+        """Where the answer for `rec` is an extrapolation: conditioning scalars outside the trained ranges
+        ({name: [value, lo, hi]}) and query points outside the trained box ({"query_points_outside_box":
+        [n outside, n points, largest distance in m]}, after `fields`)."""
+        out = self.norm.outside_range(rec.conditioning(), self.conditioning)
+        if self.outside_box.get(rec.sim_id, [0])[0]:
+            out["query_points_outside_box"] = self.outside_box[rec.sim_id]
+        return out
+
+    def _query_points(self, rec: SimRecord, points: np.ndarray) -> np.ndarray:
+        """Normalised query points; those slightly outside the trained box (a fill a few mm higher than every
+        training run's) are clipped onto it and counted, those far outside are refused."""
+        u = self.norm.positions(points)
+        outside = ~np.all((u >= 0) & (u <= 1), axis=-1)
+        if outside.any():
+            far = ~np.all((u >= -self.box_tolerance) & (u <= 1 + self.box_tolerance), axis=-1)
+            if far.any():
+                self.norm.check_inside(points[far], f"{rec.sim_id} query points")
+            clipped = np.clip(u, 0.0, 1.0)
+            dist = np.linalg.norm(self.norm.positions_back(clipped) - points, axis=-1)
+            self.outside_box[rec.sim_id] = [int(outside.sum()), len(points), float(dist.max())]
+            u = clipped
+        return u
 
     @torch.no_grad()
     def fields(self, rec: SimRecord, times: np.ndarray, points: np.ndarray) -> TrajectoryFields:
-        self.norm.check_inside(points, f"{rec.sim_id} query points")
         self.net.eval()
         scalars = np.stack([self.norm.scalars(rec.conditioning(), self.conditioning, float(t)) for t in times])
-        q = torch.from_numpy(self.norm.positions(points)).float().to(self.device)
+        q = torch.from_numpy(self._query_points(rec, points)).float().to(self.device)
         s = torch.from_numpy(scalars).to(self.device)
         occ, transport, residence = [], [], []
         for k in range(len(times)):  # one time per call keeps memory at (Q x dim)

@@ -17,8 +17,8 @@ from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.eval import hopper_plots
 from neuraldem.eval.checkpoints import checkpoint_dataset, split_records
-from neuraldem.eval.hopper_eval import SimEvaluation, aggregate, evaluate_sims
-from neuraldem.eval.hopper_metrics import HopperMetricSettings, layer_edges
+from neuraldem.eval.hopper_eval import SimEvaluation, aggregate, dataset_metric_settings, evaluate_sims
+from neuraldem.eval.hopper_metrics import layer_edges
 from neuraldem.eval.hopper_predict import DemPredictor, ModelPredictor, time_grid
 from neuraldem.eval.vtk_export import write_point_series
 from neuraldem.lit.hopper_module import HopperModule
@@ -90,7 +90,8 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     out_dir.mkdir(parents=True, exist_ok=True)
     result = {
         "checkpoint": str(Path(ckpt).resolve()), "dataset": str(dataset_dir), "split": split, "part": part,
-        "fold": meta.get("fold"), "metric_settings": settings.as_dict(),
+        "fold": meta.get("fold"), "n_folds": meta.get("n_folds"), "split_ids": meta.get("split_ids"),
+        "metric_settings": settings.as_dict(),
         "conditioning": meta["conditioning"], "aggregate": agg, "table_row": table_row(meta, agg),
         "simulations": [e.as_dict() for e in evals], "machine": machine_info(),
         "command": " ".join(sys.argv), "date_utc": datetime.now(UTC).isoformat(timespec="seconds"),
@@ -119,11 +120,6 @@ def checkpoint_records(meta: dict[str, Any], m: Manifest, dataset_dir: Path, spl
     return split_records(m, dataset_dir, split, part, max_sims), split
 
 
-def dataset_metric_settings(m: Manifest) -> HopperMetricSettings:
-    """The metric settings the dataset's stored metrics were computed with (defaults for older datasets)."""
-    return HopperMetricSettings.from_config(m.metric_settings or {}, f"{m.name} manifest metric_settings")
-
-
 def warn_extrapolation(evals: list[SimEvaluation]) -> None:
     """An answer outside the trained ranges is still given, but never silently."""
     for e in evals:
@@ -135,9 +131,10 @@ def warn_extrapolation(evals: list[SimEvaluation]) -> None:
 def write_figures(evals: list[SimEvaluation], m: Manifest, dataset_dir: Path, times: np.ndarray,
                   out_dir: Path, split: str, hop: dict[str, Any]) -> None:
     hopper_plots.scatter_predicted_vs_dem(evals, out_dir / "predicted_vs_dem.png")
-    by_index = sorted(evals, key=lambda e: e.truth["mass_flow_index"])
-    hopper_plots.stripes_over_time({"funnel flow": by_index[0], "mass flow": by_index[-1]}, times,
-                                   out_dir / "stripes.png")
+    by_index = sorted(evals, key=lambda e: np.nan_to_num(e.truth["mass_flow_index"], nan=-2.0))
+    shown = ({"most funnel-like run": by_index[0], "most mass-flow-like run": by_index[-1]} if len(evals) > 1
+             else {"the only run": by_index[0]})
+    hopper_plots.stripes_over_time(shown, times, out_dir / "stripes.png")
     e = by_index[0]
     with HopperFile(dataset_dir / str(m.record(e.sim_id).file)) as f:
         points = f.initial_positions()

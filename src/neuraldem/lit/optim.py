@@ -1,6 +1,7 @@
 """The paper's optimisation (LION, linear warm-up then cosine decay) from `model.optimizer` / `model.scheduler`,
 validated once here so every LightningModule checks the same keys the same way. `model.optimizer.name: adam`
-takes Adam instead (the GNS baseline's optimizer), with the same schedule."""
+takes Adam instead (the GNS baseline's optimizer), `adamw` AdamW (decoupled weight decay), with the same
+schedule."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from neuraldem.errors import ConfigError
 from neuraldem.lit.schedules import warmup_cosine
 
 DEFAULT_OPTIMIZER = {"name": "lion", "lr": 1e-4, "weight_decay": 0.05, "betas": [0.9, 0.99]}
-OPTIMIZERS = ("lion", "adam")
+OPTIMIZERS = ("lion", "adam", "adamw")
 DEFAULT_SCHEDULER = {"warmup_steps": 100, "end_factor": 0.01}
 FALLBACK_TOTAL_STEPS = 10_000  # cosine length when the trainer has no max_steps
 
@@ -56,7 +57,7 @@ def lion_warmup_cosine(params: Any, opt: dict[str, Any], sched: dict[str, Any],
     """What `configure_optimizers` returns: LION (or Adam, `opt["name"]`) with the schedule stepped every
     optimizer step."""
     kwargs = {"lr": opt["lr"], "betas": tuple(opt["betas"]), "weight_decay": opt["weight_decay"]}
-    optimizer = torch.optim.Adam(params, **kwargs) if opt.get("name") == "adam" else Lion(params, **kwargs)
+    optimizer = {"adam": torch.optim.Adam, "adamw": torch.optim.AdamW}.get(opt.get("name"), Lion)(params, **kwargs)
     total = max_steps if max_steps and max_steps > 0 else FALLBACK_TOTAL_STEPS
     warm, end = sched["warmup_steps"], sched["end_factor"]
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: warmup_cosine(s, warm, total, end))

@@ -15,6 +15,7 @@ from torch import nn
 
 from neuraldem.config import checks
 from neuraldem.models.modules.perceiver_decoder import PerceiverDecoder
+from neuraldem.models.modules.position_embedding import DEFAULT_COORD_SCALE
 from neuraldem.models.modules.scalar_conditioner import ScalarConditioner
 from neuraldem.models.modules.transformer_block import DitTransformerBlock
 
@@ -56,6 +57,9 @@ class HopperFieldModel(nn.Module):
         dim: token width; num_heads: attention heads (must divide dim); cond_dim: conditioning vector width.
         n_latent_tokens: learned latent tokens per branch (paper: 32); depth: transformer blocks per branch
         (paper: 1); mlp_ratio: MLP hidden width / dim.
+        time_coord_scale / scalar_coord_scale: sin-cos scale of the first scalar (time) / of the others; the
+        finest period is ~6/scale in normalised units, so a scale of 1000 resolves steps of 0.006, finer than
+        the spacing of ~100 training parameter sets (it memorises them); see conf/model/hopper_tiny.yaml.
 
     forward(scalars (B, S), query_pos, chunk_size=None) -> {branch: (B, Q, channels)}.
     `scalars` are normalised by the data layer (roughly [0, 1]); `query_pos` are positions normalised to
@@ -65,14 +69,17 @@ class HopperFieldModel(nn.Module):
 
     def __init__(self, n_scalars: int, branches: Sequence[str] = DEFAULT_BRANCHES, dim: int = 192,
                  num_heads: int = 3, cond_dim: int = 384, n_latent_tokens: int = 32, depth: int = 1,
-                 mlp_ratio: float = 4.0) -> None:
+                 mlp_ratio: float = 4.0, time_coord_scale: float = DEFAULT_COORD_SCALE,
+                 scalar_coord_scale: float = DEFAULT_COORD_SCALE) -> None:
         super().__init__()
         self.branches = checks.names("model.net.branches", branches, allowed=BRANCH_CHANNELS)
         self.n_scalars = checks.positive_int("model.net.n_scalars", n_scalars)
         checks.positive_int("model.net.n_latent_tokens", n_latent_tokens)
         checks.positive_int("model.net.depth", depth)
         checks.positive("model.net.mlp_ratio", mlp_ratio)
-        self.conditioner = ScalarConditioner(n_scalars, dim, cond_dim)
+        scales = [checks.positive("model.net.time_coord_scale", time_coord_scale)] + [
+            checks.positive("model.net.scalar_coord_scale", scalar_coord_scale)] * (n_scalars - 1)
+        self.conditioner = ScalarConditioner(n_scalars, dim, cond_dim, scales)
         self.branch_nets = nn.ModuleDict({
             name: HopperBranch(BRANCH_CHANNELS[name], dim, num_heads, cond_dim, n_latent_tokens, depth,
                                mlp_ratio)
