@@ -20,6 +20,7 @@ def test_hopper_evaluation_notebook_runs(tiny_checkpoint: Path, data_root: Path,
     namespace = run_notebook("hopper_evaluation.ipynb")
     assert namespace["result"]["aggregate"]["n_sims"] == 1
     assert (tmp_path / "metrics.json").is_file()
+    assert set(namespace["rows"]) == {"field model", "constant", "gp"}  # the baselines on the same run
 
 
 def test_fb_evaluation_notebook_runs(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tmp_path: Path, monkeypatch):
