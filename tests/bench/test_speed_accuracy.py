@@ -85,3 +85,28 @@ def test_bad_inputs_are_one_line(evaluated_runs: Path, tmp_path: Path, capsys: p
                        str(tmp_path / "none.json"), *out]) == 2
     assert "no results at" in capsys.readouterr().err
     assert not (tmp_path / "x.json").exists()
+
+
+def test_cross_validated_points_and_the_seed_floor(tmp_path: Path):
+    """`--cv`: the constant, the GP and the field model at their cross-validated errors, LIGGGHTS rerun with
+    another seed as a point and as the floor line (hand-written CV file: a unit test of the assembly)."""
+    def summary(err: float, t: float) -> dict:
+        return {"n_folds": 5, "n_test": 40, "n_parameters": 100, "answer_s": {"mean": t, "std": 0.0},
+                **{k: {"mean": err, "std": 1.0} for k in HOPPER_ERRORS}}
+
+    cv = {"dataset": str(tmp_path / "hopper_small"), "folds": [],
+          "summary": {"random": {"micro": {"constant": summary(30.0, 1e-4), "gp": summary(10.0, 3e-3),
+                                           "field model": summary(8.0, 4.0)}}},
+          "seed_floor": {"n_sets": 10, "n_seeds": 3, "answer_s": {"mean": 60.0, "std": float("nan")},
+                         **{k: {"mean": 2.0, "std": float("nan")} for k in HOPPER_ERRORS}}}
+    path = tmp_path / "cv.json"
+    path.write_text(json.dumps(cv))
+    out = tmp_path / "sa.json"
+    assert bench_main(["speed_accuracy", "--cv", str(path), "--skip-solver", "--out", str(out)]) == 0
+    r = json.loads(out.read_text())["results"]
+    methods = {p["method"]: p for p in r["points"]}
+    assert set(methods) == {"constant (training mean)", "Gaussian process", "field model (CV)",
+                            "LIGGGHTS, another packing seed"}
+    assert methods["Gaussian process"]["errors"]["drainage_t95_pct_of_mean"] == 10.0
+    assert r["floor"]["residual_mae_pp"] == 2.0 and out.with_suffix(".png").is_file()
+    assert bench_main(["speed_accuracy", "--skip-solver", "--out", str(out)]) == 2  # nothing to chart

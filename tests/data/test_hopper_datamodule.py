@@ -155,3 +155,22 @@ def test_cross_validation_fold_from_the_usable_runs(hopper_tiny_dataset: Path):
 def test_query_points_outside_the_box(dm: HopperDataModule):
     with pytest.raises(DataError, match="outside the scene box"):
         dm.norm.check_inside(np.array([[0.0, 0.0, 5.0]]), "evaluation query")
+
+
+def test_folds_over_the_first_n_sims_wait_for_pending_runs(hopper_tiny_dataset: Path, tmp_path: Path):
+    """n_sims fixes the runs a cross-validation sees while datagen adds more; a pending one is refused."""
+    import shutil
+
+    from neuraldem.data.hopper_datamodule import cv_records
+    from neuraldem.data.manifest import Manifest
+
+    m = Manifest.load(hopper_tiny_dataset)
+    assert [r.sim_id for r in cv_records(m, 5, hopper_tiny_dataset)] == [r.sim_id for r in m.simulations[:5]
+                                                                         if r.usable]
+    other = tmp_path / "ds"
+    shutil.copytree(hopper_tiny_dataset, other)
+    m.simulations[3].status = "pending"
+    with pytest.raises(DataError, match=r"of the first 5 simulations .* are not finished \(e\.g\. sim_0003\)"):
+        cv_records(m, 5, other)
+    with pytest.raises(DataError, match="n_sims=99"):
+        cv_records(m, 99, other)
