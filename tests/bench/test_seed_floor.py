@@ -65,8 +65,7 @@ def test_a_cache_of_other_runs_is_refused(hopper_tiny_dataset: Path, tmp_path: P
     (tmp_path / "reruns.json").write_text(json.dumps({"header": {"version": 1, "seed_offset": 7}, "runs": {}}))
     argv = ["seed_floor", "--dataset", str(hopper_tiny_dataset), "--n-sets", "1", "--workdir", str(tmp_path)]
     assert bench_main(argv) == 2
-    assert "reruns.json holds reruns made with another scene, metric_settings, seed_offset: delete it" in \
-        capsys.readouterr().err
+    assert "reruns.json holds reruns made with another scene, seed_offset: delete it" in capsys.readouterr().err
 
 
 def test_reruns_scored_and_cached(hopper_tiny_dataset: Path, tmp_path: Path, monkeypatch, capsys):
@@ -96,3 +95,12 @@ def test_reruns_scored_and_cached(hopper_tiny_dataset: Path, tmp_path: Path, mon
     out2 = tmp_path / "again.json"
     assert bench_main(argv[:-1] + [str(out2)]) == 0
     assert json.loads(out2.read_text())["results"]["seed_spread"] == r["seed_spread"]
+
+    # new metric settings: the stored reruns are rescored from their files, still without the solver
+    cache = json.loads((work / "reruns.json").read_text())
+    cache["header"]["metric_settings"]["tail_time"] = 0.5
+    (work / "reruns.json").write_text(json.dumps(cache))
+    assert all((work / row["file"]).is_file() for row in cache["runs"].values())
+    assert bench_main(argv[:-1] + [str(tmp_path / "third.json")]) == 0
+    header = json.loads((work / "reruns.json").read_text())["header"]
+    assert header["metric_settings"]["tail_time"] == 1.0  # rescored with the dataset's settings

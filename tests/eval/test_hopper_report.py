@@ -112,3 +112,20 @@ def test_outside_the_trained_ranges_is_answered_and_flagged(tiny_checkpoint: Pat
     assert flagged[val_id]["mu_s"][0] == 5.0 and result["aggregate"]["n_extrapolated"] >= 1
     assert np.isfinite(result["aggregate"]["drainage_t95_pct_of_mean"])  # answered all the same
     assert f"{val_id}: extrapolation, outside the trained range: mu_s=5" in capsys.readouterr().err
+
+
+def test_dem_fields_on_every_second_time_are_the_full_grid_subsampled(hopper_tiny_dataset: Path):
+    """The validation callback asks DEM for every 2nd time: each time must get its own snapshot (a subsampled
+    grid was once paired with the first snapshots in order)."""
+    m = Manifest.load(hopper_tiny_dataset)
+    rec = max(m.usable(), key=lambda r: r.metrics["duration"])
+    hop = m.scene["hopper"]
+    dem = DemPredictor(hopper_tiny_dataset, 0.6 * hop["material"]["diameter"], horizon=hop["max_time"])
+    times = time_grid(hop["max_time"], hop["snapshot_interval"])
+    with HopperFile(hopper_tiny_dataset / rec.file) as f:
+        points = f.initial_positions()[::7]
+    full, half = dem.fields(rec, times, points), dem.fields(rec, times[::2], points)
+    np.testing.assert_array_equal(half.occupancy, full.occupancy[::2])
+    assert full.occupancy[0].all() and full.occupancy.sum(1)[-1] < full.occupancy.sum(1)[0]
+    with pytest.raises(DataError, match="not on its snapshot grid"):
+        dem.fields(rec, times[:3] + 0.01, points)

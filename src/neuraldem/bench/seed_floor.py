@@ -3,8 +3,9 @@
 A hopper run depends on the random packing; a surrogate cannot be expected to agree with the stored run better
 than another run of the same parameters does. For N parameter sets of a dataset (spread over the parameter
 space, chosen reproducibly from --seed) LIGGGHTS is rerun K times, each with packing seeds no stored run uses,
-and scored with the functions that scored the dataset (`datagen.hopper.trajectory_metrics` on the scene's
-max_time grid, the manifest's metric settings). Reported:
+stored like a dataset run (`<workdir>/files/`) and scored from that file with the functions that scored the
+dataset (`datagen.hopper.stored_metrics` on the scene's max_time grid, the manifest's metric settings; new
+settings rescore the stored reruns without running them again). Reported:
 
   rerun vs stored  `eval.hopper_eval.score_answers` of the reruns against the stored runs: "LIGGGHTS with
                    another seed" as a method, in the units of the surrogate's table (directly comparable rows)
@@ -37,7 +38,8 @@ from neuraldem.bench.report import command_line, resolve_out, warn_if_busy, writ
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import atomic_write_json
-from neuraldem.datagen.hopper import trajectory_metrics
+from neuraldem.data.hopper_store import write_hopper_file
+from neuraldem.datagen.hopper import stored_metrics
 from neuraldem.errors import ConfigError, DataError, NeuraldemError, SolverInterrupted
 from neuraldem.eval.hopper_eval import HOPPER_ERRORS, score_answers
 from neuraldem.eval.hopper_metrics import HopperMetricSettings
@@ -120,9 +122,13 @@ def check_seed_range(records: Sequence[SimRecord], seeds: int) -> None:
 # ---- reruns and their cache
 
 def cache_header(scene: HopperScene, settings: HopperMetricSettings) -> dict[str, Any]:
-    """What a cached rerun depends on: reruns of another scene, scoring or seed scheme are not reused."""
+    """What a cached rerun depends on: reruns of another scene or seed scheme are not reused; reruns scored
+    with other metric settings are rescored from their stored trajectories (no solver run)."""
     return json.loads(json.dumps({"version": CACHE_VERSION, "scene": scene.as_dict(),
                                   "metric_settings": settings.as_dict(), "seed_offset": SEED_OFFSET}))
+
+
+RESCORABLE = ("metric_settings",)  # header keys whose change needs no rerun
 
 
 def run_key(rec: SimRecord, k: int) -> str:
@@ -138,10 +144,27 @@ def load_cache(path: Path, header: dict[str, Any]) -> dict[str, dict[str, Any]]:
     except json.JSONDecodeError as err:
         raise DataError(f"{path} is not valid JSON ({err}): delete it (its reruns are run again)") from None
     differs = [k for k in header if payload.get("header", {}).get(k) != header[k]]
-    if differs:
-        raise DataError(f"{path} holds reruns made with another {', '.join(differs)}: delete it, or pass another "
+    fatal = [k for k in differs if k not in RESCORABLE]
+    if fatal:
+        raise DataError(f"{path} holds reruns made with another {', '.join(fatal)}: delete it, or pass another "
                         "--workdir to keep it")
-    return dict(payload.get("runs", {}))
+    runs = dict(payload.get("runs", {}))
+    if differs:  # new metric settings: rescore what has its trajectory, run again what has not
+        settings = HopperMetricSettings.from_config(header["metric_settings"], f"{path} metric_settings")
+        for key, row in list(runs.items()):
+            file = row.get("file")
+            if file and (path.parent / file).is_file() and row.get("metrics") is not None:
+                row["metrics"] = score_file(path.parent / file, header, settings)
+            else:
+                del runs[key]
+        save_cache(path, header, runs)
+    return runs
+
+
+def score_file(path: Path, header: dict[str, Any], settings: HopperMetricSettings) -> dict[str, float]:
+    """A stored rerun's metrics, computed like the dataset's (`datagen.hopper.stored_metrics`)."""
+    hop = header["scene"]
+    return stored_metrics(path, float(hop["material"]["diameter"]), settings, float(hop["max_time"]))
 
 
 def save_cache(path: Path, header: dict[str, Any], runs: dict[str, dict[str, Any]]) -> None:
@@ -149,8 +172,11 @@ def save_cache(path: Path, header: dict[str, Any], runs: dict[str, dict[str, Any
     atomic_write_json(path, {"header": header, "runs": runs})
 
 
-def rerun(scene: HopperScene, rec: SimRecord, k: int, settings: HopperMetricSettings, workdir: Path) -> dict[str, Any]:
-    """One rerun with new packing seeds, scored like the dataset; a failed run is recorded, not raised."""
+def rerun(scene: HopperScene, rec: SimRecord, k: int, settings: HopperMetricSettings, workdir: Path,
+          storage: tuple[str, float] = ("LIGGGHTS", 1e-5)) -> dict[str, Any]:
+    """One rerun with new packing seeds, stored like a dataset run (`files/`, so new metric settings rescore
+    it without running again) and scored from the stored file like the dataset; a failed run is recorded,
+    not raised. `storage`: (solver version, position resolution) of the dataset's files."""
     index = rerun_index(rec.index, k)
     row: dict[str, Any] = {"sim_id": rec.sim_id, "index": rec.index, "params": dict(rec.params), "seed": k,
                            "run_index": index, "packing_seeds": prime_seeds(index, SEEDS_PER_RUN),
@@ -165,14 +191,20 @@ def rerun(scene: HopperScene, rec: SimRecord, k: int, settings: HopperMetricSett
     row.update(status=result.status, reason=result.reason, cpu_s=diag.get("cpu_s"), wall_s=diag.get("wall_s"),
                ended_by=diag.get("ended_by"))
     if result.trajectory is not None and result.status != STATUS_FAILED:
+        rel = f"files/{rec.sim_id}_seed{k}.h5"
+        (workdir.parent / "files").mkdir(parents=True, exist_ok=True)
+        write_hopper_file(workdir.parent / rel, f"{rec.sim_id}_seed{k}", result.trajectory, dict(rec.params),
+                          storage[0], storage[1])
         t0 = time.perf_counter()
-        row["metrics"] = trajectory_metrics(result.trajectory, scene.material.diameter, settings, scene.max_time)
+        row["metrics"] = stored_metrics(workdir.parent / rel, scene.material.diameter, settings, scene.max_time)
         row["metrics_s"] = time.perf_counter() - t0
+        row["file"] = rel
     return row
 
 
 def run_missing(scene: HopperScene, records: list[SimRecord], seeds: int, settings: HopperMetricSettings,
-                workdir: Path, workers: int, progress: bool = True) -> dict[str, dict[str, Any]]:
+                workdir: Path, workers: int, progress: bool = True,
+                storage: tuple[str, float] = ("LIGGGHTS", 1e-5)) -> dict[str, dict[str, Any]]:
     """Every (set, seed) rerun, from the cache where finished; each new one is cached as it finishes."""
     cache_path, header = workdir / CACHE_NAME, cache_header(scene, settings)
     runs = load_cache(cache_path, header)
@@ -185,7 +217,8 @@ def run_missing(scene: HopperScene, records: list[SimRecord], seeds: int, settin
     interrupted: SolverInterrupted | None = None
     with ThreadPoolExecutor(max_workers=workers) as pool:
         futures: dict[Future[dict[str, Any]], str] = {
-            pool.submit(rerun, scene, rec, k, settings, workdir / "runs"): run_key(rec, k) for rec, k in todo}
+            pool.submit(rerun, scene, rec, k, settings, workdir / "runs", storage): run_key(rec, k)
+            for rec, k in todo}
         for fut in as_completed(futures):
             if fut.cancelled():  # queued when another run was interrupted: it stays to do
                 continue
@@ -349,7 +382,9 @@ def plan(dataset: Path, n_sets: int, seeds: int, seed: int, workdir: Path | None
 
 
 def run(p: Plan, workers: int, progress: bool = True) -> dict[str, Any]:
-    runs = run_missing(p.scene, p.records, p.seeds, p.settings, p.workdir, workers, progress)
+    storage = (str(p.manifest.solver.get("version", "LIGGGHTS")),
+               float(p.manifest.scene.get("position_resolution", 1e-5)))
+    runs = run_missing(p.scene, p.records, p.seeds, p.settings, p.workdir, workers, progress, storage)
     out = {"scene": p.manifest.name, "dataset": str(p.dataset.resolve()), "n_sets": len(p.records), "seeds": p.seeds,
            "seed_offset": SEED_OFFSET, "horizon_s": p.scene.max_time, "metric_settings": p.settings.as_dict(),
            "selection": {"method": SELECTION, "seed": p.seed, "sim_ids": [r.sim_id for r in p.records]},

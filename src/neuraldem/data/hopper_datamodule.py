@@ -175,7 +175,7 @@ class HopperDataModule(L.LightningDataModule):
 
     def __init__(self, dataset_dir: str, name: str, conditioning: list[str], split: str = "random",
                  batch_size: int = 8, n_queries: int = 1024, box_fraction: float = 0.25, jitter_d: float = 0.5,
-                 tail_share: float = 0.1, occupancy_radius_d: float = 0.6, num_workers: int = 0, seed: int = 0,
+                 tail_share: float = 0.1, occupancy_radius_d: float = 0.8, num_workers: int = 0, seed: int = 0,
                  eval_time_stride: int = 4, fold: int | None = None, n_folds: int = 5, split_seed: int = 0,
                  val_fraction: float = 0.1, n_sims: int | None = None):
         super().__init__()

@@ -17,6 +17,7 @@ from neuraldem.data.hopper_fields import trajectory_fields_at
 from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import SimRecord
 from neuraldem.data.normalization import HopperNormalizer
+from neuraldem.errors import DataError
 from neuraldem.eval.hopper_metrics import metric_times
 
 
@@ -43,6 +44,17 @@ def hold_final_state(positions: np.ndarray, n_times: int) -> np.ndarray:
     return np.concatenate([positions, pad])
 
 
+def snapshot_indices(stored: np.ndarray, times: np.ndarray, path: Path | str = "the file") -> np.ndarray:
+    """The stored snapshot of every time of a grid (any subset of the snapshot times, e.g. every 2nd); times
+    after the run ended take its last snapshot (the held final state)."""
+    dt = float(stored[1] - stored[0]) if len(stored) > 1 else 1.0
+    k = np.rint(np.asarray(times) / dt).astype(np.int64)
+    inside = k < len(stored)
+    if np.any(np.abs(stored[k[inside]] - np.asarray(times)[inside]) > 1e-6 * max(dt, 1.0)):
+        raise DataError(f"{path}: the requested times are not on its snapshot grid (every {dt:g} s)")
+    return np.minimum(k, len(stored) - 1)
+
+
 @dataclass
 class DemPredictor:
     """Ground truth as a 'prediction': fields computed from the particles of the HDF5 file."""
@@ -54,7 +66,7 @@ class DemPredictor:
     def fields(self, rec: SimRecord, times: np.ndarray, points: np.ndarray) -> TrajectoryFields:
         with HopperFile(self.dataset_dir / str(rec.file)) as f:
             pos, exits = f.positions(), f.exit_times
-        pos = hold_final_state(pos, len(times))
+            pos = pos[snapshot_indices(f.times, times, f.path)]
         horizon = self.horizon if self.horizon is not None else float(times[-1])
         exits = np.where(np.isfinite(exits), exits, horizon)
         occ, transport, residence = trajectory_fields_at(points, times, pos, exits, self.occupancy_radius)

@@ -79,6 +79,10 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     hop = m.scene["hopper"]
     times = time_grid(norm.horizon, float(hop["snapshot_interval"]))
     settings = dataset_metric_settings(m)
+    if abs(float(meta["occupancy_radius_d"]) - settings.occupancy_radius_d) > 1e-9:
+        raise DataError(f"checkpoint {ckpt} learned occupancy within {meta['occupancy_radius_d']} diameters, the "
+                        f"metrics of {dataset_dir} count within {settings.occupancy_radius_d}: retrain it "
+                        f"(data.metrics.occupancy_radius_d={settings.occupancy_radius_d})")
     radius = settings.occupancy_radius_d * float(hop["material"]["diameter"])
     model = ModelPredictor(module.net, norm, list(meta["conditioning"]), device=device)
     truth = DemPredictor(dataset_dir, radius, horizon=norm.horizon)
