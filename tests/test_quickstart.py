@@ -21,7 +21,8 @@ def test_hopper_quickstart_end_to_end(hopper_tiny_dataset: Path, data_root: Path
     proc = run_module("neuraldem.train", "experiment=hopper_quickstart", "trainer.max_steps=60",
                       "trainer.val_check_interval=30", f"hydra.run.dir={tmp_path}/run", env=env, timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    assert "| drainage MAE [s] |" in proc.stdout
+    assert "| drainage t95 [% of mean] |" in proc.stdout
+    assert "| field model |" in proc.stdout and "| gp |" in proc.stdout  # the baselines beside the model
     run = tmp_path / "run"  # its own folder: the data root may hold runs of earlier sessions
     ev = run / "evaluation"
     metrics = json.loads((ev / "metrics.json").read_text())

@@ -44,7 +44,7 @@ def main(cfg: DictConfig) -> None:
         dataset_dir=cfg.dataset_dir, split=cfg.split, part=cfg.part, max_sims=cfg.max_sims,
         threshold=cfg.threshold, vtk=cfg.vtk, device=cfg.device)
     print(TABLE_HEADER)
-    print(result["table_row"])
+    print("\n".join(result["table_rows"]))
     agg = result["aggregate"]
     print(f"{agg['n_sims']} {cfg.part} simulations: drainage t95 MAE {agg['drainage_t95_mae_s']:.3f} s "
           f"({agg['drainage_t95_pct_of_mean']:.1f} % of the mean; 1 % rule {agg['drainage_mae_pct_of_mean']:.1f} %), "

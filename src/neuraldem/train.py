@@ -74,7 +74,7 @@ def evaluate_after_training(cfg: DictConfig, trainer: L.Trainer) -> dict[str, fl
                                  datasets_dir=Path(cfg.paths.datasets_dir), dataset_dir=cfg.data.dataset_dir,
                                  progress=False)
     print(TABLE_HEADER)
-    print(result["table_row"])
+    print("\n".join(result["table_rows"]))
     log.info("evaluation of %s written to %s", ckpt, Path(cfg.paths.output_dir) / "evaluation")
     return {f"test/{k}": float(v) for k, v in result["aggregate"].items()}
 

@@ -80,6 +80,10 @@ def test_evaluate_writes_everything(tiny_checkpoint: Path, hopper_tiny_dataset: 
     result = evaluate_checkpoint(tiny_checkpoint, tmp_path, tmp_path, dataset_dir=hopper_tiny_dataset,
                                  part="val", progress=False)
     assert result["aggregate"]["n_sims"] >= 1 and "command" in result and result["machine"]["cpu_count"]
+    # the baselines, fitted on the model's own training runs, scored on the same runs, in the same table
+    assert set(result["baselines"]) == {"constant", "gp"}
+    assert result["baselines"]["gp"]["aggregate"]["n_sims"] == result["aggregate"]["n_sims"]
+    assert [row.split("|")[1].strip() for row in result["table_rows"]] == ["field model", "constant", "gp"]
     for name in ("metrics.json", "table.md", "predicted_vs_dem.png", "stripes.png", "residence_slice.png"):
         assert (tmp_path / name).is_file()
     pvd = next((tmp_path / "vtk").glob("*.pvd"))

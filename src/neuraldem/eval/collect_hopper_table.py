@@ -29,7 +29,7 @@ def render(results: list[dict]) -> str:
         rows = sorted((r for r in results if r["split"] == split), key=order_key)
         n = sorted({r["aggregate"]["n_sims"] for r in rows})
         lines += [f"### split: {split} ({'/'.join(map(str, n))} test simulations)", "", TABLE_HEADER]
-        lines += [r["table_row"] for r in rows]
+        lines += [row for r in rows for row in r.get("table_rows", [r["table_row"]])]
         lines.append("")
         lines.append("| conditioning | drainage t95 [% of mean] | flow-regime accuracy [%] | checkpoint |")
         lines.append("|---|---|---|---|")

@@ -14,9 +14,10 @@ from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.data.schema import atomic_write_json
-from neuraldem.errors import DataError
+from neuraldem.errors import DataError, NeuraldemError
 from neuraldem.eval import hopper_plots
 from neuraldem.eval.checkpoints import checkpoint_dataset, split_records
+from neuraldem.eval.hopper_baselines import score_baseline
 from neuraldem.eval.hopper_eval import SimEvaluation, aggregate, dataset_metric_settings, evaluate_sims
 from neuraldem.eval.hopper_metrics import layer_edges
 from neuraldem.eval.hopper_predict import DemPredictor, ModelPredictor, time_grid
@@ -52,18 +53,40 @@ def load_hopper_checkpoint(path: Path, device: str = "cpu") -> HopperModule:
     return module.to(device).eval()
 
 
-def table_row(meta: dict[str, Any], agg: dict[str, float]) -> str:
+def table_row(meta: dict[str, Any], agg: dict[str, float], method: str = "field model") -> str:
     marks = " | ".join("x" if s in meta["conditioning"] else "-" for s in TABLE_SCALARS)
-    return (f"| {marks} | {agg['drainage_t95_pct_of_mean']:.1f} | {agg['drainage_mae_pct_of_mean']:.1f} | "
+
+    def field(key: str, scale: float) -> str:
+        v = agg.get(key)
+        return "-" if v is None or not np.isfinite(v) else f"{scale * v:.3f}"
+
+    return (f"| {method} | {marks} | {agg['drainage_t95_pct_of_mean']:.1f} | {agg['drainage_mae_pct_of_mean']:.1f} | "
             f"{agg['residual_mae_pp']:.2f} | {agg['outflow_rel_err_pct']:.1f} | "
-            f"{100 * agg['flow_regime_accuracy']:.0f} | {100 * agg['transport_mse']:.3f} | "
-            f"{1000 * agg['residence_mse']:.3f} |")
+            f"{100 * agg['flow_regime_accuracy']:.0f} | {field('transport_mse', 100)} | "
+            f"{field('residence_mse', 1000)} |")
 
 
-TABLE_HEADER = ("| mu_s | mu_r | theta | repose (ffc substitute) | drainage t95 [% of mean] | drainage 1 % rule "
-                "[% of mean] | residual MAE [pp] | outflow rel. error [%] | flow regime [% right] | "
+TABLE_HEADER = ("| method | mu_s | mu_r | theta | repose (ffc substitute) | drainage t95 [% of mean] | drainage 1 % "
+                "rule [% of mean] | residual MAE [pp] | outflow rel. error [%] | flow regime [% right] | "
                 "transport MSE [1e-2] | residence MSE [1e-3] |\n"
-                "|---|---|---|---|---|---|---|---|---|---|---|")
+                "|---|---|---|---|---|---|---|---|---|---|---|---|")
+
+
+def baseline_scores(meta: dict[str, Any], m: Manifest, records: list[SimRecord]) -> dict[str, dict[str, Any]]:
+    """The constant and the Gaussian process fitted on the runs the model trained and validated on, scored on
+    the same runs as the model (every hopper table shows the cheapest honest alternatives beside the model)."""
+    ids = meta.get("split_ids") or {}
+    usable = {r.sim_id for r in m.usable()}
+    train = [m.record(i) for i in ids.get("train", []) + ids.get("val", []) if i in usable]
+    out: dict[str, dict[str, Any]] = {}
+    for kind in ("constant", "gp"):
+        try:
+            r = score_baseline(kind, train, records, list(meta["conditioning"]))
+        except NeuraldemError as err:
+            out[kind] = {"skipped": str(err)}
+            continue
+        out[kind] = {k: r[k] for k in ("aggregate", "answer_s", "n_train", "n_extrapolated", "coverage_95")}
+    return out
 
 
 def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_dir: Path | None = None,
@@ -91,17 +114,21 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
                           keep_fields=len(records), progress=progress)
     warn_extrapolation(evals)
     agg = aggregate(evals)
+    baselines = baseline_scores(meta, m, records)
+    rows = [table_row(meta, agg)] + [table_row(meta, b["aggregate"], kind) for kind, b in baselines.items()
+                                     if "aggregate" in b]
     out_dir.mkdir(parents=True, exist_ok=True)
     result = {
         "checkpoint": str(Path(ckpt).resolve()), "dataset": str(dataset_dir), "split": split, "part": part,
         "fold": meta.get("fold"), "n_folds": meta.get("n_folds"), "split_ids": meta.get("split_ids"),
         "metric_settings": settings.as_dict(),
-        "conditioning": meta["conditioning"], "aggregate": agg, "table_row": table_row(meta, agg),
+        "conditioning": meta["conditioning"], "aggregate": agg, "table_row": rows[0], "table_rows": rows,
+        "baselines": baselines,
         "simulations": [e.as_dict() for e in evals], "machine": machine_info(),
         "command": " ".join(sys.argv), "date_utc": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     atomic_write_json(out_dir / "metrics.json", result)
-    (out_dir / "table.md").write_text(TABLE_HEADER + "\n" + result["table_row"] + "\n")
+    (out_dir / "table.md").write_text(TABLE_HEADER + "\n" + "\n".join(rows) + "\n")
     write_figures(evals, m, dataset_dir, times, out_dir, split, hop)
     if vtk:
         export_vtk(evals[0], m, dataset_dir, out_dir / "vtk", threshold)
