@@ -56,3 +56,16 @@ def test_fb_model_options_are_overridable(override: str, compose_train_cfg):
     for part in key.split("."):
         node = node[part]
     assert node is (value == "true")
+
+
+@pytest.mark.parametrize("override", ["model.optimizer.name=adamw", "model.net.scalar_coord_scale=10",
+                                      "data.datamodule.fold=2", "data.datamodule.tail_share=0.3",
+                                      "+callbacks.ema._target_=lightning.pytorch.callbacks.EMAWeightAveraging"])
+def test_hopper_training_options_are_overridable(override: str, compose_train_cfg):
+    """Every option of the hopper options study (scripts/hopper_options.sh) composes on the command line."""
+    cfg = compose_train_cfg("experiment=hopper_micro", override)
+    key, value = override.lstrip("+").split("=")
+    node = cfg
+    for part in key.split("."):
+        node = node[part]
+    assert str(node) == value
