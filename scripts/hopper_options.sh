@@ -16,6 +16,7 @@ declare -A OPTS=(
   [embed1000]="model.net.time_coord_scale=1000 model.net.scalar_coord_scale=1000"
   [embed_s10]="model.net.time_coord_scale=1000 model.net.scalar_coord_scale=10"
   [embed_t100_s10]="model.net.time_coord_scale=100 model.net.scalar_coord_scale=10"
+  [embed_t30_s3]="model.net.time_coord_scale=30 model.net.scalar_coord_scale=3"
   [adamw]="model.net.scalar_coord_scale=10 model.optimizer.name=adamw"
   [ema]="model.net.scalar_coord_scale=10 +callbacks.ema._target_=lightning.pytorch.callbacks.EMAWeightAveraging +callbacks.ema.decay=0.99"
   [uniform_time]="model.net.scalar_coord_scale=10 data.datamodule.tail_share=0.67"
