@@ -104,3 +104,12 @@ def test_reruns_scored_and_cached(hopper_tiny_dataset: Path, tmp_path: Path, mon
     assert bench_main(argv[:-1] + [str(tmp_path / "third.json")]) == 0
     header = json.loads((work / "reruns.json").read_text())["header"]
     assert header["metric_settings"]["tail_time"] == 1.0  # rescored with the dataset's settings
+
+
+def test_farthest_points_keep_the_sets_already_rerun():
+    """A grown dataset must not discard finished reruns: the kept rows come first, the rest farthest from them."""
+    x = np.array([[0.0, 0.0], [1.0, 1.0], [0.5, 0.5], [0.9, 0.0], [0.1, 0.9]])
+    picked = farthest_points(x, 3, seed=0, start=[2])
+    assert picked[0] == 2 and len(set(picked)) == 3
+    assert picked[1] in (0, 1)  # the corners are farthest from the centre
+    assert farthest_points(x, 2, seed=5, start=[3, 4]) == [3, 4]

@@ -73,8 +73,12 @@ SELECTION = ("farthest-point sampling over the usable runs in parameters scaled 
 
 # ---- which parameter sets
 
-def select_records(m: Manifest, n_sets: int, seed: int) -> list[SimRecord]:
-    """`n_sets` usable runs spread over the parameter space, the same for the same dataset and seed."""
+def select_records(m: Manifest, n_sets: int, seed: int, keep: Sequence[str] = ()) -> list[SimRecord]:
+    """`n_sets` usable runs spread over the parameter space, the same for the same dataset and seed.
+
+    `keep` (sim ids already rerun, in cache order) are chosen first and the rest placed farthest from them, so
+    that a dataset grown by datagen between two calls does not discard finished reruns.
+    """
     usable = sorted(m.usable(), key=lambda r: r.index)
     if n_sets > len(usable):
         raise DataError(f"dataset {m.name!r} has {len(usable)} usable run(s), fewer than --n-sets {n_sets}: pass "
@@ -85,13 +89,17 @@ def select_records(m: Manifest, n_sets: int, seed: int) -> list[SimRecord]:
     ranges = (m.parameters or {}).get("ranges") or {}
     lo, hi = np.array([ranges.get(k, [x[:, j].min(), x[:, j].max()]) for j, k in enumerate(names)],
                       dtype=np.float64).T
-    return [usable[i] for i in farthest_points((x - lo) / np.where(hi > lo, hi - lo, 1.0), n_sets, seed)]
+    position = {r.sim_id: i for i, r in enumerate(usable)}
+    start = list(dict.fromkeys(position[s] for s in keep if s in position))[:n_sets]
+    scaled = (x - lo) / np.where(hi > lo, hi - lo, 1.0)
+    return [usable[i] for i in farthest_points(scaled, n_sets, seed, start)]
 
 
-def farthest_points(x: np.ndarray, n: int, seed: int) -> list[int]:
-    """Greedy maximin choice of `n` rows of `x`: each next row is the farthest from those already chosen."""
-    chosen = [int(np.random.default_rng(seed).integers(len(x)))]
-    dist = np.linalg.norm(x - x[chosen[0]], axis=1)
+def farthest_points(x: np.ndarray, n: int, seed: int, start: Sequence[int] = ()) -> list[int]:
+    """Greedy maximin choice of `n` rows of `x`: each next row is the farthest from those already chosen
+    (`start`, else one row drawn with `seed`)."""
+    chosen = list(start) or [int(np.random.default_rng(seed).integers(len(x)))]
+    dist = np.min([np.linalg.norm(x - x[c], axis=1) for c in chosen], axis=0)
     while len(chosen) < n:
         dist[chosen] = -np.inf  # never twice, even among duplicate parameter sets
         nxt = int(np.argmax(dist))
@@ -372,12 +380,14 @@ class Plan:
 def plan(dataset: Path, n_sets: int, seeds: int, seed: int, workdir: Path | None) -> Plan:
     scene, m = dataset_scene(dataset)
     settings = HopperMetricSettings.from_config(m.metric_settings or {}, f"{dataset}/manifest.json metric_settings")
-    records = select_records(m, n_sets, seed)
+    workdir = Path(workdir) if workdir is not None else default_workdir(NAME) / m.name
+    cached = load_cache(workdir / CACHE_NAME, cache_header(scene, settings))  # refuses a cache of other runs
+    params = {r.sim_id: dict(r.params) for r in m.simulations}
+    done = [key.split("/")[0] for key, row in cached.items() if row.get("params") == params.get(key.split("/")[0])]
+    records = select_records(m, n_sets, seed, keep=done)
     check_seed_range(records, seeds)
     for rec in records:
         stored_truth(rec, Path(dataset))
-    workdir = Path(workdir) if workdir is not None else default_workdir(NAME) / m.name
-    load_cache(workdir / CACHE_NAME, cache_header(scene, settings))  # refuses a cache of other runs
     return Plan(Path(dataset), scene, m, settings, records, seeds, seed, workdir)
 
 
