@@ -48,7 +48,9 @@ def test_field_model_fold_is_scored_beside_baselines_fitted_on_its_runs(hopper_t
     assert fold["test_ids"] == dm.split_ids["test"]
     assert set(fold["methods"]) == {"constant", "gp", "field model"}
     assert fold["methods"]["gp"]["n_train"] == len(dm.split_ids["train"]) + len(dm.split_ids["val"])
-    assert "| micro | field model | 1 (" in out.read_text()
+    row = next(line for line in out.read_text().splitlines() if line.startswith("| micro | field model | 1 ("))
+    assert "+-" not in row  # one fold has no spread to show (not "+- 0.00")
+    assert "+-" in next(line for line in out.read_text().splitlines() if line.startswith("| micro | gp | 2 ("))
 
 
 def test_too_few_runs_for_five_folds_is_one_line(hopper_tiny_dataset: Path, tmp_path: Path,
