@@ -81,3 +81,19 @@ def test_gns_bad_value_is_one_line(hopper_tiny_dataset: Path, tmp_path: Path):
                                       "data.datamodule.noise_std=5", f"data.dataset_dir={hopper_tiny_dataset}",
                                       f"hydra.run.dir={tmp_path}/run", env={"NEURALDEM_DATA": str(tmp_path)}))
     assert "data.datamodule.noise_std=5 is invalid" in out
+
+
+def test_latest_checkpoint_is_the_newest_state_last_is_the_kept_one(hopper_tiny_dataset: Path, tmp_path: Path):
+    """Lightning's last.ckpt copies the newest KEPT checkpoint (the selected model); latest.ckpt must hold the
+    newest training state (what a killed run resumes from and what "the final model" means)."""
+    import torch
+
+    proc = run_module("neuraldem.train", "experiment=hopper_quickstart", "logger=none", "evaluate=false",
+                      "trainer.max_steps=4", "trainer.val_check_interval=2", f"data.dataset_dir={hopper_tiny_dataset}",
+                      f"hydra.run.dir={tmp_path}/run", env={"NEURALDEM_DATA": str(tmp_path)})
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    ckpts = tmp_path / "run" / "checkpoints"
+    step = {p.name: torch.load(p, map_location="cpu", weights_only=False)["global_step"] for p in ckpts.glob("*.ckpt")}
+    assert step["latest.ckpt"] == 4, step
+    kept = [name for name in step if name.startswith("step")]
+    assert len(kept) == 1 and step["last.ckpt"] == step[kept[0]], step
