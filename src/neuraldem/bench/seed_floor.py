@@ -383,7 +383,8 @@ def plan(dataset: Path, n_sets: int, seeds: int, seed: int, workdir: Path | None
     workdir = Path(workdir) if workdir is not None else default_workdir(NAME) / m.name
     cached = load_cache(workdir / CACHE_NAME, cache_header(scene, settings))  # refuses a cache of other runs
     params = {r.sim_id: dict(r.params) for r in m.simulations}
-    done = [key.split("/")[0] for key, row in cached.items() if row.get("params") == params.get(key.split("/")[0])]
+    rerun = [(key.split("/")[0], row) for key, row in cached.items()]  # keys are run_key(): "<sim_id>/seed<k>"
+    done = [sim_id for sim_id, row in rerun if row.get("params") == params.get(sim_id)]
     records = select_records(m, n_sets, seed, keep=done)
     check_seed_range(records, seeds)
     for rec in records:

@@ -45,8 +45,6 @@ COLUMNS = {  # error key -> column title
 }
 METHODS = ("constant", "gp", "field model")
 
-NAN = float("nan")
-
 
 def fold_parts(m: Manifest, kind: str, fold: int, n_folds: int, seed: int, dataset_dir: Path,
                n_sims: int | None) -> dict[str, list[str]]:
@@ -142,15 +140,16 @@ def summarise(folds: list[dict[str, Any]], split: str, row: str, method: str) ->
     out["n_parameters"] = int(np.median([r.get("n_parameters", 0) for r in rows]))
     val = [r["validation"]["best"] for r in rows if (r.get("validation") or {}).get("best") is not None]
     if val:  # the checkpoint's validation score: what training options are chosen by (never the test runs)
-        out["validation_score"] = {"mean": float(np.mean(val)), "std": float(np.std(val)) if len(val) > 1 else NAN,
+        out["validation_score"] = {"mean": float(np.mean(val)), "std": float(np.std(val)) if len(val) > 1 else np.nan,
                                    "monitor": rows[0]["validation"]["monitor"]}
     for key in (*COLUMNS, "answer_s"):
         values = np.array([r["aggregate"].get(key, np.nan) if key != "answer_s" else r.get("answer_s", np.nan)
                            for r in rows], dtype=np.float64)
         if key == "flow_regime_accuracy":
             values = 100 * values
-        out[key] = {"mean": float(np.nanmean(values)) if np.isfinite(values).any() else float("nan"),
-                    "std": float(np.nanstd(values)) if np.isfinite(values).sum() > 1 else NAN}  # no spread of 1 fold
+        n_finite = int(np.isfinite(values).sum())
+        out[key] = {"mean": float(np.nanmean(values)) if n_finite else np.nan,
+                    "std": float(np.nanstd(values)) if n_finite > 1 else np.nan}  # one fold has no spread
     return out
 
 
