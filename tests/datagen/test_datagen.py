@@ -125,9 +125,21 @@ def test_corrupted_file_is_regenerated(tmp_path: Path):
     ("data.parameters.ranges.alpha=[0,90]", "data.parameters.ranges.alpha[1]=90"),
     ("data.parameters.ranges.mu_s=[0.5,0.1]", "lo <= hi"),
     ("workers=0", "workers=0 is invalid"),
+    ("first=[sim_0007]", "first=['sim_0007'] names"),
     ("data.scene.snapshot_interval=0.00015", "multiple of"),
 ])
 def test_bad_values_end_in_one_line(tmp_path: Path, override: str, message: str):
     proc = datagen(tmp_path, "n_sims=1", override)
     assert proc.returncode == 2
     assert message in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_first_moves_named_simulations_to_the_front_and_keeps_the_rest_in_order():
+    from neuraldem.data.manifest import SimRecord
+    from neuraldem.datagen.driver import put_first
+
+    table = [SimRecord(sim_id=f"sim_{i:04d}", index=i, params={}) for i in range(5)]
+    todo = [table[i] for i in (4, 0, 2, 3)]
+    assert [r.sim_id for r in put_first(todo, ("sim_0003", "sim_0002"), table)] == \
+        ["sim_0003", "sim_0002", "sim_0004", "sim_0000"]
+    assert put_first(todo, (), table) == todo

@@ -63,6 +63,18 @@ def summary_lines(m: Manifest, n_sims: int) -> list[str]:
     return lines
 
 
+def first_ids(value: object) -> tuple[str, ...]:
+    if value is None:
+        return ()
+    if isinstance(value, str):
+        return (value,)
+    try:
+        ids = tuple(str(v) for v in value)  # type: ignore[union-attr]
+    except TypeError:
+        raise ConfigError(f"config value first={value!r} is invalid: give simulation ids, e.g. first=[sim_0091]")
+    return ids
+
+
 @hydra_app("datagen")
 def main(cfg: DictConfig) -> None:
     n_sims = checks.positive_int("n_sims", cfg.n_sims)
@@ -71,7 +83,7 @@ def main(cfg: DictConfig) -> None:
         log.warning("workers=%d > %d cores: runs will share cores and each gets slower", workers, cpu_count())
     pipe = make_pipeline(cfg.data)
     m = generate(pipe, DatagenOptions(n_sims=n_sims, workers=workers, retry_failed=bool(cfg.retry_failed),
-                                      progress=bool(cfg.progress)))
+                                      progress=bool(cfg.progress), first=first_ids(cfg.get("first"))))
     for line in summary_lines(m, n_sims):
         print(line)
 

@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import TMP_SUFFIX, sha256
-from neuraldem.errors import DataError, NeuraldemError, SolverInterrupted
+from neuraldem.errors import ConfigError, DataError, NeuraldemError, SolverInterrupted
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +64,7 @@ class DatagenOptions:
     workers: int
     retry_failed: bool = False
     progress: bool = True
+    first: tuple[str, ...] = ()  # sim ids run before the scene's own order (e.g. a long test trajectory)
 
 
 def open_manifest(pipe: Pipeline) -> Manifest:
@@ -134,7 +135,7 @@ def generate(pipe: Pipeline, opts: DatagenOptions) -> Manifest:
     for rec in todo:
         if rec.status == "failed":  # retried from scratch
             rec.status, rec.reason = "pending", ""
-    todo = pipe.run_order(todo, m)
+    todo = put_first(pipe.run_order(todo, m), opts.first, m.simulations[: opts.n_sims])
     done = opts.n_sims - len(todo)
     m.splits = pipe.splits(m)
     m.save(pipe.dataset_dir)
@@ -171,6 +172,16 @@ def generate(pipe: Pipeline, opts: DatagenOptions) -> Manifest:
     if interrupted is not None:
         raise interrupted
     return m
+
+
+def put_first(todo: list[SimRecord], first: tuple[str, ...], table: list[SimRecord]) -> list[SimRecord]:
+    """`todo` with the simulations named in `first` moved to the front (in that order); the rest keep the
+    scene's order. Names outside the table are a config error (a typo would otherwise do nothing)."""
+    unknown = sorted(set(first) - {r.sim_id for r in table})
+    if unknown:
+        raise ConfigError(f"config value first={list(first)} names {unknown}, which are not among the "
+                          f"{len(table)} simulations: use ids sim_0000 .. sim_{len(table) - 1:04d}")
+    return sorted(todo, key=lambda r: first.index(r.sim_id) if r.sim_id in first else len(first))
 
 
 def _run_safely(fn: Callable[[SimRecord], SimRecord], rec: SimRecord) -> SimRecord:
