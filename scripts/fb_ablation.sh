@@ -3,23 +3,30 @@
 # per variant (each its own process, then rollouts of 10x the training horizon for every held-out velocity,
 # scored against CFD-DEM), then the side-by-side table. JOBS bounds how many run at once (default 2, one
 # thread each on a 2-core CPU).
-#   [JOBS=N] [VARIANTS="base noise pf noise_pf"] bash scripts/fb_ablation.sh RUNS_DIR [hydra overrides...]
-# e.g. JOBS=2 VARIANTS="base noise_pf" bash scripts/fb_ablation.sh $NEURALDEM_DATA/fb_ablation \
-#        trainer=cpu logger=csv trainer.max_steps=3000 trainer.val_check_interval=500
-# Variants: base (no noise, k = 1), noise (input_noise 0.01), pf (push_forward_steps 2), noise_pf (both),
-# grid_only (noise_pf without the particle branch: the fluid grid is the only main branch), residual (noise_pf,
-# the grid branches predict the scaled change per step), grid_residual (both).
-# A variant may name a model config: "fb_base/noise_pf" trains model=fb_base (sizes side by side for
-# right-sizing: VARIANTS="fb_tiny/noise_pf fb_base/noise_pf fb_small/noise_pf").
+#   [JOBS=N] [VARIANTS="full no_unroll"] bash scripts/fb_ablation.sh RUNS_DIR [hydra overrides...]
+# e.g. JOBS=2 VARIANTS="full noise" bash scripts/fb_ablation.sh $NEURALDEM_DATA/fb_ablation \
+#        trainer=cpu logger=csv trainer.max_steps=2000 trainer.val_check_interval=500
+# Variants of the issue-20 default (experiment=fb), one change left out each: full (the default), no_unroll
+# (one-step training only), fixed_noise (input noise 0.01 instead of the running one-step error), no_flux (no
+# solids-flux channels, mixing re-predicted absolutely), no_conserve (no volume projection), stochastic (+ latent
+# noise, CRPS over 2 members). The options before issue 20 (one-step training, absolute mixing, no projection,
+# no flux channels): base (no noise), noise (input noise 0.01), grid_only (no particle branch), residual (the grid
+# branches predict the scaled change per step), grid_residual (both). Push-forward scored only at t + k (the old
+# `pf`) is refused since issue 20: it never trains the one-step map from data.
+# A variant may name a model config: "fb_base/full" trains model=fb_base (sizes side by side for
+# right-sizing: VARIANTS="fb_tiny/full fb_base/full fb_small/full").
 # Runs land in RUNS_DIR/<variant>/ (logs beside them), the table in RUNS_DIR/table.md (+ .json). A run whose
 # folder already holds evaluation/metrics.json is skipped, so a killed sweep resumes.
 set -uo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 PY=${PYTHON:-python}
 JOBS=${JOBS:-2}
-VARIANTS=${VARIANTS:-"base noise pf noise_pf"}
+VARIANTS=${VARIANTS:-"full no_unroll fixed_noise no_flux no_conserve stochastic noise"}
 runs=$1; shift
 mkdir -p "$runs"
+# the options before issue 20 (one-step training, no flux channels, absolute mixing, no projection)
+OLD="model.stability.unroll=[1.0] model.stability.input_noise=0.0 model.stability.conserve_volume=false \
+model.stability.mixing=absolute data.datamodule.solids_flux=false"
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 export OMP_WAIT_POLICY=${OMP_WAIT_POLICY:-PASSIVE}
 overrides() {
@@ -28,14 +35,19 @@ overrides() {
          [ -f "$ROOT/conf/model/$model.yaml" ] || { echo "fb_ablation: unknown model '$model' (no conf/model/$model.yaml)" >&2; return 2; }
          rest=$(overrides "${1#*/}") || return 2
          echo "model=$model $rest" ;;
-    base) echo "data.datamodule.input_noise=0.0 data.datamodule.push_forward_steps=1" ;;
-    noise) echo "data.datamodule.input_noise=0.01 data.datamodule.push_forward_steps=1" ;;
-    pf) echo "data.datamodule.input_noise=0.0 data.datamodule.push_forward_steps=2" ;;
-    noise_pf) echo "data.datamodule.input_noise=0.01 data.datamodule.push_forward_steps=2" ;;
-    grid_only) echo "data.datamodule.input_noise=0.01 data.datamodule.push_forward_steps=2 model.net.particle_branch=false" ;;
-    residual) echo "data.datamodule.input_noise=0.01 data.datamodule.push_forward_steps=2 model.residual=true" ;;
-    grid_residual) echo "data.datamodule.input_noise=0.01 data.datamodule.push_forward_steps=2 model.residual=true model.net.particle_branch=false" ;;
-    *) echo "fb_ablation: unknown variant '$1' (known: base noise pf noise_pf grid_only residual grid_residual)" >&2; return 2 ;;
+    base) echo "data.datamodule.input_noise=0.0 data.datamodule.push_forward_steps=1 $OLD" ;;
+    noise) echo "data.datamodule.input_noise=0.01 data.datamodule.push_forward_steps=1 $OLD" ;;
+    grid_only) echo "data.datamodule.input_noise=0.01 model.net.particle_branch=false $OLD" ;;
+    residual) echo "data.datamodule.input_noise=0.01 model.residual=true $OLD" ;;
+    grid_residual) echo "data.datamodule.input_noise=0.01 model.residual=true model.net.particle_branch=false $OLD" ;;
+    # issue 20: the new default (experiment=fb) and one change left out at a time
+    full) echo "" ;;
+    no_unroll) echo "model.stability.unroll=[1.0]" ;;
+    fixed_noise) echo "model.stability.input_noise=0.01" ;;
+    no_flux) echo "data.datamodule.solids_flux=false model.stability.mixing=absolute" ;;
+    no_conserve) echo "model.stability.conserve_volume=false" ;;
+    stochastic) echo "model.stability.ensemble=2 model.net.noise_dim=8" ;;
+    *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic base noise grid_only residual grid_residual)" >&2; return 2 ;;
   esac
 }
 for v in $VARIANTS; do overrides "$v" > /dev/null || exit 2; done

@@ -83,6 +83,7 @@ def evaluate_refill(cfg: DictConfig) -> None:
 def evaluate_fluidized_bed(cfg: DictConfig) -> None:
     from neuraldem.eval.fb_eval import evaluate_checkpoint as evaluate_fb
     from neuraldem.eval.fb_rollout import DivergenceLimits
+    from neuraldem.lit.fb_stability import MIXING_MODES
 
     fb = cfg.fluidized_bed
     result = evaluate_fb(
@@ -90,7 +91,10 @@ def evaluate_fluidized_bed(cfg: DictConfig) -> None:
         dataset_dir=cfg.dataset_dir, split=cfg.split, part=cfg.part, max_sims=cfg.max_sims,
         horizons=list(fb.horizons), limits=DivergenceLimits(fb.max_packing, fb.tolerance),
         seed=checks.positive_int("fluidized_bed.seed", fb.seed, allow_zero=True), vtk=cfg.vtk, device=cfg.device,
-        conserve_solid_volume=checks.boolean("fluidized_bed.conserve_solid_volume", fb.conserve_solid_volume))
+        conserve_solid_volume=None if fb.conserve_solid_volume is None else checks.boolean(
+            "fluidized_bed.conserve_solid_volume", fb.conserve_solid_volume),
+        mixing=None if fb.get("mixing") is None else checks.one_of("fluidized_bed.mixing", fb.mixing, MIXING_MODES),
+        init_snapshot=checks.positive_int("fluidized_bed.init_snapshot", fb.get("init_snapshot", 1), allow_zero=True))
     agg = result["aggregate"]
     print((Path(cfg.paths.output_dir) / "report.md").read_text())
     print(f"{agg['n_trajectories']} held-out velocities: mean solid-fraction rel. L2 "

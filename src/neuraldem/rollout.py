@@ -18,6 +18,7 @@ from neuraldem.cli import hydra_app
 from neuraldem.config import checks
 from neuraldem.eval.fb_rollout import DivergenceLimits, run_rollout
 from neuraldem.eval.hopper_report import resolve_device
+from neuraldem.lit.fb_stability import MIXING_MODES
 
 
 @hydra_app("rollout")
@@ -33,7 +34,9 @@ def main(cfg: DictConfig) -> None:
         seed=checks.positive_int("seed", cfg.seed, allow_zero=True), limits=limits,
         particles_every=cfg.particles_every, vtk=bool(cfg.vtk), vtk_every=cfg.vtk_every,
         device=resolve_device(cfg.device), progress=bool(cfg.progress),
-        conserve_solid_volume=checks.boolean("conserve_solid_volume", cfg.conserve_solid_volume))
+        conserve_solid_volume=None if cfg.conserve_solid_volume is None else checks.boolean(
+            "conserve_solid_volume", cfg.conserve_solid_volume),
+        mixing=None if cfg.get("mixing") is None else checks.one_of("mixing", cfg.mixing, MIXING_MODES))
     print(summary["message"])
     if summary["extrapolation"]:
         lo, hi = summary["trained_velocity_range"]

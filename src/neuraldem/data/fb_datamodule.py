@@ -4,16 +4,22 @@ A sample, in model units (`FbNormalizer`, fitted on the training trajectories on
 - inputs at t: particle positions and their last displacement (t-1 -> t; zero at t = 0) for the particle
   branch (supernode pooling), fluid velocity + solid fraction on the grid for the fluid branch (patches),
   mixing concentration on the grid for the off-branch, the inlet velocity as conditioning scalar;
-- targets at t + k: the fluid velocity, solid fraction and mixing on the grid, and the particle displacement
-  (t+k-1 -> t+k) at the particle positions of t + k. The particle branch thus predicts the same quantity it
-  reads (the displacement field that brought particles where they are), which is what a field-based rollout
-  needs: it decodes that field at positions sampled from the predicted solid fraction.
+- targets at every t + k, k = 1 .. K: the fluid velocity, solid fraction (and solids flux) and mixing on the
+  grid, and the particle displacement (t+k-1 -> t+k) at the particle positions of t + k. The particle branch
+  thus predicts the same quantity it reads (the displacement field that brought particles where they are),
+  which is what a field-based rollout needs: it decodes that field at positions sampled from the predicted
+  solid fraction;
+- the solid volume of the state at t (sum of its solid fraction over the cells), for the volume projection.
 
-k = 1 is plain next-step training. k > 1 (`push_forward_steps`, training split only) asks the model to reach
-t + k from t by rolling itself forward (the LightningModule does the unrolling), so it learns from inputs
-that carry its own errors; `input_noise` adds Gaussian noise of that std (in model units) to the training
-inputs for the same purpose. Validation and test always use k = 1 and no noise, so their losses compare
-across these options.
+K = `push_forward_steps` (training split only) is the longest unroll the LightningModule may draw: it rolls
+itself forward from t and is scored on every step it takes (`neuraldem.lit.fb_stability`), so it learns from
+inputs that carry its own errors; `input_noise` adds Gaussian noise of that std (in model units) to the
+training inputs for the same purpose. Validation and test always use K = 1 and no noise, so their losses
+compare across these options.
+
+`solids_flux=true` adds three grid channels: the kernel solids flux alpha_p u_s of the last step (a two-fluid
+state: the fluid branch then sees and predicts how the solid moves, which the conservative mixing advection
+uses).
 """
 
 from __future__ import annotations
@@ -41,11 +47,14 @@ MAX_PUSH_FORWARD = 64
 MAX_INPUT_NOISE = 1.0  # model units (one standard deviation of the data)
 
 
-def grid_input(norm: FbNormalizer, fluid_velocity: np.ndarray, solid_fraction: np.ndarray) -> np.ndarray:
-    """Fluid-branch input (4, nx, ny, nz): normalised fluid velocity (3 channels) + solid fraction."""
-    u = norm.field("fluid_velocity", fluid_velocity)
-    a = norm.field("solid_fraction", solid_fraction)
-    return np.moveaxis(np.concatenate([u, a], axis=-1), -1, 0)
+def grid_input(norm: FbNormalizer, fluid_velocity: np.ndarray, solid_fraction: np.ndarray,
+               solids_flux: np.ndarray | None = None) -> np.ndarray:
+    """Fluid-branch input (4 or 7, nx, ny, nz): normalised fluid velocity (3 channels) + solid fraction
+    (+ solids flux, 3 channels, when given)."""
+    parts = [norm.field("fluid_velocity", fluid_velocity), norm.field("solid_fraction", solid_fraction)]
+    if solids_flux is not None:
+        parts.append(norm.field("solids_flux", solids_flux))
+    return np.moveaxis(np.concatenate(parts, axis=-1), -1, 0)
 
 
 def mixing_input(norm: FbNormalizer, mixing: np.ndarray) -> np.ndarray:
@@ -58,8 +67,9 @@ class FbSamples(FileSamples):
 
     def __init__(self, dataset_dir: Path, records: list[SimRecord], norm: FbNormalizer, steps: int,
                  particles_per_sample: int | None, input_noise: float, random: bool, seed: int = 0,
-                 time_stride: int = 1):
+                 time_stride: int = 1, solids_flux: bool = False):
         self.dir = Path(dataset_dir)
+        self.solids_flux = solids_flux
         self.records = records
         self.norm = norm
         self.steps = steps
@@ -78,13 +88,16 @@ class FbSamples(FileSamples):
     def _open_file(self, s: int) -> FbFile:
         return FbFile(self.dir / str(self.records[s].file), validate=False)  # validated in setup()
 
-    def _pick(self, rng: np.random.Generator, ok: np.ndarray) -> np.ndarray:
-        """Indices of the particles in a sample: all present ones, or `particles_per_sample` of them."""
+    def _pick(self, rng: np.random.Generator, ok: np.ndarray, n: int) -> np.ndarray:
+        """Indices of n particles of a sample: all present ones (n of them), or a random subset."""
         present = np.flatnonzero(ok)
-        n = self.n_particles or len(ok)
         if n == len(present):
             return present
         return np.sort(rng.choice(present, n, replace=len(present) < n))
+
+    def _grid(self, f: FbFile, t: int) -> np.ndarray:
+        flux = f.solids_flux(t) if self.solids_flux else None
+        return grid_input(self.norm, f.fluid_velocity(t), f.solid_fraction(t), flux)
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         s, t = self.items[i]
@@ -92,18 +105,24 @@ class FbSamples(FileSamples):
         norm, rng = self.norm, self._rng(i)
         pos = f.positions(t)
         disp_in = f.displacement(t - 1) if t > 0 else np.zeros_like(pos)
-        p_in = self._pick(rng, np.isfinite(pos).all(axis=1) & np.isfinite(disp_in).all(axis=1))
-        tk = t + self.steps
-        pos_k, disp_k = f.positions(tk), f.displacement(tk - 1)
-        p_out = self._pick(rng, np.isfinite(pos_k).all(axis=1) & np.isfinite(disp_k).all(axis=1))
-
+        ok_in = np.isfinite(pos).all(axis=1) & np.isfinite(disp_in).all(axis=1)
+        n = self.n_particles or int(ok_in.sum())
+        p_in = self._pick(rng, ok_in, n)
         features = norm.field("displacement", disp_in[p_in])
-        grid = grid_input(norm, f.fluid_velocity(t), f.solid_fraction(t))
+        grid = self._grid(f, t)
         mixing = mixing_input(norm, f.mixing(t))
+        solid_volume = float(np.sum(f.solid_fraction(t)))
         if self.noise > 0:
             features, grid, mixing = (x + self.noise * rng.standard_normal(x.shape) for x in (features, grid, mixing))
-        target_fluid = np.moveaxis(grid_input(norm, f.fluid_velocity(tk), f.solid_fraction(tk)), 0, -1)
-        target_mixing = np.moveaxis(mixing_input(norm, f.mixing(tk)), 0, -1)
+        targets: dict[str, list[np.ndarray]] = {"pos": [], "particles": [], "fluid": [], "mixing": []}
+        for tk in range(t + 1, t + self.steps + 1):
+            pos_k, disp_k = f.positions(tk), f.displacement(tk - 1)
+            p_out = self._pick(rng, np.isfinite(pos_k).all(axis=1) & np.isfinite(disp_k).all(axis=1), n)
+            targets["pos"].append(norm.positions(pos_k[p_out]))
+            targets["particles"].append(norm.field("displacement", disp_k[p_out]))
+            fluid = np.moveaxis(self._grid(f, tk), 0, -1)
+            targets["fluid"].append(fluid.reshape(-1, fluid.shape[-1]))
+            targets["mixing"].append(np.moveaxis(mixing_input(norm, f.mixing(tk)), 0, -1).reshape(-1, 1))
         velocity = self.records[s].params.get("inlet_velocity", f.inlet_velocity)
 
         def tensor(x: np.ndarray) -> torch.Tensor:
@@ -115,10 +134,8 @@ class FbSamples(FileSamples):
             "particle_features": tensor(features),
             "grid": tensor(grid),
             "mixing_grid": tensor(mixing),
-            "target_pos": tensor(norm.positions(pos_k[p_out])),
-            "target_particles": tensor(norm.field("displacement", disp_k[p_out])),
-            "target_fluid": tensor(target_fluid.reshape(-1, target_fluid.shape[-1])),
-            "target_mixing": tensor(target_mixing.reshape(-1, 1)),
+            "solid_volume": torch.tensor(solid_volume, dtype=torch.float64),
+            **{f"target_{k}": tensor(np.stack(v)) for k, v in targets.items()},  # (K, ...) per step
         }
 
 
@@ -128,8 +145,9 @@ class FluidizedBedDataModule(PartLoaders):
     def __init__(self, dataset_dir: str, name: str, conditioning: list[str] | None = None,
                  split: str = "velocity", batch_size: int = 8, particles_per_sample: int | None = None,
                  input_noise: float = 0.0, push_forward_steps: int = 1, num_workers: int = 0, seed: int = 0,
-                 eval_time_stride: int = 1):
+                 eval_time_stride: int = 1, solids_flux: bool = False):
         super().__init__()
+        self.solids_flux = checks.boolean("data.datamodule.solids_flux", solids_flux)
         self.dataset_dir = Path(dataset_dir)
         self.name = name
         self.conditioning = checks.names("data.conditioning", list(conditioning or CONDITIONING_NAMES),
@@ -181,7 +199,7 @@ class FluidizedBedDataModule(PartLoaders):
             return
         self.prepare_manifest()
         if self.norm is None:
-            self.norm = FbNormalizer.fit(self.paths("train"))  # validates every training file
+            self.norm = FbNormalizer.fit(self.paths("train"), self.solids_flux)  # validates every training file
         for part in ("val", "test"):
             for path in self.paths(part):
                 FbFile(path).close()  # validate once, up front
@@ -194,7 +212,7 @@ class FluidizedBedDataModule(PartLoaders):
             self.datasets[part] = FbSamples(
                 self.dataset_dir, self.records(part), self.norm, self.push_forward_steps if train else 1,
                 self.particles_per_sample, self.input_noise if train else 0.0, random=train, seed=self.seed,
-                time_stride=1 if train else self.eval_time_stride)
+                time_stride=1 if train else self.eval_time_stride, solids_flux=self.solids_flux)
 
     def _check_push_forward(self) -> None:
         lengths = []
@@ -214,4 +232,5 @@ class FluidizedBedDataModule(PartLoaders):
                 "split": self.split, "normalizer": self.norm.to_dict(),
                 "train_velocities": sorted({float(r.params["inlet_velocity"]) for r in self.records("train")}),
                 "push_forward_steps": self.push_forward_steps, "input_noise": self.input_noise,
+                "solids_flux": self.solids_flux, "grid_channels": 7 if self.solids_flux else 4,
                 "particles_per_sample": self.particles_per_sample}

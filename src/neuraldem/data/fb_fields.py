@@ -53,18 +53,21 @@ def axis_weights(x: np.ndarray, edges: np.ndarray, sigma: float) -> np.ndarray:
 
 def _deposit(positions: np.ndarray, values: np.ndarray, grid: BoxGrid, sigma: float,
              chunk: int = 20000) -> np.ndarray:
-    """sum_i values_i * w_i[c] on the grid (nx, ny, nz); particles with NaN positions are skipped."""
+    """sum_i values_i * w_i[c] on the grid: (nx, ny, nz) for values (N,), (nx, ny, nz, C) for values (N, C)
+    (the weights are computed once for all channels); particles with NaN positions are skipped."""
     ok = np.isfinite(positions).all(axis=1)
-    p, v = positions[ok], values[ok]
+    p, v = positions[ok], np.asarray(values)[ok]
+    vec = v.reshape(len(v), -1)  # (N, C)
     nx, ny, nz = grid.shape
-    out = np.zeros((nx * ny, nz))
+    out = np.zeros((vec.shape[1], nx * ny, nz))
     edges = [grid.edges(a) for a in range(3)]
     for s in range(0, len(p), chunk):
-        q, qv = p[s:s + chunk], v[s:s + chunk]
+        q, qv = p[s:s + chunk], vec[s:s + chunk]
         wx, wy, wz = (axis_weights(q[:, a], edges[a], sigma) for a in range(3))
         xy = (wx[:, :, None] * wy[:, None, :]).reshape(len(q), nx * ny)
-        out += xy.T @ (wz * qv[:, None])
-    return out.reshape(nx, ny, nz)
+        out += np.einsum("nx,nz,nc->cxz", xy, wz, qv, optimize=True)
+    out = np.moveaxis(out.reshape(-1, nx, ny, nz), 0, -1)
+    return out[..., 0] if np.ndim(values) == 1 else out
 
 
 def particle_volumes(diameters: np.ndarray) -> np.ndarray:
@@ -121,3 +124,14 @@ def trajectory_fields(positions: np.ndarray, diameters: np.ndarray, labels: np.n
         alpha_m = alpha[t] if mixing_sigma == sigma else None
         conc[t] = mixing_concentration(positions[t], diameters, labels, grid, mixing_sigma, prior, share, alpha_m)
     return alpha, conc
+
+
+def solids_flux(positions: np.ndarray, displacement: np.ndarray, diameters: np.ndarray, grid: BoxGrid,
+                sigma: float, dt: float) -> np.ndarray:
+    """(nx, ny, nz, 3) kernel solids flux alpha_p u_s [m/s] of one step: each particle's volume times its
+    velocity over the step (displacement / dt), deposited with the solid fraction's kernel at `positions`.
+    The two-fluid model's conserved solids momentum per unit volume (divided by the solid density): zero in
+    empty space, no division by a vanishing solid fraction. Rows with NaN are skipped."""
+    vol = particle_volumes(diameters)
+    ok = np.isfinite(positions).all(axis=1) & np.isfinite(displacement).all(axis=1)
+    return _deposit(positions[ok], vol[ok, None] * displacement[ok] / dt, grid, sigma) / grid.cell_volume

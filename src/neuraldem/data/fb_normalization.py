@@ -20,8 +20,8 @@ import numpy as np
 from neuraldem.data.fb_store import FbFile
 from neuraldem.errors import DataError
 
-FIELDS = ("displacement", "fluid_velocity", "solid_fraction", "mixing")
-CHANNELS = {"displacement": 3, "fluid_velocity": 3, "solid_fraction": 1, "mixing": 1}
+FIELDS = ("displacement", "fluid_velocity", "solid_fraction", "mixing", "solids_flux")
+CHANNELS = {"displacement": 3, "fluid_velocity": 3, "solid_fraction": 1, "mixing": 1, "solids_flux": 3}
 STD_FLOOR = 1e-3  # a channel's std is at least this share of its field's largest channel std (no 0 division)
 STEP_SCALE_FLOOR = 1e-2  # model units: a channel that never changes (the y velocity of a pseudo-2D bed)
 STEP_FIELDS = ("fluid_velocity", "solid_fraction", "mixing")
@@ -65,6 +65,9 @@ class FbNormalizer:
     def _stats(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         if name not in FIELDS:
             raise DataError(f"no normalisation for field {name!r}; have {list(FIELDS)}")
+        if name not in self.mean:
+            raise DataError(f"this normalisation has no statistics for {name!r} (fitted without it): train with "
+                            f"data.datamodule.solids_flux=true to use the solids flux")
         return np.asarray(self.mean[name]), np.asarray(self.std[name])
 
     def field(self, name: str, x: np.ndarray) -> np.ndarray:
@@ -98,11 +101,12 @@ class FbNormalizer:
 
     # ---- fitting
     @classmethod
-    def fit(cls, paths: Sequence[Path]) -> FbNormalizer:
-        """Statistics of the given (training) trajectories, read one file at a time."""
+    def fit(cls, paths: Sequence[Path], solids_flux: bool = False) -> FbNormalizer:
+        """Statistics of the given (training) trajectories, read one file at a time (`solids_flux`: also of the
+        kernel solids flux, computed from the particles: a few seconds per 300-step file)."""
         if not paths:
             raise DataError("no training trajectories to fit the normalisation on")
-        acc = {name: _Moments(CHANNELS[name]) for name in FIELDS}
+        acc = {name: _Moments(CHANNELS[name]) for name in FIELDS if solids_flux or name != "solids_flux"}
         steps = {name: _Moments(CHANNELS[name]) for name in STEP_FIELDS}  # of the one-step changes
         grids, velocities, horizons, dts, counts, volumes, alpha_max = set(), [], [], [], [], [], 0.0
         for path in paths:
@@ -116,6 +120,8 @@ class FbNormalizer:
                 acc["displacement"].add(f.displacement().reshape(-1, 3))
                 alpha = f.solid_fraction()
                 alpha_max = max(alpha_max, float(alpha.max()))
+                if solids_flux:
+                    acc["solids_flux"].add(f.solids_flux()[1:].reshape(-1, 3))  # snapshot 0 has no last step
                 for name, values in (("fluid_velocity", f.fluid_velocity()), ("solid_fraction", alpha),
                                      ("mixing", f.mixing())):
                     acc[name].add(values.reshape(-1, CHANNELS[name]))

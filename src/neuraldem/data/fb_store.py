@@ -39,7 +39,14 @@ import h5py
 import numpy as np
 
 from neuraldem import __version__
-from neuraldem.data.fb_fields import DEFAULT_PRIOR, group_b_share, initial_labels, particle_volumes, trajectory_fields
+from neuraldem.data.fb_fields import (
+    DEFAULT_PRIOR,
+    group_b_share,
+    initial_labels,
+    particle_volumes,
+    solids_flux,
+    trajectory_fields,
+)
 from neuraldem.data.schema import SCHEMA_VERSION, ValidatedH5File, atomic_write_h5
 from neuraldem.errors import DataError
 from neuraldem.sim.dpmfoam import FbTrajectory
@@ -250,6 +257,25 @@ class FbFile(ValidatedH5File):
 
     def mixing(self, t: int | slice = slice(None)) -> np.ndarray:
         return self.grid_field("mixing", t)
+
+    def solids_flux(self, t: int | slice = slice(None)) -> np.ndarray:
+        """(nx, ny, nz, 3) kernel solids flux alpha_p u_s [m/s] of the step that ended at snapshot t (the last
+        displacement deposited at the particles' positions at t; zero at t = 0), computed from the stored
+        particles on first use and kept (`neuraldem.data.fb_fields.solids_flux`)."""
+        if isinstance(t, (int, np.integer)) and getattr(self, "_solids_flux", None) is None:  # one snapshot
+            if not 0 <= t < self.n_snapshots:
+                raise DataError(f"{self.path}: no snapshot {t} (has 0 .. {self.n_snapshots - 1})")
+            if t == 0:
+                return np.zeros((*self.grid.shape, 3))
+            return solids_flux(self.positions(t), self.displacement(t - 1), self.diameters, self.grid,
+                               self.kernel_sigma, self.dt)
+        if getattr(self, "_solids_flux", None) is None:
+            pos, disp = self.positions(), self.displacement()
+            out = np.zeros((self.n_snapshots, *self.grid.shape, 3))
+            for k in range(1, self.n_snapshots):
+                out[k] = solids_flux(pos[k], disp[k - 1], self.diameters, self.grid, self.kernel_sigma, self.dt)
+            self._solids_flux = out
+        return self._solids_flux[t]
 
     def fluxes(self) -> tuple[np.ndarray, np.ndarray]:
         return self._ds["inflow"][()], self._ds["outflow"][()]

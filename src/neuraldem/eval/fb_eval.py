@@ -43,6 +43,7 @@ from neuraldem.eval.fb_rollout import (
     Stepper,
     check_grid,
     check_velocity,
+    DEFAULT_INIT_SNAPSHOT,
     initial_state,
     load_fb_checkpoint,
     rollout,
@@ -79,6 +80,11 @@ class FieldSeries:
     def from_rollout_file(cls, r: RolloutFile) -> FieldSeries:
         return cls(r.times, r.grid_field("solid_fraction"), r.grid_field("fluid_velocity"), r.grid_field("mixing"),
                    r.grid, r.particle_volume, r.total_volume)
+
+    def since(self, k: int) -> FieldSeries:
+        """The series from snapshot k on (a rollout started at snapshot k is compared with this)."""
+        return FieldSeries(self.times[k:], self.solid_fraction[k:], self.fluid_velocity[k:], self.mixing[k:],
+                           self.grid, self.particle_volume, self.total_particle_volume)
 
     def window(self, n: int) -> FieldSeries:
         return FieldSeries(self.times[:n], self.solid_fraction[:n], self.fluid_velocity[:n], self.mixing[:n],
@@ -177,14 +183,17 @@ class TrajectoryEvaluation:
 def evaluate_trajectory(path: Path, sim_id: str, velocity: float, stepper: Stepper, steps: int,
                         horizon_steps: int, horizons: Sequence[int], settings: dict[str, Any],
                         limits: DivergenceLimits | None = None, rollout_path: Path | None = None,
-                        attrs: dict[str, Any] | None = None, progress: bool = False) -> TrajectoryEvaluation:
-    """Roll `stepper` out from the trajectory's first snapshot and score it against the trajectory.
+                        attrs: dict[str, Any] | None = None, progress: bool = False,
+                        init_snapshot: int = DEFAULT_INIT_SNAPSHOT) -> TrajectoryEvaluation:
+    """Roll `stepper` out from snapshot `init_snapshot` of the trajectory and score it against the trajectory
+    from that snapshot on.
 
     The rollout goes through its file (`rollout_path`) when given, so the numbers are those of the file a
     user gets from `neuraldem.rollout`."""
     with FbFile(path) as f:
-        truth = FieldSeries.from_dataset_file(f)
-        r = rollout(stepper, initial_state(f, 0), steps, limits, progress=progress)
+        state = initial_state(f, init_snapshot)
+        truth = FieldSeries.from_dataset_file(f).since(init_snapshot)
+        r = rollout(stepper, state, steps, limits, progress=progress)
         if rollout_path is not None:
             write_rollout(rollout_path, r, f.grid, truth.particle_volume, truth.total_particle_volume, attrs or {})
     if rollout_path is not None:
@@ -214,7 +223,8 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
                         horizons: Sequence[int] = DEFAULT_HORIZONS, limits: DivergenceLimits | None = None,
                         seed: int = 0, vtk: bool = True, device: str = "auto", progress: bool = True,
                         make_stepper: Callable[[Any, float], Stepper] | None = None,
-                        conserve_solid_volume: bool = False) -> dict[str, Any]:
+                        conserve_solid_volume: bool | None = None, mixing: str | None = None,
+                        init_snapshot: int = DEFAULT_INIT_SNAPSHOT) -> dict[str, Any]:
     """Evaluate a fluidized-bed checkpoint on the held-out velocities; write and return metrics.json."""
     horizons = [checks.positive_int(f"fluidized_bed.horizons[{i}]", h) for i, h in enumerate(horizons)]
     if not horizons:
@@ -229,7 +239,8 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         raise DataError(f"no {part} trajectories in split {split!r} of {dataset_dir}")
     settings = metric_settings(m)
     steps = max(horizons) * norm.horizon_steps
-    make_stepper = make_stepper or (lambda mod, v: ModelStepper(mod, v, seed, device, conserve_solid_volume))
+    make_stepper = make_stepper or (lambda mod, v: ModelStepper(mod, v, seed, device, conserve_solid_volume, mixing))
+    options = ModelStepper(module, norm.velocity_lo, seed, "cpu", conserve_solid_volume, mixing).stability
     out_dir = Path(out_dir)
     (out_dir / "rollouts").mkdir(parents=True, exist_ok=True)
     results, volumes = [], {}
@@ -239,10 +250,11 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         with FbFile(path) as f:
             check_grid(norm, f)
         attrs = {"extrapolation": check_velocity(norm, v), "checkpoint": str(Path(ckpt).resolve()),
-                 "initial_state": f"{m.name}/{rec.sim_id} snapshot 0", "seed": seed,
-                 "conserve_solid_volume": bool(conserve_solid_volume)}
+                 "initial_state": f"{m.name}/{rec.sim_id} snapshot {init_snapshot}", "seed": seed,
+                 "conserve_solid_volume": options.conserve_volume, "mixing": options.mixing}
         e = evaluate_trajectory(path, rec.sim_id, v, make_stepper(module, v), steps, norm.horizon_steps, horizons,
-                                settings, limits, out_dir / "rollouts" / f"{rec.sim_id}.h5", attrs, progress)
+                                settings, limits, out_dir / "rollouts" / f"{rec.sim_id}.h5", attrs, progress,
+                                init_snapshot)
         volumes |= write_trajectory_figures(e, settings, out_dir)
         if vtk and not results:
             write_rollout_vtk(out_dir / "vtk", e.sim_id, e.rollout, e.truth.grid)
@@ -254,7 +266,8 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         "training": {"input_noise": meta.get("input_noise", 0.0), "push_forward_steps": meta.get("push_forward_steps", 1),
                      "parameters": sum(p.numel() for p in module.parameters())},
         "training_horizon_steps": norm.horizon_steps, "horizons": horizons, "rollout_steps": steps,
-        "conserve_solid_volume": bool(conserve_solid_volume),
+        "conserve_solid_volume": options.conserve_volume, "stability": options.to_dict(),
+        "init_snapshot": init_snapshot,
         "limits": vars(limits or DivergenceLimits()), "metric_settings": settings,
         "aggregate": aggregate(results), "trajectories": results,
         "machine": machine_info(), "command": " ".join(sys.argv),

@@ -43,11 +43,12 @@ from neuraldem.data.fb_datamodule import grid_input, mixing_input
 from neuraldem.data.fb_normalization import FbNormalizer
 from neuraldem.data.fb_store import FbFile
 from neuraldem.data.schema import SCHEMA_VERSION, ValidatedH5File, atomic_write_h5, atomic_write_json
-from neuraldem.errors import DataError
+from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, require_kind
 from neuraldem.eval.vtk_export import write_grid_series, write_point_series
 from neuraldem.lit.fb_autoregressive import advance
 from neuraldem.lit.fb_module import FluidizedBedModule
+from neuraldem.lit.fb_stability import FbStability, rollout_overrides
 from neuraldem.models.multi_branch_operator import OperatorInputs
 from neuraldem.sim.foam_reader import BoxGrid
 
@@ -72,18 +73,23 @@ class FbState:
     fluid_velocity: np.ndarray  # (nx, ny, nz, 3) [m/s]
     solid_fraction: np.ndarray  # (nx, ny, nz)
     mixing: np.ndarray  # (nx, ny, nz)
+    solids_flux: np.ndarray | None = None  # (nx, ny, nz, 3) [m/s] of the last step (models trained with it)
 
 
-def initial_state(f: FbFile, snapshot: int = 0) -> FbState:
+DEFAULT_INIT_SNAPSHOT = 1  # snapshot 0 has no last displacement (zero), which training almost never sees
+
+
+def initial_state(f: FbFile, snapshot: int = DEFAULT_INIT_SNAPSHOT, key: str = "init_snapshot") -> FbState:
     """Snapshot `snapshot` of a stored trajectory as a rollout's first state (absent particles dropped)."""
-    if not 0 <= snapshot < f.n_snapshots:
-        raise DataError(f"{f.path}: no snapshot {snapshot} (has 0 .. {f.n_snapshots - 1})")
+    if isinstance(snapshot, bool) or not isinstance(snapshot, int) or not 0 <= snapshot < f.n_snapshots:
+        raise ConfigError(f"config value {key}={snapshot!r} is invalid: {f.path} has snapshots 0 .. "
+                          f"{f.n_snapshots - 1} (override it, e.g. {key}={DEFAULT_INIT_SNAPSHOT})")
     pos = f.positions(snapshot)
     disp = f.displacement(snapshot - 1) if snapshot > 0 else np.zeros_like(pos)
     ok = np.isfinite(pos).all(axis=1) & np.isfinite(disp).all(axis=1)
     return FbState(time=float(f.times[snapshot]), positions=pos[ok], displacement=disp[ok],
                    fluid_velocity=f.fluid_velocity(snapshot), solid_fraction=f.solid_fraction(snapshot),
-                   mixing=f.mixing(snapshot))
+                   mixing=f.mixing(snapshot), solids_flux=f.solids_flux(snapshot))
 
 
 @dataclass
@@ -122,18 +128,26 @@ class Stepper(Protocol):
 class ModelStepper:
     """A trained FluidizedBedModule as a stepper, conditioned on one inlet velocity.
 
-    `conserve_solid_volume`: after each step, scale the predicted solid fraction so that the field holds the
-    solid volume of the first state it was given (the bed is closed: CFD-DEM loses no particle). Off by default:
-    it is a projection on top of the model, so a rollout with it says nothing about the model's own mass
-    conservation (its drift is 0 by construction); its effect on the other metrics is measured, not assumed."""
+    The step applies the checkpoint's stability options (`neuraldem.lit.fb_stability`), which `mixing` and
+    `conserve_solid_volume` override (None = the checkpoint's): with volume conservation the predicted solid
+    fraction is clamped >= 0 and scaled to the solid volume of the first state it was given (the bed is closed:
+    CFD-DEM loses no particle), so the rollout holds it to round-off. A model trained without it and rolled
+    out with it is a projection on top of the model: its drift is then 0 by construction and says nothing of
+    the model's own conservation. A stochastic model draws its latent noise from this stepper's generator."""
 
     def __init__(self, module: FluidizedBedModule, velocity: float, seed: int = 0, device: str = "cpu",
-                 conserve_solid_volume: bool = False):
-        self.conserve_solid_volume = bool(conserve_solid_volume)
+                 conserve_solid_volume: bool | None = None, mixing: str | None = None):
+        base = getattr(module, "stability", None) or FbStability()
+        self.stability = rollout_overrides(base, mixing, conserve_solid_volume)
+        if self.stability.mixing == "advect" and not module.metadata.get("solids_flux", False):
+            raise ConfigError("config value mixing=advect needs a model trained with the solids flux "
+                              "(data.datamodule.solids_flux=true): use mixing=absolute for this checkpoint")
+        self.conserve_solid_volume = self.stability.conserve_volume
         self.solid_volume: float | None = None  # sum of the first state's solid fraction (cells are equal)
         self.net = module.net.to(device).eval()
         self.step_scales = getattr(module, "step_scales", None)  # a residual model's
         self.norm: FbNormalizer = module.norm
+        self.solids_flux = bool(module.metadata.get("solids_flux", False))
         self.dt = self.norm.dt
         self.chunk_size = module.chunk_size
         self.device = device
@@ -146,17 +160,27 @@ class ModelStepper:
     @torch.no_grad()
     def step(self, state: FbState) -> FbState:
         norm = self.norm
+        if self.solid_volume is None:
+            self.solid_volume = float(np.sum(state.solid_fraction))
+        flux = state.solids_flux if self.solids_flux else None
+        if self.solids_flux and flux is None:
+            raise DataError("this model reads the solids flux: start the rollout from a dataset trajectory "
+                            "(initial_state computes it)")
+        noise = None
+        if self.net.noise_dim:
+            noise = torch.randn(1, self.net.noise_dim, generator=self.generator, device=self.device)
         x = OperatorInputs(particle_pos=self._tensor(norm.positions(state.positions)),
                            particle_features=self._tensor(norm.field("displacement", state.displacement)),
-                           grid=self._tensor(grid_input(norm, state.fluid_velocity, state.solid_fraction)),
-                           mixing_grid=self._tensor(mixing_input(norm, state.mixing)), scalars=self.scalars)
+                           grid=self._tensor(grid_input(norm, state.fluid_velocity, state.solid_fraction, flux)),
+                           mixing_grid=self._tensor(mixing_input(norm, state.mixing)), scalars=self.scalars,
+                           noise=noise)
+        volume = torch.tensor([self.solid_volume], dtype=torch.float64, device=self.device)
         nxt = advance(self.net, x, norm, n_particles=len(state.positions), generator=self.generator,
-                      chunk_size=self.chunk_size, step_scales=self.step_scales)
+                      chunk_size=self.chunk_size, step_scales=self.step_scales, stability=self.stability,
+                      volume=volume)
         grid = np.moveaxis(nxt.grid[0].double().cpu().numpy(), 0, -1)
-        solid_fraction = norm.field_back("solid_fraction", grid[..., 3:])
-        if self.conserve_solid_volume:
-            if self.solid_volume is None:
-                self.solid_volume = float(np.sum(state.solid_fraction))
+        solid_fraction = norm.field_back("solid_fraction", grid[..., 3:4])
+        if self.conserve_solid_volume:  # the step projected in float32: remove its round-off
             total = float(np.sum(solid_fraction))
             if np.isfinite(total) and total > 0:  # a broken field is left for the divergence check
                 solid_fraction = solid_fraction * (self.solid_volume / total)
@@ -167,6 +191,7 @@ class ModelStepper:
             fluid_velocity=norm.field_back("fluid_velocity", grid[..., :3]),
             solid_fraction=solid_fraction,
             mixing=norm.field_back("mixing", np.moveaxis(nxt.mixing_grid[0].double().cpu().numpy(), 0, -1)),
+            solids_flux=norm.field_back("solids_flux", grid[..., 4:7]) if self.solids_flux else None,
         )
 
 
@@ -378,12 +403,12 @@ def initial_file(meta: dict[str, Any], ckpt: Path, velocity: float, datasets_dir
 
 def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets_dir: Path,
                 dataset_dir: Path | None = None, init: Path | None = None, init_sim: str | None = None,
-                init_snapshot: int = 0, seed: int = 0, limits: DivergenceLimits | None = None,
+                init_snapshot: int = DEFAULT_INIT_SNAPSHOT, seed: int = 0, limits: DivergenceLimits | None = None,
                 particles_every: int = 10, vtk: bool = True, vtk_every: int = 10, device: str = "cpu",
-                progress: bool = True, conserve_solid_volume: bool = False) -> dict[str, Any]:
+                progress: bool = True, conserve_solid_volume: bool | None = None,
+                mixing: str | None = None) -> dict[str, Any]:
     """Load, roll out, write rollout.h5 (+ vtk/, rollout.json) into `out_dir`; return the summary."""
     checks.positive_int("steps", steps)
-    checks.positive_int("init_snapshot", init_snapshot, allow_zero=True)
     limits = limits or DivergenceLimits()
     module = load_fb_checkpoint(ckpt, device)
     meta, norm = module.metadata, module.norm
@@ -395,14 +420,14 @@ def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets
         present = np.isfinite(f.positions(init_snapshot)).all(axis=1)
         volumes = f.particle_volumes[present]
         grid = f.grid
-    r = rollout(ModelStepper(module, velocity, seed, device, conserve_solid_volume), state, steps, limits,
-                particles_every, progress)
+    stepper = ModelStepper(module, velocity, seed, device, conserve_solid_volume, mixing)
+    r = rollout(stepper, state, steps, limits, particles_every, progress)
     summary = {
         "checkpoint": str(Path(ckpt).resolve()), "data_name": meta["data_name"], "inlet_velocity": float(velocity),
         "extrapolation": extrapolation, "trained_velocity_range": [norm.velocity_lo, norm.velocity_hi],
         "initial_state": f"{source} snapshot {init_snapshot}", "seed": seed, "max_packing": limits.max_packing,
         "tolerance": limits.tolerance, "dt": norm.dt, "training_horizon_steps": norm.horizon_steps,
-        "conserve_solid_volume": bool(conserve_solid_volume),
+        "conserve_solid_volume": stepper.stability.conserve_volume, "mixing": stepper.stability.mixing,
     }
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

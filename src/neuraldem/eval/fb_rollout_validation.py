@@ -29,7 +29,7 @@ from neuraldem.data.fb_store import FbFile
 from neuraldem.errors import ConfigError
 from neuraldem.eval.fb_eval import FieldSeries, compare, held_out
 from neuraldem.eval.fb_report import metric_settings
-from neuraldem.eval.fb_rollout import ModelStepper, initial_state, rollout
+from neuraldem.eval.fb_rollout import DEFAULT_INIT_SNAPSHOT, ModelStepper, initial_state, rollout
 
 log = logging.getLogger(__name__)
 
@@ -80,9 +80,9 @@ class RolloutValidation(L.Callback):
         for path, velocity in trajectories:
             stepper = ModelStepper(pl_module, velocity, self.seed, str(pl_module.device))
             with FbFile(path) as f:
-                truth = FieldSeries.from_dataset_file(f)
-                steps = min(self.steps, f.n_snapshots - 1)
-                r = rollout(stepper, initial_state(f, 0), steps, progress=False)
+                truth = FieldSeries.from_dataset_file(f).since(DEFAULT_INIT_SNAPSHOT)
+                steps = min(self.steps, f.n_snapshots - 1 - DEFAULT_INIT_SNAPSHOT)
+                r = rollout(stepper, initial_state(f, DEFAULT_INIT_SNAPSHOT), steps, progress=False)
             pred = FieldSeries(r.times, r.solid_fraction.astype(np.float64), r.fluid_velocity.astype(np.float64),
                                r.mixing.astype(np.float64), truth.grid, truth.particle_volume,
                                truth.total_particle_volume)

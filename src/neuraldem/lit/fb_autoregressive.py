@@ -6,6 +6,10 @@ positions are sampled anew from the predicted solid fraction (density proportion
 cell), and their input displacement is the particle branch decoded at those positions. A residual model
 (`model.residual=true`) predicts the grid fields' change over the step, scaled per channel by the training
 data's typical one-step change (`FbNormalizer.step_scale`); the next state is the input plus that change.
+
+The stability options (`neuraldem.lit.fb_stability`) act inside this step, so training and rollouts see the
+same thing: the solid fraction projected onto the input's solid volume (`conserve_volume`) and the mixing
+concentration carried by the predicted solids flux (`mixing=advect`).
 """
 
 from __future__ import annotations
@@ -16,10 +20,62 @@ import numpy as np
 import torch
 
 from neuraldem.data.fb_normalization import FbNormalizer
+from neuraldem.lit.fb_stability import FbStability
 from neuraldem.models.modules.patch_embedding import cell_centres
+from neuraldem.models.modules.conservative_advection import advect_tagged
 from neuraldem.models.multi_branch_operator import MultiBranchOperator, OperatorInputs
 
-SOLID_FRACTION_CHANNEL = 3  # fluid branch channels: fluid velocity (3), solid fraction (1)
+SOLID_FRACTION_CHANNEL = 3  # fluid branch channels: fluid velocity (3), solid fraction (1)[, solids flux (3)]
+FLUX_CHANNELS = slice(4, 7)
+
+
+def _stats(norm: FbNormalizer, name: str, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    return (torch.tensor(norm.mean[name], dtype=like.dtype, device=like.device),
+            torch.tensor(norm.std[name], dtype=like.dtype, device=like.device))
+
+
+def project_volume(fluid: torch.Tensor, norm: FbNormalizer, volume: torch.Tensor) -> torch.Tensor:
+    """fluid (B, cells, C) model units with its solid fraction clamped >= 0 and scaled so that its cells sum to
+    `volume` (B,) (the input state's sum of the solid fraction: the bed is closed). Differentiable, so the loss
+    of a model trained with it sees the projected field."""
+    mean, std = _stats(norm, "solid_fraction", fluid)
+    alpha = (fluid[..., SOLID_FRACTION_CHANNEL] * std[0] + mean[0]).clamp(min=0.0)
+    total = alpha.sum(dim=1, keepdim=True)
+    target = volume.to(alpha.dtype).reshape(-1, 1)
+    alpha = torch.where(total > 0, alpha * target / total.clamp(min=1e-12), alpha)
+    out = fluid.clone()
+    out[..., SOLID_FRACTION_CHANNEL] = (alpha - mean[0]) / std[0]
+    return out
+
+
+def solid_volume(grid: torch.Tensor, norm: FbNormalizer) -> torch.Tensor:
+    """(B,) sum over the cells of the solid fraction of a fluid-branch input grid (B, C, nx, ny, nz)."""
+    mean, std = _stats(norm, "solid_fraction", grid)
+    return (grid[:, SOLID_FRACTION_CHANNEL] * std[0] + mean[0]).flatten(1).sum(1)
+
+
+def advect_mixing(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormalizer,
+                  scheme: str = "fct") -> torch.Tensor:
+    """Next mixing grid (B, cells, 1), model units: the input concentration carried over one step by the
+    predicted solids flux (channels 4-6 of `fluid` (B, cells, 7)), starting from the input solid fraction.
+    No gradient flows through it: the loss never scores the advected field (the off-branch is trained on its
+    own prediction), only the next step reads it."""
+    with torch.no_grad():
+        return _advect_mixing(inputs, fluid.detach(), norm, scheme)
+
+
+def _advect_mixing(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormalizer, scheme: str) -> torch.Tensor:
+    shape = tuple(inputs.grid.shape[2:])
+    batch = fluid.shape[0]
+    a_mean, a_std = _stats(norm, "solid_fraction", inputs.grid)
+    alpha = inputs.grid[:, SOLID_FRACTION_CHANNEL] * a_std[0] + a_mean[0]
+    m_mean, m_std = _stats(norm, "mixing", inputs.grid)
+    conc = inputs.mixing_grid[:, 0] * m_std[0] + m_mean[0]
+    f_mean, f_std = _stats(norm, "solids_flux", fluid)
+    flux = (fluid[..., FLUX_CHANNELS] * f_std + f_mean).transpose(1, 2).reshape(batch, 3, *shape)
+    spacing = [(hi - lo) / n for lo, hi, n in zip(norm.box_lo, norm.box_hi, norm.grid_shape, strict=True)]
+    new_conc, _ = advect_tagged(alpha, conc, flux, norm.dt, spacing, scheme=scheme)
+    return ((new_conc - m_mean[0]) / m_std[0]).reshape(batch, -1, 1)
 
 
 def grid_queries(inputs: OperatorInputs) -> torch.Tensor:
@@ -69,25 +125,35 @@ def next_grid_fields(out: dict[str, torch.Tensor], inputs: OperatorInputs,
 
 def decode_grid(net: MultiBranchOperator, tokens: dict[str, torch.Tensor], cond: torch.Tensor,
                 inputs: OperatorInputs, chunk_size: int | None = None,
-                step_scales: dict[str, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """Next fluid grid (B, 4, nx, ny, nz) and mixing grid (B, 1, nx, ny, nz), model units."""
-    shape = inputs.grid.shape[2:]
+                step_scales: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
+    """Next fluid (B, cells, C) and mixing (B, cells, 1) states, model units, before the stability options."""
     queries = grid_queries(inputs)
-    out = next_grid_fields(net.decode(tokens, cond, {"fluid": queries, "mixing": queries}, chunk_size=chunk_size),
-                           inputs, step_scales)
+    return next_grid_fields(net.decode(tokens, cond, {"fluid": queries, "mixing": queries}, chunk_size=chunk_size),
+                            inputs, step_scales)
+
+
+def apply_stability(fields: dict[str, torch.Tensor], inputs: OperatorInputs, norm: FbNormalizer,
+                    stability: FbStability | None, volume: torch.Tensor | None) -> dict[str, torch.Tensor]:
+    """The decoded next state with the step's stability options applied (volume projection, mixing advection)."""
+    if stability is None:
+        return fields
+    out = dict(fields)
+    if stability.conserve_volume:
+        out["fluid"] = project_volume(out["fluid"], norm, solid_volume(inputs.grid, norm) if volume is None else volume)
+    if stability.mixing == "advect":
+        out["mixing"] = advect_mixing(inputs, out["fluid"], norm, stability.advection_scheme)
+    return out
+
+
+def next_inputs(net: MultiBranchOperator, tokens: dict[str, torch.Tensor], cond: torch.Tensor,
+                fields: dict[str, torch.Tensor], inputs: OperatorInputs, norm: FbNormalizer, n_particles: int,
+                generator: torch.Generator | None = None, chunk_size: int | None = None) -> OperatorInputs:
+    """The next state as the next input: the grids, particles re-sampled from the solid fraction with the
+    particle branch decoded at them (zero displacement for a grid-only model)."""
+    shape = inputs.grid.shape[2:]
     batch = inputs.grid.shape[0]
-    fluid = out["fluid"].transpose(1, 2).reshape(batch, -1, *shape)
-    mixing = out["mixing"].transpose(1, 2).reshape(batch, -1, *shape)
-    return fluid, mixing
-
-
-def advance(net: MultiBranchOperator, inputs: OperatorInputs, norm: FbNormalizer, n_particles: int,
-            generator: torch.Generator | None = None, chunk_size: int | None = None,
-            step_scales: dict[str, torch.Tensor] | None = None) -> OperatorInputs:
-    """The model's next state as the next input: decoded grids, particles re-sampled from the solid fraction.
-    `step_scales` (`grid_step_scales`) for a residual model, whose grid outputs are scaled changes."""
-    tokens, cond = net.latents(inputs)
-    fluid, mixing = decode_grid(net, tokens, cond, inputs, chunk_size, step_scales)
+    fluid = fields["fluid"].transpose(1, 2).reshape(batch, -1, *shape)
+    mixing = fields["mixing"].transpose(1, 2).reshape(batch, -1, *shape)
     alpha = fluid[:, SOLID_FRACTION_CHANNEL] * norm.std["solid_fraction"][0] + norm.mean["solid_fraction"][0]
     positions = sample_positions(alpha, n_particles, generator)
     if net.particle_branch:
@@ -96,4 +162,17 @@ def advance(net: MultiBranchOperator, inputs: OperatorInputs, norm: FbNormalizer
         displacement = inputs.particle_features.new_zeros(positions.shape[0], n_particles,
                                                           inputs.particle_features.shape[-1])
     return replace(inputs, particle_pos=positions, particle_features=displacement, grid=fluid, mixing_grid=mixing,
-                   query_pos={}, supernode_idx=None)
+                   query_pos={}, supernode_idx=None, noise=None)
+
+
+def advance(net: MultiBranchOperator, inputs: OperatorInputs, norm: FbNormalizer, n_particles: int,
+            generator: torch.Generator | None = None, chunk_size: int | None = None,
+            step_scales: dict[str, torch.Tensor] | None = None, stability: FbStability | None = None,
+            volume: torch.Tensor | None = None) -> OperatorInputs:
+    """The model's next state as the next input: decoded grids (with the stability options: `volume` (B,) is
+    the solid volume to conserve, default the input's), particles re-sampled from the solid fraction.
+    `step_scales` (`grid_step_scales`) for a residual model, whose grid outputs are scaled changes."""
+    tokens, cond = net.latents(inputs)
+    fields = apply_stability(decode_grid(net, tokens, cond, inputs, chunk_size, step_scales), inputs, norm,
+                             stability, volume)
+    return next_inputs(net, tokens, cond, fields, inputs, norm, n_particles, generator, chunk_size)

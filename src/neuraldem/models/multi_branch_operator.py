@@ -14,6 +14,7 @@ import torch
 from torch import nn
 
 from neuraldem.config import checks
+from neuraldem.models.modules.mlp import Mlp
 from neuraldem.models.modules.multi_branch_block import MultiBranchTransformerBlock
 from neuraldem.models.modules.patch_embedding import PatchEmbedding, cell_centres
 from neuraldem.models.modules.perceiver_decoder import PerceiverDecoder
@@ -34,7 +35,8 @@ class OperatorInputs:
     mixing_grid (B, Cm, X', Y', Z'): off-branch cells (e.g. mixing concentration), same convention;
     scalars (B, S): normalised conditioning scalars (e.g. inlet velocity);
     query_pos {branch: (B, Q_branch, 3)}: where to decode each branch (branches left out are not decoded);
-    supernode_idx (B, M): optional explicit supernodes (indices into the N particles).
+    supernode_idx (B, M): optional explicit supernodes (indices into the N particles);
+    noise (B, noise_dim): the latent noise of a stochastic net (drawn from the global generator when None).
     """
 
     particle_pos: torch.Tensor
@@ -44,6 +46,7 @@ class OperatorInputs:
     scalars: torch.Tensor
     query_pos: Mapping[str, torch.Tensor] = field(default_factory=dict)
     supernode_idx: torch.Tensor | None = None
+    noise: torch.Tensor | None = None
 
 
 class MultiBranchOperator(nn.Module):
@@ -58,6 +61,9 @@ class MultiBranchOperator(nn.Module):
         (see `SupernodePooling`; radius in normalised units). patch_size: cells per patch along (X, Y, Z).
         particle_branch: False drops the particle branch (no supernode pooling, no particle decoder): a
         grid-only model whose main branch is the fluid grid, the "single branch" ablation of right-sizing.
+        noise_dim: > 0 makes the net stochastic: a Gaussian noise vector of this size, embedded by an MLP, is
+        added to the conditioning vector (so it reaches every block through the DiT modulation); members of an
+        ensemble differ only in their noise (trained with CRPS, `neuraldem.lit.fb_stability`).
 
     forward(inputs: OperatorInputs, chunk_size=None) -> {branch: (B, Q_branch, channels)} for the branches in
     `inputs.query_pos`.
@@ -68,8 +74,10 @@ class MultiBranchOperator(nn.Module):
                  encoder_depth: int = 1, approximator_depth: int = 1, decoder_depth: int = 1,
                  n_supernodes: int = 256, n_supernodes_eval: int | None = None, radius: float = 0.05,
                  max_neighbours: int = 32, position_mode: str = "both",
-                 patch_size: Sequence[int] = (2, 1, 2), mlp_ratio: float = 4.0, particle_branch: bool = True) -> None:
+                 patch_size: Sequence[int] = (2, 1, 2), mlp_ratio: float = 4.0, particle_branch: bool = True,
+                 noise_dim: int = 0) -> None:
         super().__init__()
+        self.noise_dim = checks.positive_int("model.net.noise_dim", noise_dim, allow_zero=True)
         self.n_scalars = checks.positive_int("model.net.n_scalars", n_scalars)
         self.particle_branch = checks.boolean("model.net.particle_branch", particle_branch)
         self.main_branches = MAIN_BRANCHES if self.particle_branch else ("fluid",)
@@ -83,6 +91,7 @@ class MultiBranchOperator(nn.Module):
                   for stage, depth in (("encoder", encoder_depth), ("approximator", approximator_depth),
                                        ("decoder", decoder_depth))}
         self.conditioner = ScalarConditioner(n_scalars, dim, cond_dim)
+        self.noise_embed = Mlp(noise_dim, cond_dim, cond_dim) if noise_dim else None
         self.encoders = nn.ModuleDict()
         if self.particle_branch:
             self.encoders["particles"] = SupernodePooling(particle_channels, dim, radius, n_supernodes,
@@ -121,6 +130,13 @@ class MultiBranchOperator(nn.Module):
         """Tokens after the last block and the conditioning vector: decode them once or in several calls
         (a rollout decodes the grid first, then the particles at positions sampled from the new grid)."""
         cond = self.conditioner(inputs.scalars)
+        if self.noise_embed is not None:
+            z = inputs.noise
+            if z is None:
+                z = torch.randn(cond.shape[0], self.noise_dim, device=cond.device, dtype=cond.dtype)
+            if z.shape != (cond.shape[0], self.noise_dim):
+                raise ValueError(f"noise of shape {tuple(z.shape)}; expected ({cond.shape[0]}, {self.noise_dim})")
+            cond = cond + self.noise_embed(z)
         tokens = self.encode(inputs)
         for block in [*self.encoder_blocks, *self.approximator_blocks, *self.decoder_blocks]:
             tokens = block(tokens, cond)
