@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from neuraldem.data.fb_datamodule import FluidizedBedDataModule
+from neuraldem.data.fb_fields import solids_flux
 from neuraldem.data.fb_normalization import FbNormalizer
 from neuraldem.data.fb_store import FbFile
 from neuraldem.errors import ConfigError, DataError
@@ -35,36 +36,47 @@ def _dm(dataset: Path, **kwargs) -> FluidizedBedDataModule:
 
 @pytest.mark.parametrize("k", [1, 3])
 def test_samples_are_the_files_states_and_targets(fb_tiny_dataset: Path, k: int):
-    dm = _dm(fb_tiny_dataset, push_forward_steps=k)
+    dm = _dm(fb_tiny_dataset, push_forward_steps=k, solids_flux=k == 3)
     ds, norm = dm.datasets["train"], dm.norm
     assert len(ds) == sum(_read(p, "n_snapshots") - k for p in dm.paths("train"))
+    channels = 7 if k == 3 else 4
     for i in (0, 1, len(ds) - 1):  # t = 0 (no previous displacement), t = 1, the last sample
         item, (s, t) = ds[i], ds.items[i]
         with FbFile(dm.paths("train")[s]) as f:
             pos, disp_in = f.positions(t), (f.displacement(t - 1) if t > 0 else np.zeros((f.n_particles, 3)))
-            tk = t + k
             np.testing.assert_allclose(norm.positions_back(item["particle_pos"].double().numpy()), pos, atol=1e-7)
             np.testing.assert_allclose(norm.field_back("displacement", item["particle_features"].double().numpy()),
                                        disp_in, atol=1e-9)
-            grid = item["grid"].double().numpy()  # (4, nx, ny, nz)
+            grid = item["grid"].double().numpy()  # (channels, nx, ny, nz)
+            assert grid.shape[0] == channels
             np.testing.assert_allclose(norm.field_back("fluid_velocity", np.moveaxis(grid[:3], 0, -1)),
                                        f.fluid_velocity(t), atol=1e-5)
             np.testing.assert_allclose(norm.field_back("solid_fraction", grid[3][..., None]), f.solid_fraction(t),
                                        atol=1e-6)
             np.testing.assert_allclose(norm.field_back("mixing", item["mixing_grid"][0, ..., None].double().numpy()),
                                        f.mixing(t), atol=1e-6)
-            # targets: fields at t + k, and the displacement that brought each particle to its position at t + k
-            np.testing.assert_allclose(norm.positions_back(item["target_pos"].double().numpy()), f.positions(tk),
-                                       atol=1e-7)
-            np.testing.assert_allclose(norm.field_back("displacement", item["target_particles"].double().numpy()),
-                                       f.displacement(tk - 1), atol=1e-9)
-            target = item["target_fluid"].double().numpy().reshape(*f.grid.shape, 4)
-            np.testing.assert_allclose(norm.field_back("solid_fraction", target[..., 3:]), f.solid_fraction(tk),
-                                       atol=1e-6)
-            np.testing.assert_allclose(norm.field_back("fluid_velocity", target[..., :3]), f.fluid_velocity(tk),
-                                       atol=1e-5)
-            np.testing.assert_allclose(norm.field_back("mixing", item["target_mixing"].double().numpy())
-                                       .reshape(f.grid.shape), f.mixing(tk), atol=1e-6)
+            assert float(item["solid_volume"]) == pytest.approx(float(f.solid_fraction(t).sum()), rel=1e-9)
+            if channels == 7:  # the solids flux of the last step, as fb_fields computes it from the particles
+                want = np.zeros((*f.grid.shape, 3)) if t == 0 else solids_flux(
+                    pos, disp_in, f.diameters, f.grid, f.kernel_sigma, f.dt)
+                np.testing.assert_allclose(norm.field_back("solids_flux", np.moveaxis(grid[4:], 0, -1)), want,
+                                           atol=1e-6)
+            # targets at every t + j, j = 1 .. k: the fields, and the displacement that brought each particle to
+            # its position at t + j
+            for j in range(1, k + 1):
+                tk = t + j
+                np.testing.assert_allclose(norm.positions_back(item["target_pos"][j - 1].double().numpy()),
+                                           f.positions(tk), atol=1e-7)
+                np.testing.assert_allclose(norm.field_back("displacement",
+                                                           item["target_particles"][j - 1].double().numpy()),
+                                           f.displacement(tk - 1), atol=1e-9)
+                target = item["target_fluid"][j - 1].double().numpy().reshape(*f.grid.shape, channels)
+                np.testing.assert_allclose(norm.field_back("solid_fraction", target[..., 3:4]), f.solid_fraction(tk),
+                                           atol=1e-6)
+                np.testing.assert_allclose(norm.field_back("fluid_velocity", target[..., :3]), f.fluid_velocity(tk),
+                                           atol=1e-5)
+                np.testing.assert_allclose(norm.field_back("mixing", item["target_mixing"][j - 1].double().numpy())
+                                           .reshape(f.grid.shape), f.mixing(tk), atol=1e-6)
         assert item["scalars"].shape == (1,)
 
 
@@ -118,10 +130,18 @@ def test_noise_only_on_training_inputs(fb_tiny_dataset: Path):
 def test_particle_subsets(fb_tiny_dataset: Path):
     dm = _dm(fb_tiny_dataset, particles_per_sample=64)
     item = dm.datasets["test"][0]
-    assert item["particle_pos"].shape == (64, 3) and item["target_pos"].shape == (64, 3)
+    assert item["particle_pos"].shape == (64, 3) and item["target_pos"].shape == (1, 64, 3)
     assert torch.equal(item["particle_pos"], dm.datasets["test"][0]["particle_pos"])  # evaluation: repeatable
     batch = next(iter(dm.train_dataloader()))
     assert batch["particle_pos"].shape == (2, 64, 3) and batch["grid"].shape == (2, 4, 6, 1, 15)
+
+
+def test_solids_flux_needs_its_statistics(fb_tiny_dataset: Path):
+    norm = _dm(fb_tiny_dataset).norm  # fitted without the flux
+    with pytest.raises(DataError, match="no statistics for 'solids_flux'.*solids_flux=true"):
+        norm.field("solids_flux", np.zeros((2, 3)))
+    with pytest.raises(ConfigError, match=r"data\.datamodule\.solids_flux='yes' is invalid"):
+        FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", solids_flux="yes")
 
 
 def test_bad_config_values(fb_tiny_dataset: Path):

@@ -62,10 +62,10 @@ def advect_tagged(solid_fraction: torch.Tensor, concentration: torch.Tensor, flu
     if scheme not in SCHEMES:
         raise ValueError(f"unknown advection scheme {scheme!r}; known: {list(SCHEMES)}")
     alpha = solid_fraction.double().clamp(min=0.0)
-    beta = alpha * concentration.double().clamp(0.0, 1.0)
+    conc = torch.nan_to_num(concentration.double(), nan=0.5).clamp(0.0, 1.0)
+    share = prior_share(alpha, conc, prior)
+    beta = torch.minimum(torch.clamp(conc * (alpha + prior) - prior * share, min=0.0), alpha)  # undo the prior
     j = torch.nan_to_num(flux.double(), nan=0.0, posinf=0.0, neginf=0.0)
-    total = alpha.flatten(1).sum(1).clamp(min=1e-300)
-    share = (beta.flatten(1).sum(1) / total).view(-1, *([1] * (alpha.ndim - 1)))
     n = n_substeps or substeps(j, dt, spacing, alpha)
     for _ in range(n):
         alpha, beta = _substep(alpha, beta, share, j, dt / n, spacing, scheme == "fct")
@@ -134,12 +134,18 @@ def _substep(alpha: torch.Tensor, beta: torch.Tensor, share: torch.Tensor, j: to
     return new_alpha, new_beta
 
 
-def tagged_volume(solid_fraction: torch.Tensor, concentration: torch.Tensor, prior: float = DEFAULT_PRIOR,
-                  share: torch.Tensor | float | None = None) -> torch.Tensor:
-    """(B,) tagged solid volume (cell units) held by a (solid fraction, concentration) pair, undoing the prior:
+def prior_share(solid_fraction: torch.Tensor, concentration: torch.Tensor, prior: float = DEFAULT_PRIOR) -> torch.Tensor:
+    """The global share p_B (B, 1, 1, 1) of a concentration field made with the prior: sum_c beta = p_B sum_c alpha
+    and c = (beta + a0 p_B) / (alpha + a0) give p_B = sum c (alpha + a0) / (sum alpha + a0 n_cells)."""
+    alpha, c = solid_fraction.double(), concentration.double()
+    cells = alpha[0].numel()
+    p = (c * (alpha + prior)).flatten(1).sum(1) / (alpha.flatten(1).sum(1) + prior * cells)
+    return p.clamp(0.0, 1.0).view(-1, *([1] * (alpha.ndim - 1)))
+
+
+def tagged_volume(solid_fraction: torch.Tensor, concentration: torch.Tensor,
+                  prior: float = DEFAULT_PRIOR) -> torch.Tensor:
+    """(B,) tagged solid volume (cell units) held by a (solid fraction, concentration) pair, the prior undone:
     beta = c (alpha + a0) - a0 p_B."""
-    alpha = solid_fraction.double()
-    c = concentration.double()
-    if share is None:
-        return (alpha * c).flatten(1).sum(1)
-    return (c * (alpha + prior) - prior * torch.as_tensor(share, dtype=alpha.dtype)).flatten(1).sum(1)
+    alpha, c = solid_fraction.double(), concentration.double()
+    return (c * (alpha + prior) - prior * prior_share(alpha, c, prior)).flatten(1).sum(1)
