@@ -116,6 +116,23 @@ def fb_tiny_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathF
 
 
 @pytest.fixture(scope="session")
+def fb_tiny_flux_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Like fb_tiny_checkpoint, with the issue-20 options: solids-flux channels, mixing advected by the predicted
+    flux, volume projection, unroll 1-2 steps, auto noise, and a stochastic net (2 CRPS members)."""
+    from neuraldem.data.fb_datamodule import FluidizedBedDataModule
+    from neuraldem.lit.fb_module import FluidizedBedModule
+    from neuraldem.models.registry import net_config
+
+    torch.manual_seed(0)
+    dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2, push_forward_steps=2,
+                                solids_flux=True)
+    stability = {"unroll": [0.5, 0.5], "input_noise": "auto", "conserve_volume": True, "mixing": "advect",
+                 "ensemble": 2}
+    module = FluidizedBedModule(net_config("fb_tiny", noise_dim=4), datamodule=dm, stability=stability)
+    return train_briefly(module, dm, tmp_path_factory.mktemp("ckpt") / "fb_tiny_flux.ckpt")
+
+
+@pytest.fixture(scope="session")
 def hopper_refill_tiny_dataset(data_root: Path) -> Path:
     """A real LIGGGHTS refilling-hopper dataset at test size (hopper_refill_tiny: 4 simulations of 2 s), made
     once per session with the datagen pipeline (resumable: reused when NEURALDEM_TEST_DATA is set)."""

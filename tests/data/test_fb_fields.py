@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from neuraldem.data.fb_fields import (
+    solids_flux,
     axis_weights,
     displacements,
     group_b_share,
@@ -77,6 +78,28 @@ def test_mixing_concentration_definition():
     alpha, conc = trajectory_fields(pos[None], d, labels, GRID, 0.002, 0.001)
     np.testing.assert_allclose(conc[0], c)
     np.testing.assert_allclose(alpha[0], solid_fraction(pos, d, GRID, 0.002))
+
+
+def test_solids_flux_carries_each_particles_momentum():
+    rng = np.random.default_rng(3)
+    pos = rng.uniform(GRID.lo, GRID.hi, size=(50, 3))
+    disp = rng.normal(0.0, 1e-3, size=(50, 3))
+    diameters = np.full(50, 0.002)
+    dt = 0.01
+    flux = solids_flux(pos, disp, diameters, GRID, 0.002, dt)
+    assert flux.shape == (*GRID.shape, 3)
+    # the kernel weights of a particle sum to 1: the field integrates to sum_i V_i u_i exactly
+    np.testing.assert_allclose(flux.sum(axis=(0, 1, 2)) * GRID.cell_volume,
+                               (particle_volumes(diameters)[:, None] * disp / dt).sum(axis=0), rtol=1e-10)
+    # one particle moving up: flux only along z, located where its solid fraction is
+    one = solids_flux(pos[:1], np.array([[0.0, 0.0, 1e-3]]), diameters[:1], GRID, 0.002, dt)
+    alpha = solid_fraction(pos[:1], diameters[:1], GRID, 0.002)
+    np.testing.assert_allclose(one[..., 2], alpha * 0.1, rtol=1e-10, atol=1e-300)  # (denormals differ)
+    assert not one[..., :2].any()
+    gone = pos.copy()
+    gone[0] = np.nan  # absent particles are skipped
+    np.testing.assert_allclose(solids_flux(gone, disp, diameters, GRID, 0.002, dt),
+                               solids_flux(pos[1:], disp[1:], diameters[1:], GRID, 0.002, dt), atol=1e-15)
 
 
 def test_displacements_are_next_minus_now():

@@ -33,7 +33,7 @@ def test_ground_truth_through_the_prediction_path_gives_its_own_metrics(fb_tiny_
         truth_volume = fm.total_solid_volume(truth_alpha, f.grid.cell_volume)
         e = evaluate_trajectory(path, sim, rec.params["inlet_velocity"], DataStepper(f), steps, horizon_steps=steps,
                                 horizons=[1, 3], settings=settings,
-                                rollout_path=tmp_path / "gt.h5" if via_file else None)
+                                rollout_path=tmp_path / "gt.h5" if via_file else None, init_snapshot=0)
     r = e.result
     assert r["window_steps"] == steps and set(r["rel_l2"]) >= {"solid_fraction_mean", "fluid_speed_std"}
     assert all(v == 0.0 for v in r["rel_l2"].values()), r["rel_l2"]
@@ -63,13 +63,14 @@ def test_evaluation_of_a_model_writes_metrics_report_and_plots(fb_tiny_checkpoin
     assert result["training_horizon_steps"] == 20 and result["rollout_steps"] == 60
     (t,) = result["trajectories"]  # fb_tiny holds out one velocity
     assert t["sim_id"] == "sim_0002" and t["extrapolation"] is True  # 2.04 m/s, trained on 1.23 only
-    assert t["window_steps"] == 20 and t["mass"]["steps"] == 60
+    assert result["init_snapshot"] == 1 and t["initial_state"].endswith("snapshot 1")
+    assert t["window_steps"] == 19 and t["mass"]["steps"] == 60  # CFD-DEM has 19 steps after snapshot 1
     assert [(h["multiple"], h["steps"]) for h in t["stability"]["horizons"]] == [(1, 20), (3, 60)]
     assert 0 < t["rel_l2"]["solid_fraction_mean"] < 10 and math.isfinite(t["mass"]["drift_pct"])
     assert t["rel_l2_full"]["solid_fraction_mean"] != t["rel_l2"]["solid_fraction_mean"]  # 60 vs 20 steps
     assert result["aggregate"]["n_trajectories"] == 1 and result["aggregate"]["n_extrapolation"] == 1
     report = (tmp_path / "report.md").read_text()
-    assert "| 2.042 | yes | 20 |" in report and "## Stability" in report and "3x (60 steps)" in report
+    assert "| 2.042 | yes | 19 |" in report and "## Stability" in report and "3x (60 steps)" in report
     for name in ("time_averages_sim_0002.png", "curves_sim_0002.png", "solid_volume.png", "rollouts/sim_0002.h5",
                  "vtk/sim_0002_grid.pvd"):
         assert (tmp_path / name).is_file(), name

@@ -44,13 +44,14 @@ def test_rollout_of_50_steps_writes_hdf5_json_and_vtk(fb_tiny_checkpoint: Path, 
         warnings.simplefilter("error", ExtrapolationWarning)  # the trained velocity: no warning
         summary = _run(fb_tiny_checkpoint, fb_tiny_dataset, tmp_path, vtk_every=10, particles_every=10)
     assert summary["steps_done"] == 50 and summary["diverged_at"] is None and not summary["extrapolation"]
-    assert summary["initial_state"] == "fb_tiny/sim_0000 snapshot 0"  # closest velocity, first by id
+    assert summary["initial_state"] == "fb_tiny/sim_0000 snapshot 1"  # closest velocity, first by id; snapshot 1
+    # (the first with a real last displacement)
     assert json.loads((tmp_path / "rollout.json").read_text())["steps_done"] == 50
     with RolloutFile(tmp_path / "rollout.h5") as r, FbFile(fb_tiny_dataset / "sims" / "sim_0000.h5") as f:
         alpha, u = r.grid_field("solid_fraction"), r.grid_field("fluid_velocity")
         assert alpha.shape == (51, 6, 1, 15) and u.shape == (51, 6, 1, 15, 3)
-        np.testing.assert_allclose(r.times, np.round(np.arange(51) * 0.01, 9), atol=1e-9)
-        np.testing.assert_array_equal(alpha[0], f.solid_fraction(0).astype(np.float32))  # starts from the data
+        np.testing.assert_allclose(r.times, np.round(np.arange(1, 52) * 0.01, 9), atol=1e-9)
+        np.testing.assert_array_equal(alpha[0], f.solid_fraction(1).astype(np.float32))  # starts from the data
         assert np.isfinite(alpha).all() and not np.array_equal(alpha[1], alpha[0])
         assert r.diverged_at == -1 and r.total_volume == pytest.approx(float(f.particle_volumes.sum()))
         samples = r.f["samples/position"][()]
@@ -58,7 +59,7 @@ def test_rollout_of_50_steps_writes_hdf5_json_and_vtk(fb_tiny_checkpoint: Path, 
         assert np.all(samples >= np.array(f.grid.lo) - 1e-7) and np.all(samples <= np.array(f.grid.hi) + 1e-7)
     # ParaView: a .pvd of 6 grid snapshots (every 10 steps) whose cells carry the stored fields in C order
     pvd = (tmp_path / "vtk" / "rollout_grid.pvd").read_text()
-    assert pvd.count("<DataSet") == 6 and 'timestep="0.5"' in pvd
+    assert pvd.count("<DataSet") == 6 and 'timestep="0.51"' in pvd
     mesh = meshio.read(tmp_path / "vtk" / "rollout_grid_0003.vtu")
     np.testing.assert_allclose(mesh.cell_data["solid_fraction"][0], alpha[30].ravel(), rtol=1e-6)
     centres = mesh.points[mesh.cells_dict["hexahedron"]].mean(axis=1)
@@ -105,7 +106,7 @@ def test_divergence_detector_stops_at_the_step(fb_tiny_checkpoint: Path, fb_tiny
     module = load_fb_checkpoint(fb_tiny_checkpoint)
     stepper = Inject(ModelStepper(module, TRAINED_VELOCITY), at=7, spoil=spoil)
     with FbFile(fb_tiny_dataset / "sims" / "sim_0000.h5") as f:
-        r = rollout(stepper, initial_state(f), 50, progress=False)
+        r = rollout(stepper, initial_state(f, 0), 50, progress=False)
     assert r.diverged_at == 7 and r.steps_done == 6 and stepper.calls == 7  # stopped, states 0..6 kept
     assert np.isfinite(r.solid_fraction).all()
     assert re.search(message, r.message()), r.message()
@@ -115,7 +116,7 @@ def test_divergence_detector_stops_at_the_step(fb_tiny_checkpoint: Path, fb_tiny
 def test_ground_truth_never_trips_the_detector(fb_tiny_dataset: Path):
     for sim in ("sim_0000", "sim_0001", "sim_0002"):
         with FbFile(fb_tiny_dataset / "sims" / f"{sim}.h5") as f:
-            r = rollout(DataStepper(f), initial_state(f), f.n_snapshots - 1, DivergenceLimits(), progress=False)
+            r = rollout(DataStepper(f), initial_state(f, 0), f.n_snapshots - 1, DivergenceLimits(), progress=False)
             assert r.diverged_at is None, (sim, r.message())
             np.testing.assert_array_equal(r.solid_fraction, f.solid_fraction())
 
@@ -126,7 +127,7 @@ def test_velocity_outside_the_trained_range_warns_and_is_flagged(fb_tiny_checkpo
                                                   r"\[1\.22853, 1\.22853\] m/s"):
         summary = _run(fb_tiny_checkpoint, fb_tiny_dataset, tmp_path, velocity=2.1, steps=3, vtk=False)
     assert summary["extrapolation"] and summary["trained_velocity_range"] == [TRAINED_VELOCITY] * 2
-    assert summary["initial_state"] == "fb_tiny/sim_0002 snapshot 0"  # the closest velocity (2.04)
+    assert summary["initial_state"] == "fb_tiny/sim_0002 snapshot 1"  # the closest velocity (2.04)
     with RolloutFile(tmp_path / "rollout.h5") as r:
         assert bool(r.attrs["extrapolation"]) and r.attrs["inlet_velocity"] == 2.1
     assert not (tmp_path / "vtk").exists()
@@ -152,7 +153,7 @@ def test_checkpoint_of_another_kind_or_scene_and_other_grid(fb_tiny_checkpoint: 
     with pytest.raises(DataError, match=r"sim_0001\.h5: grid \[6, 1, 15\] cells .* differs from the model's grid "
                                         r"\[12, 1, 30\]"):
         _run(other_grid, fb_tiny_dataset, tmp_path, init=fb_tiny_dataset / "sims" / "sim_0001.h5")
-    with pytest.raises(DataError, match="no snapshot 99"):
+    with pytest.raises(ConfigError, match=r"init_snapshot=99 is invalid: .*sim_0000\.h5 has snapshots 0 \.\. 20"):
         _run(fb_tiny_checkpoint, fb_tiny_dataset, tmp_path, init_snapshot=99)
     with pytest.raises(ConfigError, match=r"max_packing=1\.5 is invalid"):
         DivergenceLimits(max_packing=1.5)
@@ -188,3 +189,37 @@ def test_solid_volume_projection_holds_the_first_states_volume(fb_tiny_checkpoin
         assert b.f.attrs["conserve_solid_volume"]
     np.testing.assert_allclose(vb, vb[0], rtol=1e-5)  # float32 storage
     assert np.max(np.abs(va / va[0] - 1)) > 1e-3  # the untrained tiny model alone does not conserve it
+
+
+def test_issue_20_options_conserve_to_round_off_and_keep_mixing_bounded(fb_tiny_flux_checkpoint: Path,
+                                                                       fb_tiny_dataset: Path):
+    from neuraldem.data.fb_store import FbFile
+    from neuraldem.eval.fb_rollout import ModelStepper, initial_state, load_fb_checkpoint, rollout
+
+    module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
+    assert module.stability.mixing == "advect" and module.stability.conserve_volume and module.net.noise_dim == 4
+    with FbFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
+        state = initial_state(f)
+        runs = [rollout(ModelStepper(module, TRAINED_VELOCITY, seed), state, 40, progress=False) for seed in (0, 1)]
+    for r in runs:
+        assert r.diverged_at is None
+        volume = r.solid_fraction.astype(np.float64).reshape(len(r.times), -1).sum(axis=1)
+        np.testing.assert_allclose(volume, float(np.sum(state.solid_fraction)), rtol=2e-6)  # float32 round-off
+        assert r.mixing.min() >= 0.0 and r.mixing.max() <= 1.0
+    assert np.abs(runs[0].solid_fraction - runs[1].solid_fraction).max() > 1e-6  # two members differ
+    same = rollout(ModelStepper(module, TRAINED_VELOCITY, 0), state, 40, progress=False)
+    np.testing.assert_array_equal(same.solid_fraction, runs[0].solid_fraction)  # a seed reproduces its member
+
+
+def test_bad_rollout_requests_end_in_one_line(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tmp_path: Path):
+    env = {"NEURALDEM_DATA": str(fb_tiny_dataset.parent.parent)}
+    cases = [("init_snapshot=999", "init_snapshot=999 is invalid:", "e.g. init_snapshot=1"),
+             ("mixing=advect", "mixing=advect needs a model trained with the solids flux", "mixing=absolute"),
+             ("mixing=stir", "mixing='stir' is invalid", "must be one of")]
+    for i, (override, message, fix) in enumerate(cases):
+        proc = run_module("neuraldem.rollout", f"ckpt={fb_tiny_checkpoint}", f"velocity={TRAINED_VELOCITY}", "steps=3",
+                          override,
+                          f"hydra.run.dir={tmp_path / str(i)}", "progress=false", env=env)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+        assert message in proc.stderr and fix in proc.stderr
+        assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr

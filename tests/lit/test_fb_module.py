@@ -18,11 +18,11 @@ from neuraldem.models.registry import net_config
 pytestmark = pytest.mark.solver
 
 
-def _module(dataset: Path, net_overrides: dict | None = None, **dm_kwargs) -> tuple[FluidizedBedModule,
-                                                                                  FluidizedBedDataModule]:
+def _module(dataset: Path, net_overrides: dict | None = None, stability: dict | None = None,
+            **dm_kwargs) -> tuple[FluidizedBedModule, FluidizedBedDataModule]:
     dm = FluidizedBedDataModule(str(dataset), "fb_tiny", **({"batch_size": 4} | dm_kwargs))
     module = FluidizedBedModule(net_config("fb_tiny", **(net_overrides or {})), datamodule=dm,
-                                optimizer={"lr": 1e-3}, scheduler={"warmup_steps": 5})
+                                optimizer={"lr": 1e-3}, scheduler={"warmup_steps": 5}, stability=stability)
     return module, dm
 
 
@@ -61,8 +61,9 @@ def test_grid_only_model_trains_and_rolls_forward(fb_tiny_dataset: Path):
     from neuraldem.lit.fb_autoregressive import advance
 
     torch.manual_seed(0)
-    module, dm = _module(fb_tiny_dataset, {"particle_branch": False}, push_forward_steps=2)
-    _fit(module, dm, 3)  # push-forward goes through the grid-only rollout step
+    module, dm = _module(fb_tiny_dataset, {"particle_branch": False}, push_forward_steps=2,
+                         stability={"unroll": [0.0, 1.0]})
+    _fit(module, dm, 3)  # the unroll goes through the grid-only rollout step
     batch = next(iter(dm.test_dataloader()))
     with torch.no_grad():
         losses = module.losses(batch)
@@ -77,8 +78,9 @@ def test_residual_model_adds_scaled_changes_to_its_input(fb_tiny_dataset: Path, 
 
     torch.manual_seed(0)
     dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=4, push_forward_steps=2)
-    module = FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, residual=True)
-    trainer = _fit(module, dm, 3)  # trains, push-forward through the residual step
+    module = FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, residual=True,
+                                stability={"unroll": [0.0, 1.0]})
+    trainer = _fit(module, dm, 3)  # trains, unrolled through the residual step
     batch = next(iter(dm.test_dataloader()))
     x = module.inputs(batch)
     scales = module.step_scales
@@ -95,7 +97,7 @@ def test_residual_model_adds_scaled_changes_to_its_input(fb_tiny_dataset: Path, 
         losses = module.losses(batch)
     torch.testing.assert_close(grid_cells(nxt.grid), grid_cells(x.grid) + scales["fluid"])
     torch.testing.assert_close(grid_cells(nxt.mixing_grid), grid_cells(x.mixing_grid) + scales["mixing"])
-    change = (batch["target_fluid"] - grid_cells(x.grid)) / scales["fluid"]
+    change = (batch["target_fluid"][:, 0] - grid_cells(x.grid)) / scales["fluid"]
     torch.testing.assert_close(losses["fluid"], (1 - change).square().mean())
     monkeypatch.undo()
     path = tmp_path / "residual.ckpt"
@@ -106,27 +108,72 @@ def test_residual_model_adds_scaled_changes_to_its_input(fb_tiny_dataset: Path, 
         FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, residual="yes")
 
 
-def test_push_forward_unrolls_k_minus_one_model_steps(fb_tiny_dataset: Path, monkeypatch: pytest.MonkeyPatch):
-    calls = []
-    real_advance = fb_module.advance
+@pytest.mark.parametrize("unroll,loss_on,steps", [([0.0, 0.0, 1.0], "every", 3), ([0.0, 0.0, 1.0], "last", 3),
+                                                  ([1.0], "every", 1)])
+def test_training_unrolls_the_drawn_steps_and_scores_them(fb_tiny_dataset: Path, monkeypatch: pytest.MonkeyPatch,
+                                                          unroll: list[float], loss_on: str, steps: int):
+    if loss_on == "last":  # refused: it never trains the one-step map from data
+        with pytest.raises(ConfigError, match="never trains the one-step map"):
+            _module(fb_tiny_dataset, stability={"unroll": unroll, "loss_on": loss_on}, push_forward_steps=3)
+        return
+    calls, scored = [], []
+    real_next, real_loss = fb_module.next_inputs, FluidizedBedModule.branch_loss
 
-    def counting_advance(net, x, norm, n_particles, **kwargs):
+    def counting_next(net, tokens, cond, fields, x, norm, n_particles, **kwargs):
         calls.append((torch.is_grad_enabled(), n_particles))
-        out = real_advance(net, x, norm, n_particles, **kwargs)
+        out = real_next(net, tokens, cond, fields, x, norm, n_particles, **kwargs)
         assert out.particle_pos.shape == x.particle_pos.shape and out.grid.shape == x.grid.shape
         assert out.particle_pos.min() >= 0 and out.particle_pos.max() <= 1  # sampled inside the box
         return out
 
-    monkeypatch.setattr(fb_module, "advance", counting_advance)
+    def counting_loss(self, pred, target, members):
+        scored.append(target.shape)
+        return real_loss(self, pred, target, members)
+
+    monkeypatch.setattr(fb_module, "next_inputs", counting_next)
+    monkeypatch.setattr(FluidizedBedModule, "branch_loss", counting_loss)
     torch.manual_seed(0)
-    module, dm = _module(fb_tiny_dataset, push_forward_steps=3)
+    module, dm = _module(fb_tiny_dataset, stability={"unroll": unroll, "loss_on": loss_on}, push_forward_steps=3)
     assert module.push_forward_steps == 3 and module.metadata["push_forward_steps"] == 3
     _fit(module, dm, 2)
-    assert calls == [(False, 300)] * 4  # 2 training steps x (k - 1), without gradient
+    assert calls == [(False, 300)] * (2 * (steps - 1))  # each step's input is the last step's detached output
+    assert len(scored) == 2 * steps * 3  # every step scored, three branches each
     batch = next(iter(dm.test_dataloader()))
     calls.clear()
     module.losses(batch)  # evaluation: plain next-step
     assert calls == []
+
+
+def test_volume_projection_is_inside_the_trained_step(fb_tiny_dataset: Path):
+    from neuraldem.lit.fb_autoregressive import SOLID_FRACTION_CHANNEL, project_volume
+
+    module, dm = _module(fb_tiny_dataset, stability={"conserve_volume": True})
+    batch = next(iter(dm.train_dataloader()))
+    norm = module.norm
+    fluid = torch.randn(4, 90, 4, requires_grad=True)
+    out = project_volume(fluid, norm, batch["solid_volume"])
+    alpha = out[..., SOLID_FRACTION_CHANNEL] * norm.std["solid_fraction"][0] + norm.mean["solid_fraction"][0]
+    assert alpha.min() >= -1e-6
+    torch.testing.assert_close(alpha.sum(1).double(), batch["solid_volume"], rtol=1e-5, atol=0)
+    out.sum().backward()  # differentiable: the loss sees the projected field
+    assert fluid.grad is not None and fluid.grad[..., SOLID_FRACTION_CHANNEL].abs().sum() > 0
+    torch.testing.assert_close(out[..., :3], fluid[..., :3])  # the other channels pass through
+
+
+def test_auto_noise_follows_the_running_one_step_error(fb_tiny_dataset: Path):
+    torch.manual_seed(0)
+    module, dm = _module(fb_tiny_dataset, stability={"input_noise": "auto"})
+    assert float(module.step_error_fluid.sum()) == 0.0
+    _fit(module, dm, 3)
+    errors = {k: getattr(module, f"step_error_{k}") for k in ("particles", "fluid", "mixing")}
+    assert int(module.step_error_count) == 3
+    assert errors["fluid"].shape == (4,) and (errors["fluid"] > 0).all() and (errors["fluid"] <= 1).all()
+    x = module.inputs(next(iter(dm.train_dataloader())))
+    noisy = module.add_input_noise(x)
+    per_channel = (noisy.grid - x.grid).transpose(0, 1).flatten(1).std(dim=1)
+    torch.testing.assert_close(per_channel, errors["fluid"], rtol=0.15, atol=0.0)
+    fixed, _ = _module(fb_tiny_dataset, stability={"input_noise": 0.0})
+    assert fixed.add_input_noise(x) is x
 
 
 def test_config_that_cannot_fit_the_data(fb_tiny_dataset: Path):

@@ -10,7 +10,7 @@ of one trajectory of the checkpoint's dataset (its scene, inlet velocity and sta
 seconds, wall and CPU time of the DPMFoam process divided by the seconds it simulated (spin-up included, as
 the manifest's `cpu_s_per_simulated_s`); next to it the per-simulation costs the manifest recorded at datagen.
 The surrogate: `--rollout-steps` autoregressive steps (`eval.fb_rollout.rollout`, divergence check and
-particle re-sampling included) from snapshot 0 of the same trajectory, divided by the seconds they span, at
+particle re-sampling included) from snapshot 1 of the same trajectory, divided by the seconds they span, at
 each `--threads` setting. Ratios are solver / surrogate of the medians over repeats.
 """
 
@@ -199,7 +199,7 @@ def render_markdown(results: dict[str, Any], machine: dict[str, Any]) -> str:
     first = next(iter(sur.values()))
     lines = [(f"Scene {results['scene']}, trajectory {results['sim_id']} (U0 = {results['inlet_velocity']:g} "
               f"m/s); {results['n_particles']} particles, {results['cells']} cells."),
-             (f"Surrogate: {first['steps_computed']} rollout steps of {results['dt']:g} s from snapshot 0, medians "
+             (f"Surrogate: {first['steps_computed']} rollout steps of {results['dt']:g} s from snapshot 1, medians "
               f"of {first['repeats']} repeats; checkpoint loaded once in {results['surrogate_load_s']:.2f} s "
               "(not counted)."),
              f"Machine: {machine.get('cpu_model')} ({machine.get('cpu_count')} cores); DPMFoam serial."]
@@ -276,7 +276,7 @@ def prepare(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: i
     sim_seconds = check_sim_seconds(case.scene, sim_seconds)
     with FbFile(case.file) as f:
         check_grid(module.norm, f)
-        state = initial_state(f, 0)
+        state = initial_state(f)
     try:
         recorded = solver_recorded(case.manifest, case.dataset_dir)
     except DataError:

@@ -126,7 +126,7 @@ def surrogate_point(result: dict[str, Any], ref: Reference, steps: int, repeats:
     module = load_fb_checkpoint(Path(result["checkpoint"]))
     first = ref.records[0]
     with FbFile(ref.path(first)) as f:
-        state = initial_state(f, 0)
+        state = initial_state(f)
     timing = surrogate_timing(module, float(first.params["inlet_velocity"]), state, steps, repeats, threads).as_dict()
     net = module.hparams["net"]
     # what was trained, without the seed: runs with equal configs are seeds of one model (right_size averages)

@@ -6,7 +6,7 @@ velocities and beyond them.
 and .png.
 
 For every checkpoint (one series each, e.g. a model and its ablation without input noise) and every inlet
-velocity: one rollout of `--steps` steps from snapshot 0 of the dataset trajectory closest in velocity
+velocity: one rollout of `--steps` steps from snapshot 1 of the dataset trajectory closest in velocity
 (`eval.fb_rollout`, as `neuraldem.rollout` does). A velocity fails when the rollout diverges (the rollout's
 own detector: NaN/inf, solid fraction below 0 or above the maximum packing) or when the total solid volume
 of the solid-fraction field drifts by more than `--drift-limit-pct` from the initial state's; steps to
@@ -134,10 +134,10 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
             path, source = initial_file(module.metadata, Path(ckpt), v, data_dir() / "datasets", dataset_dir)
             with FbFile(path) as f:
                 check_grid(norm, f)
-                r = rollout(make_stepper(module, v, f), initial_state(f, 0), steps, limits, progress=False)
+                r = rollout(make_stepper(module, v, f), initial_state(f), steps, limits, progress=False)
                 cell_volume = f.grid.cell_volume
             point = {"inlet_velocity": v, "extrapolation": not norm.in_trained_range(v),
-                     "initial_state": f"{source} snapshot 0", **assess(r, cell_volume, drift_limit_pct)}
+                     "initial_state": f"{source} snapshot 1", **assess(r, cell_volume, drift_limit_pct)}
             points.append(point)
             if progress:
                 print(f"{label}: U0 = {v:g} m/s: " + (f"failed at step {point['steps_to_failure']} "

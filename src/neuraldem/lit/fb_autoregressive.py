@@ -55,16 +55,17 @@ def solid_volume(grid: torch.Tensor, norm: FbNormalizer) -> torch.Tensor:
 
 
 def advect_mixing(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormalizer,
-                  scheme: str = "fct") -> torch.Tensor:
+                  scheme: str = "fct", correction: float = 1.0) -> torch.Tensor:
     """Next mixing grid (B, cells, 1), model units: the input concentration carried over one step by the
     predicted solids flux (channels 4-6 of `fluid` (B, cells, 7)), starting from the input solid fraction.
     No gradient flows through it: the loss never scores the advected field (the off-branch is trained on its
     own prediction), only the next step reads it."""
     with torch.no_grad():
-        return _advect_mixing(inputs, fluid.detach(), norm, scheme)
+        return _advect_mixing(inputs, fluid.detach(), norm, scheme, correction)
 
 
-def _advect_mixing(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormalizer, scheme: str) -> torch.Tensor:
+def _advect_mixing(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormalizer, scheme: str,
+                   correction: float) -> torch.Tensor:
     shape = tuple(inputs.grid.shape[2:])
     batch = fluid.shape[0]
     a_mean, a_std = _stats(norm, "solid_fraction", inputs.grid)
@@ -74,7 +75,7 @@ def _advect_mixing(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormaliz
     f_mean, f_std = _stats(norm, "solids_flux", fluid)
     flux = (fluid[..., FLUX_CHANNELS] * f_std + f_mean).transpose(1, 2).reshape(batch, 3, *shape)
     spacing = [(hi - lo) / n for lo, hi, n in zip(norm.box_lo, norm.box_hi, norm.grid_shape, strict=True)]
-    new_conc, _ = advect_tagged(alpha, conc, flux, norm.dt, spacing, scheme=scheme)
+    new_conc, _ = advect_tagged(alpha, conc, flux, norm.dt, spacing, scheme=scheme, correction=correction)
     return ((new_conc - m_mean[0]) / m_std[0]).reshape(batch, -1, 1)
 
 
@@ -141,7 +142,8 @@ def apply_stability(fields: dict[str, torch.Tensor], inputs: OperatorInputs, nor
     if stability.conserve_volume:
         out["fluid"] = project_volume(out["fluid"], norm, solid_volume(inputs.grid, norm) if volume is None else volume)
     if stability.mixing == "advect":
-        out["mixing"] = advect_mixing(inputs, out["fluid"], norm, stability.advection_scheme)
+        out["mixing"] = advect_mixing(inputs, out["fluid"], norm, stability.advection_scheme,
+                                      stability.advection_correction)
     return out
 
 

@@ -16,6 +16,10 @@ mixing            "absolute": the mixing off-branch re-predicts the concentratio
                   concentration is carried by the predicted solids flux with a conservative, bounded scheme
                   (`models.modules.conservative_advection`; needs data.datamodule.solids_flux=true).
 advection_scheme  "fct" (flux-corrected) or "upwind" (more numerical mixing).
+advection_correction  weight of the flux correction, 0 (upwind) .. 1 (full FCT); 0.75 was the best of
+                  0 / 0.25 / 0.5 / 0.75 / 1 with CFD-DEM's own fields on the training and validation
+                  trajectories (`neuraldem.eval.fb_advection_oracle --part train+val`): full FCT under-mixes
+                  the bubbling beds, upwind over-mixes the quiet ones.
 ensemble          members per training sample: 1 = deterministic (MSE); >= 2 = a stochastic model (net
                   noise_dim > 0) trained with the fair CRPS over its members.
 """
@@ -44,6 +48,7 @@ class FbStability:
     conserve_volume: bool = False
     mixing: str = "absolute"
     advection_scheme: str = "fct"
+    advection_correction: float = 0.75
     ensemble: int = 1
     noise_ema: float = field(default=0.99, repr=False)
 
@@ -76,6 +81,7 @@ class FbStability:
         checks.boolean(f"{KEY}.conserve_volume", self.conserve_volume)
         checks.one_of(f"{KEY}.mixing", self.mixing, MIXING_MODES)
         checks.one_of(f"{KEY}.advection_scheme", self.advection_scheme, SCHEMES)
+        checks.number(f"{KEY}.advection_correction", self.advection_correction, lo=0.0, hi=1.0)
         if isinstance(self.ensemble, bool) or not isinstance(self.ensemble, int) or self.ensemble < 1:
             raise ConfigError(f"config value {KEY}.ensemble={self.ensemble!r} is invalid: must be an integer >= 1 "
                               f"(1 = deterministic; 2 = a stochastic model trained with CRPS, e.g. {KEY}.ensemble=2)")

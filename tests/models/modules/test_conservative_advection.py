@@ -24,13 +24,14 @@ def _state(seed: int, shape=(2, 12, 1, 30), flux_scale: float = 0.2):
     return alpha, conc, flux
 
 
-@pytest.mark.parametrize("scheme", ["fct", "upwind"])
+@pytest.mark.parametrize("scheme,correction", [("fct", 1.0), ("fct", 0.75), ("upwind", 1.0)])
 @pytest.mark.parametrize("flux_scale", [0.05, 0.5, 50.0])  # Courant numbers from ~0.1 to far above 1
-def test_tagged_volume_is_conserved_and_concentration_stays_in_range(scheme: str, flux_scale: float):
+def test_tagged_volume_is_conserved_and_concentration_stays_in_range(scheme: str, correction: float,
+                                                                    flux_scale: float):
     alpha, conc, flux = _state(0, flux_scale=flux_scale)
     before = tagged_volume(alpha, conc)
     for _ in range(20):
-        conc, carried = advect_tagged(alpha, conc, flux, DT, SPACING, scheme=scheme)
+        conc, carried = advect_tagged(alpha, conc, flux, DT, SPACING, scheme=scheme, correction=correction)
         assert conc.min() >= 0.0 and conc.max() <= 1.0
         torch.testing.assert_close(carried.flatten(1).sum(1), alpha.flatten(1).sum(1), rtol=1e-12, atol=0)
         torch.testing.assert_close(tagged_volume(carried, conc), before, rtol=1e-10, atol=1e-12)
@@ -60,7 +61,7 @@ def test_no_flux_changes_nothing_and_a_uniform_bed_stays_uniform():
     torch.testing.assert_close(new, uniform)  # stirring a fully mixed bed cannot unmix or over-mix it
 
 
-def _column(scheme: str, steps: int) -> torch.Tensor:
+def _column(scheme: str, steps: int, correction: float = 1.0) -> torch.Tensor:
     """A left (c = 0) / right (c = 1) bed moved to the right at 0.1 m/s (Courant 0.25)."""
     alpha = torch.full((1, 40, 1, 1), 0.5, dtype=torch.float64)
     conc = torch.zeros_like(alpha)
@@ -68,7 +69,7 @@ def _column(scheme: str, steps: int) -> torch.Tensor:
     flux = torch.zeros(1, 3, 40, 1, 1, dtype=torch.float64)
     flux[:, 0] = 0.5 * 0.1
     for _ in range(steps):
-        conc, _ = advect_tagged(alpha, conc, flux, DT, SPACING, scheme=scheme)
+        conc, _ = advect_tagged(alpha, conc, flux, DT, SPACING, scheme=scheme, correction=correction)
     return conc[0, :, 0, 0]
 
 
@@ -78,8 +79,10 @@ def test_transport_goes_with_the_flux_and_flux_correction_mixes_less_than_upwind
         assert profile[:18].max() < 0.05 and profile[28:36].min() > 0.95  # the c = 0 region moved right
         half = int((profile < 0.5).sum())
         assert half == pytest.approx(24, abs=1)  # the interface (c = 0.5) moved from cell 20 to ~24
-    width = {name: int(((p > 0.05) & (p < 0.95)).sum()) for name, p in (("upwind", upwind), ("fct", fct))}
-    assert width["fct"] < width["upwind"], width
+    partial = _column("fct", 16, correction=0.5)
+    width = {name: int(((p > 0.05) & (p < 0.95)).sum())
+             for name, p in (("upwind", upwind), ("fct", fct), ("half", partial))}
+    assert width["fct"] < width["half"] < width["upwind"], width  # the correction weight sets the mixing
 
 
 def test_unknown_scheme_is_refused():

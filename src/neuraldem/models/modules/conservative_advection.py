@@ -49,18 +49,23 @@ def substeps(flux: torch.Tensor, dt: float, spacing: Sequence[float], solid_frac
 
 def advect_tagged(solid_fraction: torch.Tensor, concentration: torch.Tensor, flux: torch.Tensor, dt: float,
                   spacing: Sequence[float], prior: float = DEFAULT_PRIOR, n_substeps: int | None = None,
-                  scheme: str = "fct") -> tuple[torch.Tensor, torch.Tensor]:
+                  scheme: str = "fct", correction: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
     """Move the tagged solid over one step of `dt` seconds.
 
     solid_fraction (B, nx, ny, nz) >= 0 and concentration (B, nx, ny, nz) in [0, 1] at the start of the step;
     flux (B, 3, nx, ny, nz): solids flux alpha * u_s [m/s] over the step; spacing: cell sizes [m].
     scheme: "upwind" (donor cell: bounded, but its numerical diffusion mixes a bed several times too fast) or
     "fct" (flux-corrected transport: the central face concentration where the limiter allows it, upwind where
-    it would leave the range of the neighbours; bounded and conservative as well).
+    it would leave the range of the neighbours; bounded and conservative as well). `correction` in [0, 1] scales
+    the flux correction before limiting: 1 = full FCT, 0 = upwind; in between keeps part of the upwind
+    scheme's numerical mixing, which stands in for the sub-cell dispersion of the particles (calibrated on
+    training trajectories: `neuraldem.eval.fb_advection_oracle`).
     Returns (concentration after the step, solid fraction the fluxes carried there). Non-finite fluxes count
     as zero (a diverging model is caught by the rollout's checks, not here)."""
     if scheme not in SCHEMES:
         raise ValueError(f"unknown advection scheme {scheme!r}; known: {list(SCHEMES)}")
+    if not 0.0 <= correction <= 1.0:
+        raise ValueError(f"advection correction {correction} outside [0, 1]")
     alpha = solid_fraction.double().clamp(min=0.0)
     conc = torch.nan_to_num(concentration.double(), nan=0.5).clamp(0.0, 1.0)
     share = prior_share(alpha, conc, prior)
@@ -68,7 +73,7 @@ def advect_tagged(solid_fraction: torch.Tensor, concentration: torch.Tensor, flu
     j = torch.nan_to_num(flux.double(), nan=0.0, posinf=0.0, neginf=0.0)
     n = n_substeps or substeps(j, dt, spacing, alpha)
     for _ in range(n):
-        alpha, beta = _substep(alpha, beta, share, j, dt / n, spacing, scheme == "fct")
+        alpha, beta = _substep(alpha, beta, share, j, dt / n, spacing, correction if scheme == "fct" else 0.0)
     conc = ((beta + prior * share) / (alpha + prior)).clamp(0.0, 1.0)
     return conc.to(concentration.dtype), alpha.to(solid_fraction.dtype)
 
@@ -77,7 +82,7 @@ SCHEMES = ("fct", "upwind")
 
 
 def _substep(alpha: torch.Tensor, beta: torch.Tensor, share: torch.Tensor, j: torch.Tensor, h: float,
-             spacing: Sequence[float], corrected: bool) -> tuple[torch.Tensor, torch.Tensor]:
+             spacing: Sequence[float], correction: float) -> tuple[torch.Tensor, torch.Tensor]:
     c = torch.where(alpha > 0, beta / alpha.clamp(min=1e-300), share).clamp(0.0, 1.0)
     axes = [a for a in range(3) if alpha.shape[a + 1] > 1]
     outflow = torch.zeros_like(alpha)
@@ -103,8 +108,8 @@ def _substep(alpha: torch.Tensor, beta: torch.Tensor, share: torch.Tensor, j: to
         new_beta.narrow(a + 1, 1, m).add_(up * c_lo)
         new_beta.narrow(a + 1, 0, m).add_(down * c_hi)
         # antidiffusive flux (lower -> upper): central face concentration minus the upwind one
-        faces[a] = (up - down) * 0.5 * (c_lo + c_hi) - (up * c_lo - down * c_hi)
-    if not corrected or not faces:
+        faces[a] = correction * ((up - down) * 0.5 * (c_lo + c_hi) - (up * c_lo - down * c_hi))
+    if correction == 0.0 or not faces:
         return new_alpha, new_beta
     # Zalesak's limiter: the corrections may not take any cell outside the range of c around it
     c_max, c_min = c.clone(), c.clone()
