@@ -94,7 +94,9 @@ def evaluate_fluidized_bed(cfg: DictConfig) -> None:
         conserve_solid_volume=None if fb.conserve_solid_volume is None else checks.boolean(
             "fluidized_bed.conserve_solid_volume", fb.conserve_solid_volume),
         mixing=None if fb.get("mixing") is None else checks.one_of("fluidized_bed.mixing", fb.mixing, MIXING_MODES),
-        init_snapshot=checks.positive_int("fluidized_bed.init_snapshot", fb.get("init_snapshot", 1), allow_zero=True))
+        init_snapshot=checks.positive_int("fluidized_bed.init_snapshot", fb.get("init_snapshot", 1), allow_zero=True),
+        advection_correction=None if fb.get("advection_correction") is None else checks.number(
+            "fluidized_bed.advection_correction", fb.advection_correction, lo=0.0, hi=1.0))
     agg = result["aggregate"]
     print((Path(cfg.paths.output_dir) / "report.md").read_text())
     print(f"{agg['n_trajectories']} held-out velocities: mean solid-fraction rel. L2 "

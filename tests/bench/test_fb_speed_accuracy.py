@@ -145,7 +145,10 @@ def test_chart_on_real_data(fb_tiny_checkpoint: Path, packings_as_test: Path, tm
     assert surrogate["time_to_answer_s"] > 0 and surrogate["timing"]["steps_computed"] == 3
     # its config (what a seed of it would share) names every option, defaults included
     assert surrogate["config"]["net"]["particle_branch"] is True and surrogate["config"]["residual"] is False
-    assert surrogate["config"]["training"] == {"input_noise": 0.0, "push_forward_steps": 1}
+    training = surrogate["config"]["training"]
+    assert {k: training[k] for k in ("input_noise", "push_forward_steps", "solids_flux", "conserve_volume")} == \
+        {"input_noise": 0.0, "push_forward_steps": 1, "solids_flux": False, "conserve_volume": False}
+    assert training["trained_stability"]["unroll"] == [1.0]
     m = Manifest.load(packings_as_test)
     with FbFile(packings_as_test / "sims" / "sim_0001.h5") as a, FbFile(packings_as_test / "sims" / "sim_0000.h5") as b:
         expected = compare(FieldSeries.from_dataset_file(a), FieldSeries.from_dataset_file(b), metric_settings(m))

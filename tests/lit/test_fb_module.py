@@ -155,9 +155,17 @@ def test_volume_projection_is_inside_the_trained_step(fb_tiny_dataset: Path):
     alpha = out[..., SOLID_FRACTION_CHANNEL] * norm.std["solid_fraction"][0] + norm.mean["solid_fraction"][0]
     assert alpha.min() >= -1e-6
     torch.testing.assert_close(alpha.sum(1).double(), batch["solid_volume"], rtol=1e-5, atol=0)
-    out.sum().backward()  # differentiable: the loss sees the projected field
+    (out[..., SOLID_FRACTION_CHANNEL] * torch.linspace(0, 1, 90)).sum().backward()  # the loss sees the projection
     assert fluid.grad is not None and fluid.grad[..., SOLID_FRACTION_CHANNEL].abs().sum() > 0
     torch.testing.assert_close(out[..., :3], fluid[..., :3])  # the other channels pass through
+    # a field that piles the solid into a few cells: capped at the densest training value, the rest elsewhere
+    dense = fluid.detach().clone()
+    dense[..., SOLID_FRACTION_CHANNEL] = -3.0
+    dense[:, :5, SOLID_FRACTION_CHANNEL] = 50.0
+    alpha = project_volume(dense, norm, batch["solid_volume"])[..., SOLID_FRACTION_CHANNEL] \
+        * norm.std["solid_fraction"][0] + norm.mean["solid_fraction"][0]
+    assert alpha.max() <= norm.solid_fraction_max + 1e-6 and alpha.min() >= -1e-6
+    torch.testing.assert_close(alpha.sum(1).double(), batch["solid_volume"], rtol=1e-5, atol=0)
 
 
 def test_auto_noise_follows_the_running_one_step_error(fb_tiny_dataset: Path):

@@ -283,7 +283,16 @@ def family_of(point: dict[str, Any]) -> dict[str, Any]:
 def family_label(f: dict[str, Any]) -> str:
     if not f:
         return "all runs"
-    parts = [f"input noise {f.get('input_noise', 0):g}", f"push-forward k = {f.get('push_forward_steps', 1)}"]
+    st = f.get("trained_stability")
+    if st:  # issue-20 options
+        unroll = st.get("unroll", [1.0])
+        parts = ["one-step" if len(unroll) == 1 else "unroll " + "/".join(f"{p:g}" for p in unroll),
+                 f"input noise {st.get('input_noise') or f.get('input_noise', 0)}",
+                 "flux" if f.get("solids_flux") else "no flux", f"mixing {st.get('mixing', 'absolute')}"]
+        parts += ["volume projected in training"] if st.get("conserve_volume") else []
+        parts += [f"stochastic (CRPS x{st['ensemble']})"] if st.get("ensemble", 1) > 1 else []
+    else:
+        parts = [f"input noise {f.get('input_noise', 0):g}", f"push-forward k = {f.get('push_forward_steps', 1)}"]
     parts += [name for key, name, on in (("particle_branch", "grid only", False), ("residual", "residual", True),
                                           ("conserve_solid_volume", "solid volume projected", True))
               if f.get(key, not on) == on]

@@ -2,12 +2,18 @@
 solids flux (an oracle: no model in the loop), scored like a rollout against CFD-DEM's mixing field.
 
     python -m neuraldem.eval.fb_advection_oracle DATASET_DIR [--sims sim_0003 ...] [--out DIR]
+    python -m neuraldem.eval.fb_advection_oracle DATASET_DIR --ckpt CKPT --part train+val [--steps 300]
 
 For each trajectory and flux-correction weight (1 = flux-corrected transport, 0 = upwind) the concentration starts from the stored one at snapshot 0 and is
 advected step by step with the stored solid fraction at t and the solids flux of the step t -> t+1 (deposited at
 the particles' positions at t + 1, as the model's next state carries it). Output: Lacey curves and their MAE
 against CFD-DEM's field Lacey index (the evaluation's definition), JSON + a markdown table. It bounds what
 `model.stability.mixing=advect` can reach: a model's flux is at best this one.
+
+With `--ckpt` the fields come from the model instead: one rollout per trajectory and correction weight
+(`--steps` long, from snapshot 1, the model's own solid fraction and flux), scored the same way. Use it on the
+training and validation parts only, to choose `fluidized_bed.advection_correction` for a trained model
+without looking at the test velocities.
 """
 
 from __future__ import annotations
@@ -57,9 +63,42 @@ def oracle(path: Path, settings: dict[str, Any], corrections: list[float]) -> di
     return row
 
 
+def model_rows(ckpt: Path, paths: list[Path], settings: dict[str, Any], corrections: list[float],
+               steps: int) -> list[dict[str, Any]]:
+    from neuraldem.eval.fb_eval import FieldSeries
+    from neuraldem.eval.fb_rollout import DEFAULT_INIT_SNAPSHOT, ModelStepper, initial_state, load_fb_checkpoint, rollout
+
+    module = load_fb_checkpoint(ckpt)
+    block, min_count = tuple(settings["lacey_block"]), float(settings["lacey_min_count"])
+    rows = []
+    for path in paths:
+        with FbFile(path) as f:
+            truth = FieldSeries.from_dataset_file(f).since(DEFAULT_INIT_SNAPSHOT)
+            n = min(steps, len(truth.times) - 1)
+            vp = truth.particle_volume
+            lacey_truth = lacey_from_fields(truth.solid_fraction[: n + 1], truth.mixing[: n + 1],
+                                            f.grid.cell_volume, vp, block, min_count)
+            row: dict[str, Any] = {"sim_id": f.sim_id, "inlet_velocity": f.inlet_velocity,
+                                   "lacey_truth": lacey_truth.tolist()}
+            state = initial_state(f)
+            for c in corrections:
+                stepper = ModelStepper(module, f.inlet_velocity, 0, mixing="advect", advection_correction=c)
+                r = rollout(stepper, state, n, progress=False)
+                if r.diverged_at is not None:  # a few steps say nothing about mixing: not scored
+                    row[f"lacey_{c:g}"], row[f"mae_{c:g}"] = [], float("nan")
+                    row[f"diverged_{c:g}"] = r.diverged_at
+                    continue
+                lacey = lacey_from_fields(r.solid_fraction.astype(np.float64), r.mixing.astype(np.float64),
+                                          f.grid.cell_volume, vp, block, min_count)
+                row[f"lacey_{c:g}"] = lacey.tolist()
+                row[f"mae_{c:g}"] = float(np.nanmean(np.abs(lacey - lacey_truth[: len(lacey)])))
+        rows.append(row)
+    return rows
+
+
 def markdown(rows: list[dict[str, Any]], corrections: list[float], command: str) -> str:
     head = " | ".join(f"correction {c:g}: 1 s / end | MAE" for c in corrections)
-    lines = ["# Mixing by advection alone (CFD-DEM's own solid fraction and solids flux)", "",
+    lines = ["# Mixing by advection (CFD-DEM's own solid fraction and solids flux, or with --ckpt a model's)", "",
              f"`{command}`", "", "correction 1 = flux-corrected transport, 0 = first-order upwind.", "",
              f"| trajectory | U0 [m/s] | Lacey CFD-DEM at 1 s / end | {head} |",
              "|---|---|---|" + "---|---|" * len(corrections)]
@@ -68,9 +107,12 @@ def markdown(rows: list[dict[str, Any]], corrections: list[float], command: str)
         cells = [f"{r['lacey_truth'][k]:.2f} / {r['lacey_truth'][-1]:.2f}"]
         for c in corrections:
             curve = r[f"lacey_{c:g}"]
-            cells += [f"{curve[k]:.2f} / {curve[-1]:.2f}", f"{r[f'mae_{c:g}']:.3f}"]
+            if not curve:
+                cells += [f"diverged at step {r.get(f'diverged_{c:g}')}", "n/a"]
+                continue
+            cells += [f"{curve[min(k, len(curve) - 1)]:.2f} / {curve[-1]:.2f}", f"{r[f'mae_{c:g}']:.3f}"]
         lines.append(f"| {r['sim_id']} | {r['inlet_velocity']:.3f} | " + " | ".join(cells) + " |")
-    means = [f"{np.mean([r[f'mae_{c:g}'] for r in rows]):.3f}" for c in corrections]
+    means = [f"{np.nanmean([r[f'mae_{c:g}'] for r in rows]):.3f}" for c in corrections]
     lines.append("| mean MAE | | | " + " | ".join(f"| {m}" for m in means) + " |")
     return "\n".join(lines) + "\n"
 
@@ -83,6 +125,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="the part of the velocity split scored when --sims is not given (calibrate on train+val)")
     p.add_argument("--corrections", nargs="*", type=float, default=[0.0, 1.0],
                    help="flux-correction weights to compare (1 = flux-corrected, 0 = upwind)")
+    p.add_argument("--ckpt", type=Path, default=None,
+                   help="score a model's rollouts (its own solid fraction and flux) instead of the oracle")
+    p.add_argument("--steps", type=int, default=300, help="rollout steps with --ckpt")
     p.add_argument("--out", type=Path, default=None, help="folder for oracle.json and oracle.md")
     a = p.parse_args(argv)
     m = Manifest.load(a.dataset)
@@ -96,7 +141,13 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         p.error(f"--sims {unknown} are not finished trajectories of {a.dataset}")
     settings = metric_settings(m)
-    rows = [oracle(a.dataset / str(m.record(s).file), settings, a.corrections) for s in sims]
+    paths = [a.dataset / str(m.record(s).file) for s in sims]
+    if a.ckpt is not None:
+        if a.steps < 1:
+            p.error(f"--steps {a.steps}: must be >= 1")
+        rows = model_rows(a.ckpt, paths, settings, a.corrections, a.steps)
+    else:
+        rows = [oracle(path, settings, a.corrections) for path in paths]
     command = "python -m neuraldem.eval.fb_advection_oracle " + " ".join(sys.argv[1:] if argv is None else argv)
     text = markdown(rows, a.corrections, command)
     print(text)

@@ -224,7 +224,8 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
                         seed: int = 0, vtk: bool = True, device: str = "auto", progress: bool = True,
                         make_stepper: Callable[[Any, float], Stepper] | None = None,
                         conserve_solid_volume: bool | None = None, mixing: str | None = None,
-                        init_snapshot: int = DEFAULT_INIT_SNAPSHOT) -> dict[str, Any]:
+                        init_snapshot: int = DEFAULT_INIT_SNAPSHOT,
+                        advection_correction: float | None = None) -> dict[str, Any]:
     """Evaluate a fluidized-bed checkpoint on the held-out velocities; write and return metrics.json."""
     horizons = [checks.positive_int(f"fluidized_bed.horizons[{i}]", h) for i, h in enumerate(horizons)]
     if not horizons:
@@ -239,8 +240,10 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         raise DataError(f"no {part} trajectories in split {split!r} of {dataset_dir}")
     settings = metric_settings(m)
     steps = max(horizons) * norm.horizon_steps
-    make_stepper = make_stepper or (lambda mod, v: ModelStepper(mod, v, seed, device, conserve_solid_volume, mixing))
-    options = ModelStepper(module, norm.velocity_lo, seed, "cpu", conserve_solid_volume, mixing).stability
+    make_stepper = make_stepper or (lambda mod, v: ModelStepper(mod, v, seed, device, conserve_solid_volume, mixing,
+                                                                advection_correction))
+    options = ModelStepper(module, norm.velocity_lo, seed, "cpu", conserve_solid_volume, mixing,
+                           advection_correction).stability
     out_dir = Path(out_dir)
     (out_dir / "rollouts").mkdir(parents=True, exist_ok=True)
     results, volumes = [], {}
@@ -264,7 +267,9 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         "checkpoint": str(Path(ckpt).resolve()), "dataset": str(dataset_dir), "split": split, "part": part,
         "trained_velocity_range": [norm.velocity_lo, norm.velocity_hi], "dt": norm.dt,
         "training": {"input_noise": meta.get("input_noise", 0.0), "push_forward_steps": meta.get("push_forward_steps", 1),
-                     "parameters": sum(p.numel() for p in module.parameters())},
+                     "parameters": sum(p.numel() for p in module.parameters()),
+                     "solids_flux": bool(meta.get("solids_flux", False)),
+                     "conserve_volume": module.stability.conserve_volume, "trained_stability": module.stability.to_dict()},
         "training_horizon_steps": norm.horizon_steps, "horizons": horizons, "rollout_steps": steps,
         "conserve_solid_volume": options.conserve_volume, "stability": options.to_dict(),
         "init_snapshot": init_snapshot,

@@ -136,9 +136,10 @@ class ModelStepper:
     the model's own conservation. A stochastic model draws its latent noise from this stepper's generator."""
 
     def __init__(self, module: FluidizedBedModule, velocity: float, seed: int = 0, device: str = "cpu",
-                 conserve_solid_volume: bool | None = None, mixing: str | None = None):
+                 conserve_solid_volume: bool | None = None, mixing: str | None = None,
+                 advection_correction: float | None = None):
         base = getattr(module, "stability", None) or FbStability()
-        self.stability = rollout_overrides(base, mixing, conserve_solid_volume)
+        self.stability = rollout_overrides(base, mixing, conserve_solid_volume, advection_correction)
         if self.stability.mixing == "advect" and not module.metadata.get("solids_flux", False):
             raise ConfigError("config value mixing=advect needs a model trained with the solids flux "
                               "(data.datamodule.solids_flux=true): use mixing=absolute for this checkpoint")

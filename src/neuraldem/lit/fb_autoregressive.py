@@ -34,15 +34,24 @@ def _stats(norm: FbNormalizer, name: str, like: torch.Tensor) -> tuple[torch.Ten
             torch.tensor(norm.std[name], dtype=like.dtype, device=like.device))
 
 
-def project_volume(fluid: torch.Tensor, norm: FbNormalizer, volume: torch.Tensor) -> torch.Tensor:
-    """fluid (B, cells, C) model units with its solid fraction clamped >= 0 and scaled so that its cells sum to
-    `volume` (B,) (the input state's sum of the solid fraction: the bed is closed). Differentiable, so the loss
-    of a model trained with it sees the projected field."""
+def project_volume(fluid: torch.Tensor, norm: FbNormalizer, volume: torch.Tensor, iterations: int = 6) -> torch.Tensor:
+    """fluid (B, cells, C) model units with its solid fraction projected onto the physical set: 0 <= alpha <=
+    the densest value of the training data (`norm.solid_fraction_max`; 0.74 if unknown) and sum over the cells =
+    `volume` (B,) (the input state's: the bed is closed). Clamped at 0, scaled, capped cells held at the cap while
+    the others take up the rest (a few passes). Differentiable, so the loss of a model trained with it sees the
+    projected field."""
     mean, std = _stats(norm, "solid_fraction", fluid)
+    cap = float(norm.solid_fraction_max) if norm.solid_fraction_max > 0 else 0.74
     alpha = (fluid[..., SOLID_FRACTION_CHANNEL] * std[0] + mean[0]).clamp(min=0.0)
-    total = alpha.sum(dim=1, keepdim=True)
     target = volume.to(alpha.dtype).reshape(-1, 1)
-    alpha = torch.where(total > 0, alpha * target / total.clamp(min=1e-12), alpha)
+    for _ in range(iterations):
+        capped = alpha >= cap
+        rest = (target - (cap * capped).sum(dim=1, keepdim=True)).clamp(min=0.0)
+        free = torch.where(capped, torch.zeros_like(alpha), alpha).sum(dim=1, keepdim=True)
+        n_free = (~capped).sum(dim=1, keepdim=True).clamp(min=1)
+        # the uncapped cells take up the rest in proportion (evenly if they hold nothing)
+        scaled = torch.where(free > 0, alpha * rest / free.clamp(min=1e-12), rest / n_free)
+        alpha = torch.where(capped, torch.full_like(alpha, cap), scaled).clamp(max=cap)
     out = fluid.clone()
     out[..., SOLID_FRACTION_CHANNEL] = (alpha - mean[0]) / std[0]
     return out

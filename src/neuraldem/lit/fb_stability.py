@@ -113,10 +113,12 @@ class FbStability:
                               "model.net.noise_dim=8 (or ensemble=1)")
 
 
-def rollout_overrides(base: FbStability, mixing: str | None = None,
-                      conserve_volume: bool | None = None) -> FbStability:
+def rollout_overrides(base: FbStability, mixing: str | None = None, conserve_volume: bool | None = None,
+                      advection_correction: float | None = None) -> FbStability:
     """The options a rollout uses: the checkpoint's, with the rollout-time ones overridden (validated)."""
     d = base.to_dict()
+    if advection_correction is not None:
+        d["advection_correction"] = advection_correction
     if mixing is not None:
         d["mixing"] = mixing
     if conserve_volume is not None:
