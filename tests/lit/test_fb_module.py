@@ -55,6 +55,13 @@ def test_tiny_model_learns_and_checkpoint_round_trips(fb_tiny_dataset: Path, tmp
     assert back.metadata["train_velocities"] == [pytest.approx(1.228531)]
     with torch.no_grad():
         torch.testing.assert_close(back.losses(batch)["loss"], after["loss"])
+    # a checkpoint written before the running one-step error existed still loads
+    raw = torch.load(path, weights_only=False)
+    for key in [k for k in raw["state_dict"] if k.startswith("step_error_")]:
+        del raw["state_dict"][key]
+    torch.save(raw, tmp_path / "old.ckpt")
+    old = FluidizedBedModule.load_from_checkpoint(tmp_path / "old.ckpt")
+    assert int(old.step_error_count) == 0 and not old.step_error_fluid.any()
 
 
 def test_grid_only_model_trains_and_rolls_forward(fb_tiny_dataset: Path):

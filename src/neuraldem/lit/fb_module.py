@@ -80,6 +80,13 @@ class FluidizedBedModule(L.LightningModule):
         return OperatorInputs(particle_pos=batch["particle_pos"], particle_features=batch["particle_features"],
                               grid=batch["grid"], mixing_grid=batch["mixing_grid"], scalars=batch["scalars"])
 
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        """Checkpoints from before the running one-step error existed load with it at zero."""
+        state = checkpoint.get("state_dict", {})
+        for name, buf in self.named_buffers():
+            if name.startswith("step_error_") and name not in state:
+                state[name] = torch.zeros_like(buf)
+
     # ---- training-time input noise
     def noise_std(self) -> dict[str, torch.Tensor | float]:
         if self.stability.input_noise == "auto":
