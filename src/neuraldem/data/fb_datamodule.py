@@ -96,7 +96,8 @@ class FbSamples(FileSamples):
         return np.sort(rng.choice(present, n, replace=len(present) < n))
 
     def _grid(self, f: FbFile, t: int) -> np.ndarray:
-        flux = f.solids_flux(t) if self.solids_flux else None
+        # the whole trajectory's flux, computed once per open file and kept (not one deposit per sample)
+        flux = f.solids_flux()[t] if self.solids_flux else None
         return grid_input(self.norm, f.fluid_velocity(t), f.solid_fraction(t), flux)
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:

@@ -51,6 +51,7 @@ from neuraldem.eval.fb_rollout import (
     write_rollout_vtk,
 )
 from neuraldem.eval.hopper_report import resolve_device
+from neuraldem.lit.fb_stability import rollout_overrides
 from neuraldem.machine import machine_info
 from neuraldem.sim.foam_reader import BoxGrid
 
@@ -242,8 +243,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     steps = max(horizons) * norm.horizon_steps
     make_stepper = make_stepper or (lambda mod, v: ModelStepper(mod, v, seed, device, conserve_solid_volume, mixing,
                                                                 advection_correction))
-    options = ModelStepper(module, norm.velocity_lo, seed, "cpu", conserve_solid_volume, mixing,
-                           advection_correction).stability
+    options = rollout_overrides(module.stability, mixing, conserve_solid_volume, advection_correction)
     out_dir = Path(out_dir)
     (out_dir / "rollouts").mkdir(parents=True, exist_ok=True)
     results, volumes = [], {}

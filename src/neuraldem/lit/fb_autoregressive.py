@@ -63,18 +63,13 @@ def solid_volume(grid: torch.Tensor, norm: FbNormalizer) -> torch.Tensor:
     return (grid[:, SOLID_FRACTION_CHANNEL] * std[0] + mean[0]).flatten(1).sum(1)
 
 
+@torch.no_grad()
 def advect_mixing(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormalizer,
                   scheme: str = "fct", correction: float = 1.0) -> torch.Tensor:
     """Next mixing grid (B, cells, 1), model units: the input concentration carried over one step by the
     predicted solids flux (channels 4-6 of `fluid` (B, cells, 7)), starting from the input solid fraction.
     No gradient flows through it: the loss never scores the advected field (the off-branch is trained on its
     own prediction), only the next step reads it."""
-    with torch.no_grad():
-        return _advect_mixing(inputs, fluid.detach(), norm, scheme, correction)
-
-
-def _advect_mixing(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormalizer, scheme: str,
-                   correction: float) -> torch.Tensor:
     shape = tuple(inputs.grid.shape[2:])
     batch = fluid.shape[0]
     a_mean, a_std = _stats(norm, "solid_fraction", inputs.grid)
