@@ -37,6 +37,12 @@ def report_user_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
+def tool_prog(module: str) -> str:
+    """A tool's name in its usage line: `neuraldem report fb-table` when the `neuraldem` command runs it
+    (which puts that name in argv[0]), else `python -m <module>`."""
+    return sys.argv[0] if sys.argv[0].startswith("neuraldem ") else f"python -m {module}"
+
+
 def parse_assignments(items: list[str], flag: str, example: str) -> dict[str, float]:
     """`NAME=NUMBER` command-line values (e.g. repeated `--param alpha=30`) as a dict."""
     out = {}

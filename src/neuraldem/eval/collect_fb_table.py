@@ -30,6 +30,8 @@ def run_name(result: dict) -> str:
 
 def options_label(r: dict) -> str:
     """The run's training and rollout options in a few words (issue-20 stability options when recorded)."""
+    if r.get("baseline"):  # neuraldem.eval.fb_baselines: no model
+        return r.get("description", r["baseline"])
     t, st = r.get("training", {}), r.get("stability") or {}
     if not st:  # evaluated before the stability options existed
         return f"noise {t.get('input_noise', 'n/a')}, push-forward k = {t.get('push_forward_steps', 'n/a')}"
@@ -51,12 +53,19 @@ def _f(v: float | None, fmt: str) -> str:
     return "n/a" if v is None else format(v, fmt)
 
 
+def stable_cell(a: dict, multiple: int, n: int) -> str:
+    k = a.get(f"stable_at_{multiple}x")
+    return "n/a" if k is None else f"{k}/{n}"
+
+
 def render(results: list[dict]) -> str:
-    first = results[0]
+    # baselines (neuraldem.eval.fb_baselines) have no rollout horizons: the layout comes from a model's result
+    first = next((r for r in results if r["horizons"]), results[0])
     mults = first["horizons"]
-    lines = [(f"Rollouts of {first['rollout_steps']} steps ({max(mults)}x the training horizon of "
-             f"{first['training_horizon_steps']} steps) from the first snapshot of each held-out trajectory; "
-             "statistics over the steps the CFD-DEM trajectory has, mass drift over the whole rollout."), "",
+    length = (f"Rollouts of {first['rollout_steps']} steps ({max(mults)}x the training horizon of "
+              f"{first['training_horizon_steps']} steps)" if mults else "Replayed CFD-DEM trajectories")
+    lines = [(f"{length} from the first snapshot of each held-out trajectory; statistics over the steps both "
+              "series have (baselines: as many as a training trajectory), mass drift over the whole series."), "",
              "| run | params | options | rel. L2 mean solid fraction | (whole rollout) "
              "| rel. L2 std solid fraction | rel. L2 mean fluid speed | max abs mass drift at the end [%] "
              "| (largest during the rollout) | Lacey MAE | "
@@ -73,22 +82,27 @@ def render(results: list[dict]) -> str:
                      f"{_f(a['fluid_speed_mean_rel_l2'], '.3f')} "
                      f"| {_f(a['mass_max_abs_drift_pct'], '.2f')} | {_f(a.get('mass_max_drift_during_pct'), '.2f')} "
                      f"| {_f(a['lacey_mae'], '.3f')} | "
-                     + " | ".join(f"{a[f'stable_at_{m}x']}/{n}" for m in mults) + " |")
-    lines += ["", ("| run | U0 [m/s] | rel. L2 mean solid fraction | rel. L2 std solid fraction | mass drift at the end [%] "
-              "| (largest during) "
-              "| Lacey MAE | Lacey final pred / CFD-DEM | bed height [mm] pred / CFD-DEM "
+                     + " | ".join(stable_cell(a, m, n) for m in mults) + " |")
+    lines += ["", ("| run | U0 [m/s] | rel. L2 mean solid fraction | rel. L2 std solid fraction "
+              "| mass drift at the end [%] | (largest during) "
+              "| steps compared | Lacey MAE | Lacey final pred / CFD-DEM | bed height [mm] pred / CFD-DEM "
               "| bubble fraction pred / CFD-DEM | steps until divergence |"),
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
+              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         for x in r["trajectories"]:
             s, lc, bh = x["stability"], x["lacey"], x["bed_height"]
             div = "none" if s["steps_to_divergence"] is None else str(s["steps_to_divergence"])
-            lines.append(f"| {run_name(r)} | {x['inlet_velocity']:.3f}{' (extrapolated)' if x.get('extrapolation') else ''} "
-                         f"| {_f(x['rel_l2']['solid_fraction_mean'], '.3f')} | {_f(x['rel_l2']['solid_fraction_std'], '.3f')} "
-                         f"| {x['mass']['drift_pct']:+.2f} | {_f(x['mass'].get('max_drift_pct'), '.2f')} | {_f(lc['mae'], '.3f')} | "
+            lines.append(f"| {run_name(r)} | {x['inlet_velocity']:.3f}"
+                         f"{' (extrapolated)' if x.get('extrapolation') else ''} "
+                         f"| {_f(x['rel_l2']['solid_fraction_mean'], '.3f')} "
+                         f"| {_f(x['rel_l2']['solid_fraction_std'], '.3f')} "
+                         f"| {x['mass']['drift_pct']:+.2f} | {_f(x['mass'].get('max_drift_pct'), '.2f')} "
+                         f"| {x.get('window_steps', 'n/a')} "
+                         f"| {_f(lc['mae'], '.3f')} | "
                          f"{_f(lc['final_pred'], '.2f')} / {_f(lc['final_truth'], '.2f')} | "
                          f"{_f(1000 * bh['mean_pred'], '.1f')} / {_f(1000 * bh['mean_truth'], '.1f')} | "
-                         f"{_f(x['bubble_fraction']['mean_pred'], '.3f')} / {_f(x['bubble_fraction']['mean_truth'], '.3f')}"
+                         f"{_f(x['bubble_fraction']['mean_pred'], '.3f')} "
+                         f"/ {_f(x['bubble_fraction']['mean_truth'], '.3f')}"
                          f" | {div} |")
     m = first["machine"]
     lines += ["", f"Machine: {m.get('cpu_model', '')}; evaluated {first['date_utc']}.", ""]
