@@ -60,7 +60,7 @@ def test_cfdem_style_case_with_liggghts_dump(fb_tiny_case: Path, tmp_path: Path)
         snap = src.cloud(name)
         assert snap.velocities is not None
         rows = "".join(f"{i + 1} " + " ".join(repr(float(v)) for v in (*p, *u, d / 2)) + "\n" for i, p, u, d in
-                       zip(snap.orig_id.tolist(), snap.positions, snap.velocities, snap.diameters))
+                       zip(snap.orig_id.tolist(), snap.positions, snap.velocities, snap.diameters, strict=False))
         frames.append(f"ITEM: TIMESTEP\n{round(value / dem_dt)}\nITEM: NUMBER OF ATOMS\n{len(snap)}\n"
                       "ITEM: BOX BOUNDS ff ff ff\n0 0.024\n0 0.006\n0 0.06\n"
                       f"ITEM: ATOMS id x y z vx vy vz radius\n{rows}")

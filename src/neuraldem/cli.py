@@ -39,7 +39,7 @@ def report_user_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
 
 def tool_prog(module: str) -> str:
     """A tool's name in its usage line: `neuraldem report fb-table` when the `neuraldem` command runs it
-    (which puts that name in argv[0]), else `python -m <module>`."""
+    (which puts that name in argv[0]), else `python -m <module>` (e.g. `neuraldem.bench fb_speed`)."""
     return sys.argv[0] if sys.argv[0].startswith("neuraldem ") else f"python -m {module}"
 
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from neuraldem import paths
+from neuraldem.cli import tool_prog
 from neuraldem.errors import NeuraldemError
 from neuraldem.sim import liggghts, openfoam
 
@@ -76,7 +77,7 @@ def check_torch_cluster() -> Check:
         row, col = torch_cluster.radius(x, x, 1.5, max_num_neighbors=8)
     except Exception as err:  # noqa: BLE001
         return Check("torch-cluster", False, f"radius query failed ({err})", fix)
-    pairs = sorted((int(a), int(b)) for a, b in zip(row, col) if a != b)
+    pairs = sorted((int(a), int(b)) for a, b in zip(row, col, strict=False) if a != b)
     expected = [(0, 1), (1, 0), (1, 2), (2, 1)]
     ok = pairs == expected
     return Check("torch-cluster", ok,
@@ -183,7 +184,7 @@ def run_checks(names: list[str] | None = None) -> list[Check]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m neuraldem.doctor", description=__doc__,
+    parser = argparse.ArgumentParser(prog=tool_prog("neuraldem.doctor"), description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--only", nargs="+", choices=list(CHECKS), help="run only these checks")
     args = parser.parse_args(argv)

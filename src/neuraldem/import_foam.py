@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neuraldem.cli import parse_assignments, report_user_errors
+from neuraldem.cli import parse_assignments, report_user_errors, tool_prog
 from neuraldem.data.fb_store import KIND, write_fb_file
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import sha256
@@ -97,7 +97,7 @@ def dump_cloud_reader(dump: Path, dem_dt: float, diameter: float | None):
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m neuraldem.import_foam", description=__doc__,
+    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.import_foam"), description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--case", type=Path, required=True, help="OpenFOAM case folder (serial or reconstructed)")
     p.add_argument("--dataset", type=Path, required=True, help="dataset dir (created if new)")

@@ -22,6 +22,7 @@ from neuraldem.config import checks
 from neuraldem.config.build import build_callbacks, build_loggers, build_trainer, check_trainer
 from neuraldem.data.manifest import require_dataset
 from neuraldem.errors import ConfigError, NeuraldemError
+from neuraldem.scenes import scene
 
 log = logging.getLogger(__name__)
 
@@ -64,39 +65,8 @@ def evaluate_after_training(cfg: DictConfig, trainer: L.Trainer) -> dict[str, fl
     ckpt = (cb.best_model_path or cb.last_model_path) if cb is not None else ""
     if not ckpt:
         raise ConfigError("evaluate=true needs checkpoints: keep callbacks.checkpoint enabled")
-    if cfg.data.get("kind") == "fluidized_bed":
-        return evaluate_fluidized_bed_after_training(cfg, Path(ckpt))
-    if cfg.data.get("kind") == "hopper_refill":
-        return evaluate_refill_after_training(cfg, Path(ckpt))
-    from neuraldem.eval.hopper_report import TABLE_HEADER, evaluate_checkpoint
-
-    result = evaluate_checkpoint(Path(ckpt), out_dir=Path(cfg.paths.output_dir) / "evaluation",
-                                 datasets_dir=Path(cfg.paths.datasets_dir), dataset_dir=cfg.data.dataset_dir,
-                                 progress=False)
-    print(TABLE_HEADER)
-    print("\n".join(result["table_rows"]))
-    log.info("evaluation of %s written to %s", ckpt, Path(cfg.paths.output_dir) / "evaluation")
-    return {f"test/{k}": float(v) for k, v in result["aggregate"].items()}
-
-
-def evaluate_refill_after_training(cfg: DictConfig, ckpt: Path) -> dict[str, float]:
-    """Score a refilling-hopper checkpoint on the test split, into <run>/evaluation."""
-    from neuraldem.eval.refill_eval import evaluate_refill_checkpoint
-
     out = Path(cfg.paths.output_dir) / "evaluation"
-    result = evaluate_refill_checkpoint(ckpt, out_dir=out, datasets_dir=Path(cfg.paths.datasets_dir),
-                                        dataset_dir=cfg.data.dataset_dir)
-    log.info("evaluation of %s written to %s", ckpt, out)
-    return {f"test/{k}": float(v) for k, v in result["aggregate"].items()}
-
-
-def evaluate_fluidized_bed_after_training(cfg: DictConfig, ckpt: Path) -> dict[str, float]:
-    from neuraldem.eval.fb_eval import evaluate_checkpoint
-
-    out = Path(cfg.paths.output_dir) / "evaluation"
-    result = evaluate_checkpoint(ckpt, out_dir=out, datasets_dir=Path(cfg.paths.datasets_dir),
-                                 dataset_dir=cfg.data.dataset_dir, progress=False)
-    print((out / "report.md").read_text())
+    result = scene(cfg.data.get("kind")).evaluate_run(cfg, Path(ckpt))
     log.info("evaluation of %s written to %s", ckpt, out)
     return {f"test/{k}": float(v) for k, v in result["aggregate"].items()}
 

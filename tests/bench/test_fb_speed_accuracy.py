@@ -60,7 +60,7 @@ def _configured(label: str, params: int, t: float, errs: tuple[float, float, flo
     opts = {"input_noise": 0.01, "push_forward_steps": 2, **family}
     net = {"dim": params // 1000, "particle_branch": opts.pop("particle_branch", True)}
     config = {"net": net, "residual": False, "training": opts, "conserve_solid_volume": False}
-    return {**_point(label, params, t, 0.0), "errors": dict(zip(fsa.QUANTITIES, errs)), "config": config}
+    return {**_point(label, params, t, 0.0), "errors": dict(zip(fsa.QUANTITIES, errs, strict=False)), "config": config}
 
 
 def test_sizes_are_compared_at_equal_options_and_on_every_quantity():

@@ -12,8 +12,8 @@ from neuraldem.bench.gns_points import exit_times, gns_point
 from neuraldem.data.gns_datamodule import ParticleRun
 from neuraldem.data.manifest import require_dataset
 from neuraldem.errors import ConfigError
-from neuraldem.eval.hopper_eval import HOPPER_ERRORS
 from neuraldem.eval.gns_rollout import load_gns_checkpoint
+from neuraldem.eval.hopper_eval import HOPPER_ERRORS
 from tests.helpers import oracle, train_tiny_gns
 
 pytestmark = pytest.mark.solver

@@ -79,7 +79,8 @@ def test_from_a_speed_accuracy_file(tmp_path: Path):
 
 
 def test_all_quantities_at_once(tmp_path: Path):
-    rows = [{**r, "method": "surrogate", "errors": {**r["errors"], "outflow_rel_err_pct": 1.0 / r["size"]["parameters"]}}
+    rows = [{**r, "method": "surrogate",
+             "errors": {**r["errors"], "outflow_rel_err_pct": 1.0 / r["size"]["parameters"]}}
             for r in TABLE]
     src = write_results("speed_accuracy", {"points": rows}, command="test", path=tmp_path / "sa.json", machine={})
     out = tmp_path / "rs.json"
@@ -102,8 +103,10 @@ def test_a_scalar_baseline_is_a_candidate(tmp_path: Path):
     """A Gaussian process within 10 % of the best field model answers the three numbers with far fewer
     parameters: it is the pick ('no more model than the scene needs'); the constant, 30 % off, is not."""
     points = [{**r, "method": "surrogate"} for r in TABLE]
-    points.append({**_row("gp, 5-fold CV", 10.5, 300, tokens=None, queries=None, t=0.003), "method": "Gaussian process"})
-    points.append({**_row("constant", 13.0, 15, tokens=None, queries=None, t=1e-4), "method": "constant (training mean)"})
+    points.append({**_row("gp, 5-fold CV", 10.5, 300, tokens=None, queries=None, t=0.003),
+                   "method": "Gaussian process"})
+    points.append({**_row("constant", 13.0, 15, tokens=None, queries=None, t=1e-4),
+                   "method": "constant (training mean)"})
     src = write_results("speed_accuracy", {"points": points}, command="test", path=tmp_path / "sa.json", machine={})
     out = tmp_path / "rs.json"
     assert bench_main(["right_sizing", "--from", str(src), "--out", str(out)]) == 0

@@ -16,8 +16,8 @@ from neuraldem.eval.hopper_eval import HOPPER_ERRORS
 
 def _point(method: str, label: str, t: float | None, drain: float, residual: float, outflow: float) -> dict:
     return {"method": method, "label": label, "time_to_answer_s": t,
-            "errors": {"drainage_t95_pct_of_mean": drain, "drainage_mae_pct_of_mean": drain, "residual_mae_pp": residual,
-                       "outflow_rel_err_pct": outflow}}
+            "errors": {"drainage_t95_pct_of_mean": drain, "drainage_mae_pct_of_mean": drain,
+                       "residual_mae_pp": residual, "outflow_rel_err_pct": outflow}}
 
 
 def test_fronts_per_quantity():

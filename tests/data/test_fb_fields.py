@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from neuraldem.data.fb_fields import (
-    solids_flux,
     axis_weights,
     displacements,
     group_b_share,
@@ -16,6 +15,7 @@ from neuraldem.data.fb_fields import (
     mixing_concentration,
     particle_volumes,
     solid_fraction,
+    solids_flux,
     trajectory_fields,
 )
 from neuraldem.data.fb_store import FbFile

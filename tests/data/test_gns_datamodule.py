@@ -72,7 +72,8 @@ def test_normalisation_uses_the_training_split_only(hopper_tiny_dataset):
 @pytest.mark.parametrize(("kwargs", "key"), [
     ({"history": 0}, "data.datamodule.history"), ({"history": 99}, "data.datamodule.history"),
     ({"noise_std": 2.0}, "data.datamodule.noise_std"), ({"noise_std": -0.1}, "data.datamodule.noise_std"),
-    ({"conditioning": ["t", "alpha"]}, "data.conditioning"), ({"conditioning": ["inlet_velocity"]}, "data.conditioning"),
+    ({"conditioning": ["t", "alpha"]}, "data.conditioning"),
+    ({"conditioning": ["inlet_velocity"]}, "data.conditioning"),
     ({"split": "velocity"}, "data.split"), ({"batch_size": 0}, "data.datamodule.batch_size"),
 ])
 def test_bad_values_end_in_one_line(hopper_tiny_dataset, kwargs, key):

@@ -79,7 +79,7 @@ def test_run_order_runs_held_out_velocities_first_then_spreads_over_the_range(tm
     assert [rest[0].params["inlet_velocity"], rest[1].params["inlet_velocity"]] == [lo, hi]
     for k in (3, 5, 9):  # any prefix leaves no gap wider than about twice the even spacing
         got = sorted(r.params["inlet_velocity"] for r in rest[:k])
-        assert max(b - a for a, b in zip(got, got[1:])) <= 2.4 * (hi - lo) / (k - 1)
+        assert max(b - a for a, b in zip(got, got[1:], strict=False)) <= 2.4 * (hi - lo) / (k - 1)
     assert [r.params["duration"] for r in order[-3:]] == [30.0, 30.0, 30.0]  # long ones last
 
 
@@ -201,8 +201,8 @@ def test_new_metric_settings_rescore_without_rerunning(fb_tiny_dataset: Path, tm
         cfg.data.dataset_dir = str(ds)
     m = generate(FluidizedBedPipeline(cfg.data), DatagenOptions(n_sims=3, workers=1, progress=False))
     assert m.parameters["metrics"]["bubble_threshold"] == 0.3
-    for old, new in zip(before.simulations, m.simulations):
+    for old, new in zip(before.simulations, m.simulations, strict=False):
         assert new.sha256 == old.sha256 and new.cost == old.cost  # not rerun
         assert new.metrics["bubble_fraction_mean"] >= old.metrics["bubble_fraction_mean"]
     assert any(n.metrics["bubble_fraction_mean"] > o.metrics["bubble_fraction_mean"]
-               for o, n in zip(before.simulations, m.simulations))
+               for o, n in zip(before.simulations, m.simulations, strict=False))

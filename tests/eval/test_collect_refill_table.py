@@ -9,8 +9,9 @@ from tests.helpers import run_module
 
 
 def _agg(transport_mse: float, residence_mse: float) -> dict:
-    return {"n_sims": 3, "rtd_answer_cpu_s": 2.0, "solver_cpu_s": 600.0, "layer_fraction_error": 0.1, "label_agreement": 0.8, "transport_mse": transport_mse,
-            "residence_mse": residence_mse, "rtd_wasserstein_s": 0.3, "rtd_median_error_s": -0.2}
+    return {"n_sims": 3, "rtd_answer_cpu_s": 2.0, "solver_cpu_s": 600.0, "layer_fraction_error": 0.1,
+            "label_agreement": 0.8, "transport_mse": transport_mse, "residence_mse": residence_mse,
+            "rtd_wasserstein_s": 0.3, "rtd_median_error_s": -0.2}
 
 
 def _write(folder: Path, t_refs: list[float], horizon: float) -> None:
@@ -31,7 +32,8 @@ def test_rows_give_rms_values_model_beside_persistence(tmp_path: Path):
     assert proc.returncode == 0, proc.stderr
     text = out.read_text()
     # transport: sqrt(0.0004) = 2 % of the box (persistence sqrt(0.01) = 10 %); residence 5 s x sqrt(0.01) = 0.5 s
-    assert "| hopper_tiny | test | dt_ref, alpha | 15 | 5 | 0.100 / 0.100 | 0.80 / 0.80 | 2.0 / 10.0 | 0.50 / 1.00 |" in text
+    assert ("| hopper_tiny | test | dt_ref, alpha | 15 | 5 | 0.100 / 0.100 | 0.80 / 0.80 | 2.0 / 10.0 "
+            "| 0.50 / 1.00 |") in text
     assert "| hopper_tiny | test | dt_ref, alpha | 0 | 5 |" in text
     assert "| hopper_tiny | 5 | 15 | 2.00 | 600 | 300x |" in text
     assert len(json.loads(out.with_suffix(".json").read_text())) == 2

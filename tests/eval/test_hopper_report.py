@@ -31,7 +31,7 @@ def test_dem_through_the_prediction_path_reproduces_ground_truth(hopper_tiny_dat
     times = time_grid(horizon, hop["snapshot_interval"])
     evals = evaluate_sims(m.usable(), hopper_tiny_dataset, dem, dem, times, np.ones(3), horizon, settings,
                           progress=False)
-    for e, rec in zip(evals, m.usable()):
+    for e, rec in zip(evals, m.usable(), strict=False):
         for key in (*SCALARS, "mass_flow", "residual_fraction_particles"):
             np.testing.assert_equal(e.predicted.get(key, e.truth[key]), e.truth[key])
             np.testing.assert_equal(e.truth[key], rec.metrics[key])  # == datagen's numbers (nan == nan)

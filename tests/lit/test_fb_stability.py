@@ -39,7 +39,8 @@ def test_the_fb_experiment_uses_the_issue_20_options(compose_train_cfg):
 
 
 @pytest.mark.parametrize("cfg,message", [
-    ({"mixng": "advect"}, r"config key model\.stability\.mixng is unknown: the stability options are .*fix the spelling"),
+    ({"mixng": "advect"},
+     r"config key model\.stability\.mixng is unknown: the stability options are .*fix the spelling"),
     ({"ensemble": 0}, r"model\.stability\.ensemble=0 is invalid: must be an integer >= 1"),
     ({"ensemble": -2}, r"model\.stability\.ensemble=-2 is invalid"),
     ({"ensemble": 1.5}, r"model\.stability\.ensemble=1\.5 is invalid"),

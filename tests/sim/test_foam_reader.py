@@ -115,7 +115,7 @@ def test_truncated_cell_field_and_bad_headers(tmp_path: Path):
 def _cloud(case: Path, time: str, ids: list[int], procs: list[int], count: int | None = None) -> None:
     d = case / time / "lagrangian" / "kinematicCloud"
     n = len(ids)
-    lines = "".join(f"({i * 0.01} 0 {p * 0.01}) 0\n" for i, p in zip(ids, procs))
+    lines = "".join(f"({i * 0.01} 0 {p * 0.01}) 0\n" for i, p in zip(ids, procs, strict=False))
     foam(d / "positions", "Cloud<x>", f"{n}\n(\n{lines})\n")
     foam(d / "origId", "labelField", f"{n}(" + " ".join(map(str, ids)) + ")\n")
     foam(d / "origProcId", "labelField", f"{n}(" + " ".join(map(str, procs)) + ")\n")
@@ -132,7 +132,7 @@ def test_identity_is_the_pair_origprocid_origid(tmp_path: Path):
     # a reconstructed parallel run: origId repeats across processors
     _cloud(tmp_path, "0.1", ids=[1, 0, 1, 0], procs=[1, 1, 0, 0], count=4)
     snap = FoamCase(tmp_path).cloud("0.1")
-    assert list(zip(snap.orig_proc.tolist(), snap.orig_id.tolist())) == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    assert list(zip(snap.orig_proc.tolist(), snap.orig_id.tolist(), strict=False)) == [(0, 0), (0, 1), (1, 0), (1, 1)]
     np.testing.assert_allclose(snap.positions[:, 0], [0.0, 0.01, 0.0, 0.01])
     np.testing.assert_allclose(snap.positions[:, 2], [0.0, 0.0, 0.01, 0.01])
     _cloud(tmp_path, "0.2", ids=[1, 1], procs=[0, 0])

@@ -36,8 +36,8 @@ def _exit_bounds(tr, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Cumulative exits at each snapshot, bracketed: LIGGGHTS prints exit times with 4 significant
     digits, so an exit within that rounding (plus one step) of a snapshot may fall on either side."""
     tol = 5e-4 * np.maximum(tr.times, 1e-3) + dt
-    lo = np.array([(tr.exit_times < t - e).sum() for t, e in zip(tr.times, tol)])
-    hi = np.array([(tr.exit_times <= t + e).sum() for t, e in zip(tr.times, tol)])
+    lo = np.array([(tr.exit_times < t - e).sum() for t, e in zip(tr.times, tol, strict=False)])
+    hi = np.array([(tr.exit_times <= t + e).sum() for t, e in zip(tr.times, tol, strict=False)])
     return lo, hi
 
 

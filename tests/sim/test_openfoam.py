@@ -31,12 +31,14 @@ def test_banner_is_not_the_reason(tmp_path: Path):
 
 
 def test_real_floating_point_crash_is_the_reason(tmp_path: Path):
-    crash = BANNER + "#0  Foam::error::printStack(Foam::Ostream&)\n#1  Foam::sigFpe::sigHandler(int)\nFloating point exception (core dumped)\n"
+    crash = (BANNER + "#0  Foam::error::printStack(Foam::Ostream&)\n#1  Foam::sigFpe::sigHandler(int)\n"
+             "Floating point exception (core dumped)\n")
     error = run_with_log(tmp_path, crash, -8).error
     assert error is not None and error.startswith("Floating point exception (core dumped)")
 
 
 def test_fatal_error_message_is_joined(tmp_path: Path):
-    fatal = BANNER + "\n--> FOAM FATAL ERROR: \ncannot find file \"0/U.air\"\n\n    From Foam::regIOobject::readStream()\n"
+    fatal = (BANNER + "\n--> FOAM FATAL ERROR: \ncannot find file \"0/U.air\"\n\n"
+             "    From Foam::regIOobject::readStream()\n")
     error = run_with_log(tmp_path, fatal, 1).error
     assert error is not None and error.startswith('FOAM FATAL ERROR: cannot find file "0/U.air"')

@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import sys
 
+from neuraldem.cli import tool_prog
 from neuraldem.errors import NeuraldemError
 
 # name -> ("module" with `main(argv) -> int`, or "module:function"; what it measures); imported only when run
@@ -47,7 +48,8 @@ def entry_point(name: str):
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0] in ("-h", "--help"):
-        print("usage: python -m neuraldem.bench NAME [args]   (NAME --help for its options; fb-speed = fb_speed)"
+        print(f"usage: {tool_prog('neuraldem.bench')} NAME [args]   (NAME --help for its options; "
+              "fb-speed = fb_speed)"
               "\n\nbenchmarks:")
         for name, (_, description) in BENCHMARKS.items():
             print(f"  {name:<14} {description}")
@@ -56,6 +58,8 @@ def main(argv: list[str] | None = None) -> int:
     if name not in BENCHMARKS:
         print(f"error: unknown benchmark {name!r}; choose one of {sorted(BENCHMARKS)}", file=sys.stderr)
         return 2
+    if sys.argv[0].startswith("neuraldem "):  # run by `neuraldem bench`: the benchmark's usage line says so
+        sys.argv[0] = f"neuraldem bench {argv[0]}"
     try:
         return entry_point(name)(args)
     except NeuraldemError as err:

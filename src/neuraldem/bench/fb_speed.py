@@ -30,6 +30,7 @@ from neuraldem.bench.hopper_solver import default_workdir
 from neuraldem.bench.hopper_surrogate import pick_record
 from neuraldem.bench.report import command_line, machine_info, resolve_out, warn_if_busy, write_results
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock, Sample, Timing, side_by_side, time_call, torch_threads
+from neuraldem.cli import tool_prog
 from neuraldem.config import checks
 from neuraldem.data.fb_store import FbFile
 from neuraldem.data.manifest import Manifest, SimRecord
@@ -150,9 +151,9 @@ def solver_recorded(m: Manifest, dataset_dir: Path) -> Timing:
         raise DataError(f"{dataset_dir}/manifest.json records no solver_cpu_s/simulated_s cost for any simulation: "
                         "drop --reuse-dataset to time DPMFoam here")
     wall = [r.cost.get("solver_wall_s", r.cost["wall_s"]) for r in recs]
-    per_run = Timing([Sample(w, r.cost["solver_cpu_s"]) for w, r in zip(wall, recs)], source=RECORDED)
+    per_run = Timing([Sample(w, r.cost["solver_cpu_s"]) for w, r in zip(wall, recs, strict=False)], source=RECORDED)
     samples = [Sample(w / r.cost["simulated_s"], r.cost["solver_cpu_s"] / r.cost["simulated_s"])
-               for w, r in zip(wall, recs)]
+               for w, r in zip(wall, recs, strict=False)]
     return Timing(samples, source=RECORDED, notes={
         "unit": "seconds per simulated second", "dataset": str(dataset_dir), "solver_threads": SOLVER_THREADS,
         "per_simulation": {**per_run.as_dict(), "unit": "seconds per run",
@@ -311,7 +312,7 @@ def measure(plan: Plan, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"python -m neuraldem.bench {NAME}", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
     p.add_argument("--ckpt", type=Path, required=True, help="fluidized-bed checkpoint (<run>/checkpoints/last.ckpt)")
     p.add_argument("--dataset", type=Path, default=None,
                    help="dataset dir of the checkpoint's scene (default: <data dir>/datasets/<its data name>)")

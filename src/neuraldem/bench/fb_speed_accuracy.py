@@ -43,6 +43,7 @@ from neuraldem.bench import plots
 from neuraldem.bench.fb_speed import surrogate_timing
 from neuraldem.bench.pareto import pareto_front
 from neuraldem.bench.report import command_line, machine_info, read_results, resolve_out, warn_if_busy, write_results
+from neuraldem.cli import tool_prog
 from neuraldem.config import checks
 from neuraldem.data.fb_store import FbFile, write_fb_file
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
@@ -142,8 +143,9 @@ def surrogate_point(result: dict[str, Any], ref: Reference, steps: int, repeats:
             "n_trajectories": len(trajectories), "checkpoint": result["checkpoint"],
             "config": json.loads(json.dumps(config, default=str)),
             # a rollout that diverged is scored on its few steps before: shown, never right-sized or on a front
-            "n_diverged": len(diverged), "diverged": [{"sim_id": t["sim_id"], "step": t["stability"]["steps_to_divergence"],
-                                                       "reason": t["stability"].get("divergence", "")} for t in diverged],
+            "n_diverged": len(diverged),
+            "diverged": [{"sim_id": t["sim_id"], "step": t["stability"]["steps_to_divergence"],
+                          "reason": t["stability"].get("divergence", "")} for t in diverged],
             "size": {"parameters": result["training"]["parameters"], "dim": net.get("dim"),
                      "n_supernodes_eval": net.get("n_supernodes_eval") or net.get("n_supernodes")},
             "training": result["training"]}
@@ -225,7 +227,8 @@ def solver_variant_point(variant: SolverVariant, ref: Reference, n_velocities: i
         if folder.exists():
             shutil.rmtree(folder)  # each run is timed from scratch
         v, duration = float(rec.params["inlet_velocity"]), float(rec.params["duration"])
-        result = run_fluidized_bed(scene, v, duration, folder, packing_seed(int(m.parameters.get("seed", 0)), rec.index))
+        result = run_fluidized_bed(scene, v, duration, folder,
+                                   packing_seed(int(m.parameters.get("seed", 0)), rec.index))
         if result.status != STATUS_OK or result.trajectory is None:
             failures.append({"sim_id": rec.sim_id, "reason": result.reason})
             continue
@@ -338,12 +341,14 @@ def right_size(points: list[dict[str, Any]], tolerance: float) -> list[dict[str,
                         "pick": pick["label"], "pick_error": pick["error"][q], "pick_runs": pick["runs"],
                         "pick_spread": pick["spread"][q], "pick_parameters": pick["parameters"],
                         "pick_time_to_answer_s": pick["time"], "within": sorted(m["label"] for m in ok)}
-        every = [m for m in models if limits and all(q in m["error"] and m["error"][q] <= lim for q, lim in limits.items())]
+        every = [m for m in models
+                 if limits and all(q in m["error"] and m["error"][q] <= lim for q, lim in limits.items())]
         all_pick = min(every, key=lambda m: (m["parameters"], m["time"])) if every else None
         out.append({"family": family, "label": family_label(family),
                     "models": [{k: m[k] for k in ("label", "runs", "parameters", "time", "error")} for m in models],
                     "quantities": picks,
-                    "all": None if all_pick is None else {"pick": all_pick["label"], "parameters": all_pick["parameters"],
+                    "all": None if all_pick is None else {"pick": all_pick["label"],
+                                                          "parameters": all_pick["parameters"],
                                                           "time_to_answer_s": all_pick["time"],
                                                           "errors": all_pick["error"]}})
     return out
@@ -356,9 +361,10 @@ def _num(v: Any, fmt: str) -> str:
 def render_markdown(results: dict[str, Any]) -> str:
     ref = results["reference"]
     front = {i for idx in results["pareto_front"].values() for i in idx}
-    lines = [(f"Scored on {len(results['reference_sims'])} CFD-DEM test trajectories ({', '.join(results['reference_sims'])}) "
-              f"of {results['dataset']}; cost = CPU seconds per simulated second (surrogate: {results['threads']} "
-              f"thread(s), median of {results['repeats']} rollouts of {results['steps']} steps). DPMFoam reference: "
+    lines = [(f"Scored on {len(results['reference_sims'])} CFD-DEM test trajectories "
+              f"({', '.join(results['reference_sims'])}) of {results['dataset']}; cost = CPU seconds per simulated "
+              f"second (surrogate: {results['threads']} thread(s), median of {results['repeats']} rollouts of "
+              f"{results['steps']} steps). DPMFoam reference: "
               f"{_num(ref['time_to_answer_s'], '.1f')} CPU-s per simulated second ({ref['source']})."), "",
              "| method | point | parameters | CPU-s per simulated s | speed-up vs DPMFoam | "
              + " | ".join(QUANTITIES.values()) + " | on a Pareto front |",
@@ -377,15 +383,17 @@ def render_markdown(results: dict[str, Any]) -> str:
                      f"({p['failures'][0]['reason'][:120]}).")
     for p in (p for p in results["points"] if p.get("n_diverged")):
         steps = ", ".join(str(d["step"]) for d in p["diverged"])
-        lines.append(f"\n{p['label']}: {p['n_diverged']} of {p['n_trajectories']} rollouts diverged (at steps {steps}); "
-                     "its errors cover the steps before, so it is on no front and not right-sized.")
+        lines.append(f"\n{p['label']}: {p['n_diverged']} of {p['n_trajectories']} rollouts diverged "
+                     f"(at steps {steps}); its errors cover the steps before, so it is on no front and not "
+                     "right-sized.")
     for fam in results["right_sizing"]:
         if len(fam["models"]) < 2:
             continue  # one size only: nothing to right-size
         lines += ["", (f"Right-sizing at {fam['label']} (smallest model within {100 * results['tolerance']:.0f} % of "
                        "the best; a model's error is the mean over its runs, seeds of one config, their range in "
                        "brackets):"), "",
-                  "| quantity | best | best error | smallest within | its error | its parameters | its CPU-s per simulated s |",
+                  "| quantity | best | best error | smallest within | its error | its parameters "
+                  "| its CPU-s per simulated s |",
                   "|---|---|---|---|---|---|---|"]
         for key, r in fam["quantities"].items():
             lo, hi = r["pick_spread"]
@@ -409,7 +417,7 @@ def write_outputs(results: dict[str, Any], out: Path, command: str, machine: dic
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"python -m neuraldem.bench {NAME}", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
     p.add_argument("--runs", type=Path, nargs="+", required=True, help="folders holding evaluated fb runs")
     p.add_argument("--dataset", type=Path, default=None, help="dataset dir (default: the runs' own)")
     p.add_argument("--solver-variants", nargs="*", default=list(DEFAULT_VARIANTS), help="KIND:FACTOR, e.g. dt:2")
@@ -459,7 +467,8 @@ def main(argv: list[str]) -> int:
                "quantities": QUANTITIES, "points": points, "pareto_front": chart(points),
                "reference": {"time_to_answer_s": ref_cost, "label": "DPMFoam reference (error 0)",
                              "source": "median of the dataset manifest's recorded costs"},
-               "xlabel": "cost of one simulated second [CPU s]", "failed_label": "Failed DPMFoam runs: ", "right_sizing": right_size(points, a.tolerance),
+               "xlabel": "cost of one simulated second [CPU s]", "failed_label": "Failed DPMFoam runs: ",
+               "right_sizing": right_size(points, a.tolerance),
                "tolerance": a.tolerance, "steps": a.steps, "repeats": a.repeats, "threads": a.threads,
                "machine": machine}
     path = write_outputs(results, resolve_out(a.out, NAME), command_line(NAME, argv), machine)

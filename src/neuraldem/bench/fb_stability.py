@@ -25,6 +25,7 @@ import numpy as np
 
 from neuraldem.bench import plots
 from neuraldem.bench.report import command_line, machine_info, resolve_out, write_results
+from neuraldem.cli import tool_prog
 from neuraldem.config import checks
 from neuraldem.data.fb_store import FbFile
 from neuraldem.errors import ConfigError, DataError
@@ -71,7 +72,8 @@ def assess(r: Rollout, cell_volume: float, drift_limit_pct: float) -> dict[str, 
     to_drift = int(beyond[0]) if beyond.size else None
     candidates = [(s, why) for s, why in (
         (r.diverged_at, f"diverged: {r.divergence}"),
-        (to_drift, f"solid volume drift {drift[to_drift]:+.2f} % beyond {drift_limit_pct:g} %" if to_drift is not None else ""),
+        (to_drift, f"solid volume drift {drift[to_drift]:+.2f} % beyond {drift_limit_pct:g} %"
+                   if to_drift is not None else ""),
     ) if s is not None]
     failed_at, failure = min(candidates, key=lambda c: c[0]) if candidates else (None, "")
     return {"steps_requested": r.steps_requested, "steps_done": r.steps_done,
@@ -128,7 +130,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
     steps = steps or DEFAULT_HORIZON_MULTIPLE * modules[0].norm.horizon_steps
     make_stepper = make_stepper or (lambda module, v, f: ModelStepper(module, v, seed))
     series = []
-    for label, ckpt, module in zip(labels, ckpts, modules):
+    for label, ckpt, module in zip(labels, ckpts, modules, strict=False):
         norm, points = module.norm, []
         for v in grid:
             path, source = initial_file(module.metadata, Path(ckpt), v, data_dir() / "datasets", dataset_dir)
@@ -143,7 +145,8 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
                 print(f"{label}: U0 = {v:g} m/s: " + (f"failed at step {point['steps_to_failure']} "
                       f"({point['failure']})" if point["failed"] else f"{r.steps_done} steps stable")
                       + f", drift {point['drift_pct_end']:+.2f} %", flush=True)
-        series.append({"label": label, "checkpoint": str(Path(ckpt).resolve()), "data_name": module.metadata["data_name"],
+        series.append({"label": label, "checkpoint": str(Path(ckpt).resolve()),
+                       "data_name": module.metadata["data_name"],
                        "trained_velocity_range": [norm.velocity_lo, norm.velocity_hi],
                        "training_horizon_steps": norm.horizon_steps, "dt": norm.dt,
                        "n_failed": sum(p["failed"] for p in points), "points": points})
@@ -170,7 +173,7 @@ def merge_maps(*maps: dict[str, Any]) -> dict[str, Any]:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"python -m neuraldem.bench {NAME}", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
     p.add_argument("--ckpt", type=Path, nargs="+", required=True,
                    help="fluidized-bed checkpoints, one series each (e.g. a model and its ablations)")
     p.add_argument("--labels", nargs="+", default=None, help="series names, one per --ckpt (default: run folders)")
@@ -186,7 +189,8 @@ def main(argv: list[str]) -> int:
                    help="dataset dir of the checkpoints' scene (default: <data dir>/datasets/<data name>)")
     p.add_argument("--seed", type=int, default=0, help="seed of the rollouts' particle re-sampling")
     p.add_argument("--out", type=Path, default=None,
-                   help=f"results JSON, or a folder for {NAME}.json (default results/bench/{NAME}.json); .png beside it")
+                   help=f"results JSON, or a folder for {NAME}.json (default results/bench/{NAME}.json); "
+                        ".png beside it")
     a = p.parse_args(argv)
     out = resolve_out(a.out, NAME)
     check_options(a.ckpt, a.labels, a.velocities, a.steps, a.drift_limit_pct, a.seed)

@@ -31,7 +31,6 @@ from neuraldem.config import checks
 from neuraldem.data.gns_datamodule import ParticleRun
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.datagen.hopper import trajectory_metrics
-from neuraldem.eval.hopper_metrics import HopperMetricSettings
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, require_kind
 from neuraldem.eval.gns_rollout import (
@@ -43,6 +42,7 @@ from neuraldem.eval.gns_rollout import (
     rollout,
 )
 from neuraldem.eval.hopper_eval import SimEvaluation, aggregate
+from neuraldem.eval.hopper_metrics import HopperMetricSettings
 from neuraldem.lit.gns_module import GnsModule
 from neuraldem.paths import data_dir
 from neuraldem.sim.hopper import HopperTrajectory

@@ -31,6 +31,7 @@ from neuraldem.bench.fb_stability import (
     velocity_grid,
 )
 from neuraldem.bench.report import command_line, machine_info, read_results, resolve_out, write_results
+from neuraldem.cli import tool_prog
 from neuraldem.config import checks
 from neuraldem.data.gns_datamodule import ParticleRun
 from neuraldem.data.manifest import require_dataset
@@ -59,7 +60,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
     checks.positive_int("--n-velocities", n_velocities)
     limits = limits or StabilityLimits()
     modules = [load_gns_checkpoint(Path(c)) for c in ckpts]  # refuses other kinds before any rollout
-    for c, m in zip(ckpts, modules):
+    for c, m in zip(ckpts, modules, strict=False):
         if m.metadata["scene_kind"] != "fluidized_bed":
             raise DataError(f"{c} is a GNS of the {m.metadata['scene_kind']} scene; the stability map needs a "
                             "fluidized-bed GNS: train one with python -m neuraldem.train experiment=gns_fb")
@@ -68,7 +69,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
         velocity_grid(min(r[0] for r in ranges), max(r[1] for r in ranges), n_velocities)
     steps = steps or DEFAULT_HORIZON_MULTIPLE * modules[0].norm.horizon_steps
     series = []
-    for label, ckpt, module, (lo, hi) in zip(labels, ckpts, modules, ranges):
+    for label, ckpt, module, (lo, hi) in zip(labels, ckpts, modules, ranges, strict=False):
         norm, meta, points = module.norm, module.metadata, []
         step_fn = accelerate or model_accelerator(module)
         for v in grid:
@@ -95,7 +96,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"python -m neuraldem.bench {NAME}", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
     p.add_argument("--ckpt", type=Path, nargs="+", required=True, help="GNS checkpoints (experiment=gns_fb)")
     p.add_argument("--labels", nargs="+", default=None, help="series names, one per --ckpt (default: run folders)")
     p.add_argument("--velocities", type=float, nargs="+", default=None, help="inlet velocities [m/s]")

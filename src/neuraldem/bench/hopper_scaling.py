@@ -6,9 +6,10 @@ writes results/bench/hopper_scaling.json and hopper_scaling.png (log-log).
 
 LIGGGHTS: the dataset's hopper scaled to N particles (same shape); each N is filled, settled and drained for
 2 x `--steps` timesteps only (the first `--steps` start the flow). Measured: settle time, particle-steps per
-second of the second chunk (LIGGGHTS's own loop clock) and the process's wall/CPU time. Extrapolated: a full run = measured settle + a full drain's
-particle-steps / the measured rate, where a full drain's duration and mean fill come from the dataset's
-stored runs. Counts up to `--full-up-to` are also run in full, which checks the extrapolation.
+second of the second chunk (LIGGGHTS's own loop clock) and the process's wall/CPU time. Extrapolated: a full
+run = measured settle + a full drain's particle-steps / the measured rate, where a full drain's duration and
+mean fill come from the dataset's stored runs. Counts up to `--full-up-to` are also run in full, which checks
+the extrapolation.
 Surrogate: one full trajectory (every snapshot time) at Q uniform query points; and at a fixed Q for
 untrained copies of the net with other latent token counts (the cost does not depend on the weights).
 """
@@ -52,7 +53,7 @@ from neuraldem.bench.report import (
     write_results,
 )
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock, time_call, torch_threads
-from neuraldem.cli import parse_assignments
+from neuraldem.cli import parse_assignments, tool_prog
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError, DataError, SolverError
 from neuraldem.eval.hopper_predict import time_grid
@@ -162,7 +163,7 @@ def surrogate_scaling(surrogate: Surrogate, net_cfg: dict | str, queries: list[i
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"python -m neuraldem.bench {NAME}", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
     p.add_argument("--dataset", type=Path, default=None,
                    help="reference dataset: its scene is scaled, its runs give the full drain "
                         "(default: the --ckpt's dataset, else <data dir>/datasets/hopper_small)")

@@ -36,6 +36,7 @@ from neuraldem.bench.fb_stability import default_labels
 from neuraldem.bench.gns_points import load_hopper_gns, require_hopper_gns
 from neuraldem.bench.hopper_surrogate import Question, answer, full_question, load_surrogate, surrogate_dataset
 from neuraldem.bench.report import command_line, machine_info, resolve_out, write_results
+from neuraldem.cli import tool_prog
 from neuraldem.config import checks
 from neuraldem.data.gns_datamodule import ParticleRun
 from neuraldem.data.hopper_store import HopperFile
@@ -138,7 +139,8 @@ def truth_series(sims: list[SimRecord], dataset_dir: Path, m: Manifest, limit_pc
 
 
 def gns_series(ckpt: Path, label: str, sims: list[SimRecord], mu_s: list[float], dataset_dir: Path, m: Manifest,
-               steps: int | None, trained: tuple[float, float], accelerate: Accelerator | None = None) -> dict[str, Any]:
+               steps: int | None, trained: tuple[float, float],
+               accelerate: Accelerator | None = None) -> dict[str, Any]:
     module = load_hopper_gns(ckpt)
     meta, norm = module.metadata, module.norm
     if "mu_s" not in meta["conditioning"]:
@@ -212,7 +214,8 @@ def render_markdown(results: dict[str, Any]) -> str:
             f"{results['trained_mu_s_range']}):")
     lines = [head, ""]
     lines += [f"- {x}" for x in summary_lines(results)]
-    lines += ["", "| series | sim | alpha [deg] | mu_s | in range | stable for [s] | failure |", "|---|---|---|---|---|---|---|"]
+    lines += ["", "| series | sim | alpha [deg] | mu_s | in range | stable for [s] | failure |",
+              "|---|---|---|---|---|---|---|"]
     for s in results["series"]:
         for p in s["points"]:
             lines.append(f"| {s['label']} | {p['sim_id']} | {p['alpha']:.1f} | {p['mu_s']:.2f} | "
@@ -222,7 +225,7 @@ def render_markdown(results: dict[str, Any]) -> str:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"python -m neuraldem.bench {NAME}", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
     p.add_argument("--ckpt", type=Path, nargs="+", required=True, help="hopper field-surrogate checkpoints")
     p.add_argument("--gns-ckpt", type=Path, nargs="+", default=[], help="GNS checkpoints (experiment=gns_hopper)")
     p.add_argument("--labels", nargs="+", default=None, help="one per checkpoint, --ckpt first then --gns-ckpt")

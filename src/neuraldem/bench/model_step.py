@@ -18,6 +18,7 @@ import torch
 from torch import nn
 
 from neuraldem.bench.report import machine_info, write_results
+from neuraldem.cli import tool_prog
 from neuraldem.config import checks
 from neuraldem.models.hopper_field import HopperFieldModel
 from neuraldem.models.registry import build_net
@@ -97,7 +98,7 @@ def run(configs: tuple[str, ...] = DEFAULT_CONFIGS, threads: tuple[int, ...] = (
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="python -m neuraldem.bench model_step",
+    parser = argparse.ArgumentParser(prog=tool_prog("neuraldem.bench model_step"),
                                      description=__doc__.split("\n")[0])
     parser.add_argument("--configs", nargs="+", default=list(DEFAULT_CONFIGS), help="conf/model/ names")
     parser.add_argument("--threads", nargs="+", type=int, default=[1, 2])

@@ -61,10 +61,10 @@ def scaling_figure(results: dict[str, Any], path: Path) -> Path:
     return path
 
 
-METHOD_STYLE = {"surrogate": ("o", "C1"), "liggghts": ("s", "C0"), "GNS": ("D", "C3"), "DPMFoam, cheaper settings": ("s", "C0"),
-                "DPMFoam, another packing": ("^", "C2"), "constant (training mean)": ("v", "0.4"),
-                "Gaussian process": ("P", "C4"), "field model (CV)": ("*", "C1"),
-                "LIGGGHTS, another packing seed": ("^", "C0")}
+METHOD_STYLE = {"surrogate": ("o", "C1"), "liggghts": ("s", "C0"), "GNS": ("D", "C3"),
+                "DPMFoam, cheaper settings": ("s", "C0"), "DPMFoam, another packing": ("^", "C2"),
+                "constant (training mean)": ("v", "0.4"), "Gaussian process": ("P", "C4"),
+                "field model (CV)": ("*", "C1"), "LIGGGHTS, another packing seed": ("^", "C0")}
 
 
 def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path:
@@ -73,7 +73,7 @@ def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path:
     quantities = results["quantities"]
     fig, axes = plt.subplots(1, len(quantities), figsize=(5.2 * len(quantities), 4.4), squeeze=False)
     points = results["points"]
-    for ax, (key, label) in zip(axes[0], quantities.items()):
+    for ax, (key, label) in zip(axes[0], quantities.items(), strict=False):
         for method in sorted({p["method"] for p in points}):
             marker, color = METHOD_STYLE.get(method, ("D", "C2"))
             mine = [p for p in points if p["method"] == method and _finite(p["errors"].get(key))]
@@ -132,7 +132,7 @@ def fb_speed_figure(results: dict[str, Any], path: Path) -> Path:
     for offset, key, name, color in ((-0.2, "median_wall_s", "wall", "C0"), (0.2, "median_cpu_s", "CPU", "C1")):
         values = [s[key] for _, s in entries]
         left.bar([i + offset for i in x], values, width=0.4, color=color, label=name)
-        for i, v in zip(x, values):
+        for i, v in zip(x, values, strict=False):
             left.annotate(f"{v:.3g}", (i + offset, v), ha="center", va="bottom", fontsize=7)
     left.set_xticks(list(x), [label.replace(", ", "\n") for label, _ in entries], fontsize=8)
     left.set(yscale="log", ylabel="seconds per simulated second", title="cost of one simulated second")
@@ -143,7 +143,7 @@ def fb_speed_figure(results: dict[str, Any], path: Path) -> Path:
     for offset, key, name, color in ((-0.2, "speedup_wall", "wall", "C0"), (0.2, "speedup_cpu", "CPU", "C1")):
         values = [r[key] or 0.0 for r in rows]
         right.barh([i + offset for i in y], values, height=0.4, color=color, label=name)
-        for i, v in zip(y, values):
+        for i, v in zip(y, values, strict=False):
             right.annotate(f"{v:,.0f}x", (v, i + offset), va="center", fontsize=7, xytext=(3, 0),
                            textcoords="offset points")
     target = results.get("target_speedup")
@@ -221,7 +221,7 @@ def hopper_stability_figure(results: dict[str, Any], path: Path) -> Path:
     series = results["series"]
     fig, axes = plt.subplots(1, len(series), figsize=(4.2 * len(series), 4.0), squeeze=False, sharey=True)
     lo, hi = results["trained_mu_s_range"]
-    for ax, s in zip(axes[0], series):
+    for ax, s in zip(axes[0], series, strict=False):
         ax.axhspan(lo, hi, color="0.5", alpha=0.15, label="trained mu_s range")
         ok = [p for p in s["points"] if not p["failed"]]
         bad = [p for p in s["points"] if p["failed"]]

@@ -25,6 +25,7 @@ from typing import Any
 from neuraldem.bench.hopper_runs import HOPPER_ERRORS, collect_runs
 from neuraldem.bench.report import command_line, default_path, machine_info, read_results, write_results
 from neuraldem.bench.speed_accuracy import surrogate_points
+from neuraldem.cli import tool_prog
 from neuraldem.config import checks
 from neuraldem.errors import DataError
 
@@ -153,7 +154,7 @@ def _cell(v: Any, fmt: str = "") -> str:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"python -m neuraldem.bench {NAME}", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--runs", type=Path, nargs="+", help="folders holding evaluated runs (timed here)")
     src.add_argument("--from", dest="from_file", type=Path, help="a speed_accuracy.json (its surrogate points)")

@@ -35,10 +35,11 @@ from tqdm import tqdm
 
 from neuraldem.bench.hopper_solver import dataset_scene, default_workdir, run_scene
 from neuraldem.bench.report import command_line, resolve_out, warn_if_busy, write_results
+from neuraldem.cli import tool_prog
 from neuraldem.config import checks
+from neuraldem.data.hopper_store import write_hopper_file
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import atomic_write_json
-from neuraldem.data.hopper_store import write_hopper_file
 from neuraldem.datagen.hopper import stored_metrics
 from neuraldem.errors import ConfigError, DataError, NeuraldemError, SolverInterrupted
 from neuraldem.eval.hopper_eval import HOPPER_ERRORS, score_answers
@@ -338,7 +339,7 @@ def render_markdown(results: dict[str, Any]) -> str:
              "",
              "| quantity | seed spread (std across stored + reruns) | rerun vs stored error | error unit |",
              "|---|---|---|---|"]
-    for key, s in spread.items():
+    for s in spread.values():
         error_key = s["comparable_error"]
         err = _num(score.get(error_key)) if error_key else "-"
         unit = HOPPER_ERRORS.get(error_key, "share of runs in the stored run's regime"
@@ -405,7 +406,7 @@ def run(p: Plan, workers: int, progress: bool = True) -> dict[str, Any]:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"python -m neuraldem.bench {NAME}", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
     p.add_argument("--dataset", type=Path, required=True, help="hopper dataset dir (its scene and stored runs)")
     p.add_argument("--n-sets", type=int, default=10, help="parameter sets rerun (usable runs of the dataset)")
     p.add_argument("--seeds", type=int, default=3, help="reruns per set, each with new packing seeds")

@@ -29,10 +29,9 @@ from neuraldem.bench.hopper_solver import run_scene
 from neuraldem.bench.timing import Sample
 from neuraldem.data.manifest import SimRecord
 from neuraldem.datagen.hopper import stored_metrics, trajectory_metrics
-from neuraldem.eval.hopper_metrics import HopperMetricSettings
 from neuraldem.errors import ConfigError
 from neuraldem.eval.hopper_eval import SimEvaluation, aggregate
-from neuraldem.eval.hopper_metrics import flow_regime
+from neuraldem.eval.hopper_metrics import HopperMetricSettings, flow_regime
 from neuraldem.sim.hopper import STATUS_FAILED, HopperScene
 
 KINDS = ("fewer", "coarser", "dt", "same")

@@ -35,6 +35,7 @@ from neuraldem.bench.report import (
 )
 from neuraldem.bench.solver_variants import DEFAULT_VARIANTS, SolverVariant, score_variant
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock
+from neuraldem.cli import tool_prog
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.hopper_cv import ROWS
@@ -51,7 +52,8 @@ def read_cv(path: Path) -> dict[str, Any]:
     try:
         cv = json.loads(Path(path).read_text())
     except json.JSONDecodeError as err:
-        raise DataError(f"--cv {path} is not valid JSON ({err}): write it again with neuraldem.eval.hopper_cv") from None
+        raise DataError(f"--cv {path} is not valid JSON ({err}): write it again with "
+                        "neuraldem.eval.hopper_cv") from None
     if "summary" not in cv or "folds" not in cv:
         raise DataError(f"--cv {path} is not a cross-validation result of neuraldem.eval.hopper_cv (no summary)")
     return cv
@@ -111,7 +113,8 @@ def cv_points(cv: dict[str, Any], split: str, row: str, scene: str) -> tuple[lis
     summary = cv.get("summary", {}).get(split, {}).get(row)
     if not summary:
         raise DataError(f"the cross-validation file has no {split}/{row} rows (has "
-                        f"{ {k: sorted(v) for k, v in cv.get('summary', {}).items()} }): pick them with --cv-split/--cv-row")
+                        f"{ {k: sorted(v) for k, v in cv.get('summary', {}).items()} }): "
+                        "pick them with --cv-split/--cv-row")
     points = []
     for method, s in summary.items():
         kind = CV_METHODS.get(method) or (CV_METHODS["field model"] if method.startswith("field model") else method)
@@ -167,7 +170,7 @@ def render_markdown(results: dict[str, Any]) -> str:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=f"python -m neuraldem.bench {NAME}", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
     p.add_argument("--runs", type=Path, nargs="+", default=[], help="folders holding evaluated training runs")
     p.add_argument("--cv", type=Path, default=None,
                    help="a cross-validated table (python -m neuraldem.eval.hopper_cv ... --out X.md: pass X.json): "

@@ -1,14 +1,14 @@
 """Every chart and table in one command, and redrawing them from their results files.
 
-`python -m neuraldem.bench all --runs DIR... --ckpt CKPT [--dataset DIR] [--gns-hopper-ckpt CKPT...] [--fb-ckpt CKPT...] [--gns-fb-ckpt
-CKPT...] [--fb-runs DIR...] [--fb-dataset DIR] [--no-solver] [--out-dir DIR]` runs hopper_speed, hopper_scaling,
-speed_accuracy, right_sizing and hopper_stability in turn (with --runs and --ckpt; --gns-hopper-ckpt adds the
-GNS to the chart and the map), then fb_speed (the first --fb-ckpt against
+`python -m neuraldem.bench all --runs DIR... --ckpt CKPT [--dataset DIR] [--gns-hopper-ckpt CKPT...]
+[--fb-ckpt CKPT...] [--gns-fb-ckpt CKPT...] [--fb-runs DIR...] [--fb-dataset DIR] [--no-solver] [--out-dir DIR]`
+runs hopper_speed, hopper_scaling, speed_accuracy, right_sizing and hopper_stability in turn (with --runs and
+--ckpt; --gns-hopper-ckpt adds the GNS to the chart and the map), then fb_speed (the first --fb-ckpt against
 DPMFoam) and fb_stability (every --fb-ckpt, one series each) (with --fb-ckpt), gns_stability at the same
 velocities and steps (with --gns-fb-ckpt; both maps then also go into one figure, stability_map.png), then
-fb_speed_accuracy (with --fb-runs); each also runs on its own. With --no-solver nothing runs LIGGGHTS or DPMFoam: solver costs come from the
-dataset manifests and the solver parts of earlier results in --out-dir (where there are none, the chart has
-no solver points).
+fb_speed_accuracy (with --fb-runs); each also runs on its own. With --no-solver nothing runs LIGGGHTS or
+DPMFoam: solver costs come from the dataset manifests and the solver parts of earlier results in --out-dir
+(where there are none, the chart has no solver points).
 
 `python -m neuraldem.bench render [--out-dir DIR]` redraws every figure and table from the JSON files in
 --out-dir, measuring nothing (e.g. after a change of the plotting code).
@@ -21,6 +21,7 @@ from pathlib import Path
 
 from neuraldem.bench import plots
 from neuraldem.bench.report import read_results
+from neuraldem.cli import tool_prog
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.paths import results_dir
 
@@ -43,7 +44,8 @@ def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_d
         raise ConfigError("nothing to run: give --runs DIR --ckpt CKPT (hopper) and/or --fb-ckpt CKPT / "
                           "--fb-runs DIR (fluidized bed)")
     if gns_hopper_ckpts and not runs:
-        raise ConfigError("--gns-hopper-ckpt adds the GNS to the hopper's speed-accuracy chart: give --runs and --ckpt too")
+        raise ConfigError("--gns-hopper-ckpt adds the GNS to the hopper's speed-accuracy chart: give --runs and "
+                          "--ckpt too")
     steps = (_hopper_plan(runs, ckpt, dataset, out_dir, no_solver, repeats, threads, skip_unevaluated,
                           gns_hopper_ckpts or []) if runs else [])
     fb_data = ["--dataset", str(fb_dataset)] if fb_dataset else []
@@ -64,7 +66,8 @@ def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_d
             raise ConfigError("--gns-fb-ckpt shares the velocities and steps of the field surrogates' stability map: "
                               "give --fb-ckpt too")
         steps.append(("gns_stability", ["--ckpt", *map(str, gns_fb_ckpts), *fb_data, "--like",
-                                        str(out_dir / "fb_stability.json"), "--out", str(out_dir / "gns_stability.json")]))
+                                        str(out_dir / "fb_stability.json"), "--out",
+                                        str(out_dir / "gns_stability.json")]))
     if fb_runs:
         chart = ["--runs", *map(str, fb_runs), *fb_data, "--repeats", str(repeats), "--out",
                  str(out_dir / "fb_speed_accuracy.json")]
@@ -107,7 +110,7 @@ def _reuse_or_skip(previous: Path) -> list[str]:
 def run_all(argv: list[str]) -> int:
     from neuraldem.bench.__main__ import entry_point
 
-    p = argparse.ArgumentParser(prog="python -m neuraldem.bench all", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.bench all"), description=__doc__.split("\n")[0])
     p.add_argument("--runs", type=Path, nargs="+", default=None, help="folders holding evaluated hopper runs")
     p.add_argument("--ckpt", type=Path, default=None, help="the hopper checkpoint timed against LIGGGHTS")
     p.add_argument("--dataset", type=Path, default=None, help="dataset dir of the hopper checkpoint's scene")
@@ -164,7 +167,7 @@ def render(argv: list[str]) -> int:
         speed_accuracy,
     )
 
-    p = argparse.ArgumentParser(prog="python -m neuraldem.bench render", description="redraw from results")
+    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.bench render"), description="redraw from results")
     p.add_argument("--out-dir", type=Path, default=None, help="default results/bench")
     a = p.parse_args(argv)
     out_dir = a.out_dir or default_out_dir()

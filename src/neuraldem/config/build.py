@@ -36,9 +36,8 @@ def check_trainer(cfg: DictConfig) -> None:
     if clip is not None:
         checks.positive("trainer.gradient_clip_val", clip)
     devices = cfg.get("devices", "auto")
-    if devices not in ("auto", -1) and not isinstance(devices, str):
-        if isinstance(devices, int):
-            checks.positive_int("trainer.devices", devices)
+    if devices not in ("auto", -1) and not isinstance(devices, str) and isinstance(devices, int):
+        checks.positive_int("trainer.devices", devices)
 
 
 def build_trainer(cfg: DictConfig, callbacks: list[Any], loggers: list[Any]) -> L.Trainer:

@@ -173,7 +173,7 @@ class FbFile(ValidatedH5File):
         T, N, cells = self.n_snapshots, self.n_particles, tuple(self.grid.shape)
         if T == 0 or N == 0:
             raise DataError(f"{self.path}: empty trajectory ({T} snapshots, {N} particles)")
-        if min(cells) < 1 or not all(h > lo for lo, h in zip(self.grid.lo, self.grid.hi)):
+        if min(cells) < 1 or not all(h > lo for lo, h in zip(self.grid.lo, self.grid.hi, strict=False)):
             raise self._fail("grid", f"is degenerate (lo {self.grid.lo}, hi {self.grid.hi}, shape {cells})")
         expected = {"position": (T, N, 3), "displacement": (T - 1, N, 3), "velocity": (T, N, 3), "inflow": (T,),
                     "outflow": (T,), "fluid_velocity": (T, *cells, 3)}

@@ -335,9 +335,10 @@ class GnsDataModule(PartLoaders):
         if self.datasets:
             return
         m = self.prepare_manifest()
-        paths = {part: [self.dataset_dir / str(r.file) for r in self.records(part)] for part in ("train", "val", "test")}
+        paths = {part: [self.dataset_dir / str(r.file) for r in self.records(part)]
+                 for part in ("train", "val", "test")}
         if self.norm is None:
-            runs = [(p, r.conditioning()) for p, r in zip(paths["train"], self.records("train"))]
+            runs = [(p, r.conditioning()) for p, r in zip(paths["train"], self.records("train"), strict=False)]
             self.norm = GnsNormalizer.fit(runs, m.kind, m.scene, self.history, self.conditioning)
         for part in ("val", "test"):
             for path in paths[part]:

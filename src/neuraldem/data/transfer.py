@@ -25,7 +25,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from neuraldem.cli import report_user_errors
+from neuraldem.cli import report_user_errors, tool_prog
 from neuraldem.data.hopper_store import MISSING, HopperFile, write_hopper_file
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest
 from neuraldem.data.schema import atomic_write_json, sha256
@@ -133,7 +133,7 @@ def unpack(parts: list[Path], dataset_dir: Path) -> Manifest:
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m neuraldem.data.transfer", description=__doc__,
+    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.data.transfer"), description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
     a = sub.add_parser("pack")

@@ -18,26 +18,13 @@ from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest
 from neuraldem.datagen.driver import DatagenOptions, Pipeline, cpu_count, generate
 from neuraldem.errors import ConfigError
+from neuraldem.scenes import scene
 
 log = logging.getLogger("neuraldem.datagen")
 
 
 def make_pipeline(data_cfg: DictConfig) -> Pipeline:
-    kind = data_cfg.get("kind")
-    if kind == "hopper":
-        from neuraldem.datagen.hopper import HopperPipeline
-
-        return HopperPipeline(data_cfg)
-    if kind == "hopper_refill":
-        from neuraldem.datagen.hopper_refill import RefillPipeline
-
-        return RefillPipeline(data_cfg)
-    if kind == "fluidized_bed":
-        from neuraldem.datagen.fb import FluidizedBedPipeline
-
-        return FluidizedBedPipeline(data_cfg)
-    raise ConfigError(f"config value data.kind={kind!r} is invalid: datagen knows 'hopper', "
-                      "'hopper_refill' and 'fluidized_bed'")
+    return scene(data_cfg.get("kind")).pipeline(data_cfg)
 
 
 def summary_lines(m: Manifest, n_sims: int) -> list[str]:
@@ -71,7 +58,8 @@ def first_ids(value: object) -> tuple[str, ...]:
     try:
         ids = tuple(str(v) for v in value)  # type: ignore[union-attr]
     except TypeError:
-        raise ConfigError(f"config value first={value!r} is invalid: give simulation ids, e.g. first=[sim_0091]")
+        raise ConfigError(f"config value first={value!r} is invalid: give simulation ids, "
+                          "e.g. first=[sim_0091]") from None
     return ids
 
 

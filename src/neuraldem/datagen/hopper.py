@@ -31,7 +31,7 @@ PARAMETER_LIMITS = {"alpha": (0.0, 75.0), "mu_s": (0.0, 2.0), "mu_r": (0.0, 1.0)
 
 
 def trajectory_metrics(traj: HopperTrajectory, diameter: float,
-                       settings: HopperMetricSettings = HopperMetricSettings(),
+                       settings: HopperMetricSettings = HopperMetricSettings(),  # noqa: B008 frozen dataclass, immutable
                        horizon: float | None = None) -> dict[str, float]:
     """Ground-truth metrics through the same path as predictions: fields at the initial positions on the
     metric time grid (0 .. `horizon`, the scene's max_time; default the run's own end), a run that ended
@@ -51,7 +51,8 @@ def trajectory_metrics(traj: HopperTrajectory, diameter: float,
     return out
 
 
-def stored_metrics(path: Path, diameter: float, settings: HopperMetricSettings = HopperMetricSettings(),
+def stored_metrics(path: Path, diameter: float,
+                   settings: HopperMetricSettings = HopperMetricSettings(),  # noqa: B008 frozen dataclass, immutable
                    horizon: float | None = None) -> dict[str, float]:
     """Metrics of the trajectory as stored (quantised positions), so anyone recomputing them from the
     dataset gets exactly the manifest's numbers."""

@@ -19,4 +19,4 @@ def latin_hypercube(ranges: dict[str, tuple[float, float]], n: int, seed: int, b
     lo = np.array([ranges[k][0] for k in names])
     hi = np.array([ranges[k][1] for k in names])
     values = qmc.scale(unit, lo, hi) if np.all(hi > lo) else lo + unit * (hi - lo)
-    return [{k: round(float(v), 6) for k, v in zip(names, row)} for row in values]
+    return [{k: round(float(v), 6) for k, v in zip(names, row, strict=False)} for row in values]

@@ -61,7 +61,7 @@ def render(results: list[dict]) -> str:
              "", HEADER, "|" + "---|" * 11]
     for r in rows:
         model, still = cells(r["aggregate"], r["window"]), cells(r["persistence"], r["window"])
-        pairs = [f"{a} / {b}" for a, b in zip(model, still)]
+        pairs = [f"{a} / {b}" for a, b in zip(model, still, strict=False)]
         head = [r["run"], r.get("part", "test"), ", ".join(r["conditioning"]), reference_times(r), f"{r['horizon']:g}"]
         lines.append("| " + " | ".join(head + pairs) + " |")
     lines += ["", COST_NOTE, "", "| run | horizon [s] | t_ref [s] | model [CPU s] | LIGGGHTS [CPU s] | ratio |",
@@ -77,7 +77,8 @@ def render(results: list[dict]) -> str:
 
 def summary(r: dict) -> dict:
     return {k: r.get(k) for k in ("run", "conditioning", "window", "horizon", "aggregate", "persistence",
-                                  "checkpoint", "dataset", "command", "date_utc", "path")} | {"t_ref": reference_times(r)}
+                                  "checkpoint", "dataset", "command", "date_utc",
+                                  "path")} | {"t_ref": reference_times(r)}
 
 
 @report_user_errors

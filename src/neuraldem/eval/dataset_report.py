@@ -18,7 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from neuraldem.cli import report_user_errors
+from neuraldem.cli import report_user_errors, tool_prog
 from neuraldem.data.manifest import Manifest
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.machine import machine_info
@@ -69,7 +69,7 @@ def plot_parameter_space(m: Manifest, path: Path) -> None:
     y, ylabel = (theta, "theta [deg]") if np.isfinite(theta).all() else (mu_s, "mu_s")
     names = metric_names(m)
     fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.8), sharey=True)
-    for ax, (key, label) in zip(axes, names.items()):
+    for ax, (key, label) in zip(axes, names.items(), strict=False):
         c = np.array([r.metrics.get(key, np.nan) for r in ok])
         sc = ax.scatter(alpha, y, c=c, s=22, cmap="viridis")
         fig.colorbar(sc, ax=ax)
@@ -86,7 +86,7 @@ def plot_macro(m: Manifest, path: Path) -> None:
     if not ok:
         return
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.8))
-    for ax, key in zip(axes, ("theta", "repose")):
+    for ax, key in zip(axes, ("theta", "repose"), strict=False):
         sc = ax.scatter([r.params["mu_s"] for r in ok], [r.macro[key] for r in ok],
                         c=[r.params["mu_r"] for r in ok], s=20, cmap="plasma")
         test = "shear" if key == "theta" else "heap"
@@ -99,7 +99,7 @@ def plot_macro(m: Manifest, path: Path) -> None:
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m neuraldem.eval.dataset_report", description=__doc__)
+    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.eval.dataset_report"), description=__doc__)
     p.add_argument("dataset", type=Path)
     p.add_argument("--out", type=Path, required=True, help="output folder")
     a = p.parse_args(argv)

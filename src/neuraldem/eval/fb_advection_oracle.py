@@ -4,11 +4,12 @@ solids flux (an oracle: no model in the loop), scored like a rollout against CFD
     python -m neuraldem.eval.fb_advection_oracle DATASET_DIR [--sims sim_0003 ...] [--out DIR]
     python -m neuraldem.eval.fb_advection_oracle DATASET_DIR --ckpt CKPT --part train+val [--steps 300]
 
-For each trajectory and flux-correction weight (1 = flux-corrected transport, 0 = upwind) the concentration starts from the stored one at snapshot 0 and is
-advected step by step with the stored solid fraction at t and the solids flux of the step t -> t+1 (deposited at
-the particles' positions at t + 1, as the model's next state carries it). Output: Lacey curves and their MAE
-against CFD-DEM's field Lacey index (the evaluation's definition), JSON + a markdown table. It bounds what
-`model.stability.mixing=advect` can reach: a model's flux is at best this one.
+For each trajectory and flux-correction weight (1 = flux-corrected transport, 0 = upwind) the concentration
+starts from the stored one at snapshot 0 and is advected step by step with the stored solid fraction at t and
+the solids flux of the step t -> t+1 (deposited at the particles' positions at t + 1, as the model's next state
+carries it). Output: Lacey curves and their MAE against CFD-DEM's field Lacey index (the evaluation's
+definition), JSON + a markdown table. It bounds what `model.stability.mixing=advect` can reach: a model's flux
+is at best this one.
 
 With `--ckpt` the fields come from the model instead: one rollout per trajectory and correction weight
 (`--steps` long, from snapshot 1, the model's own solid fraction and flux), scored the same way. Use it on the
@@ -26,11 +27,12 @@ from typing import Any
 import numpy as np
 import torch
 
+from neuraldem.cli import tool_prog
 from neuraldem.data.fb_store import FbFile
 from neuraldem.data.manifest import Manifest
 from neuraldem.data.schema import atomic_write_json
-from neuraldem.eval.fb_report import metric_settings
 from neuraldem.eval.fb_metrics import lacey_from_fields
+from neuraldem.eval.fb_report import metric_settings
 from neuraldem.machine import machine_info
 from neuraldem.models.modules.conservative_advection import advect_tagged
 
@@ -66,7 +68,13 @@ def oracle(path: Path, settings: dict[str, Any], corrections: list[float]) -> di
 def model_rows(ckpt: Path, paths: list[Path], settings: dict[str, Any], corrections: list[float],
                steps: int) -> list[dict[str, Any]]:
     from neuraldem.eval.fb_eval import FieldSeries
-    from neuraldem.eval.fb_rollout import DEFAULT_INIT_SNAPSHOT, ModelStepper, initial_state, load_fb_checkpoint, rollout
+    from neuraldem.eval.fb_rollout import (
+        DEFAULT_INIT_SNAPSHOT,
+        ModelStepper,
+        initial_state,
+        load_fb_checkpoint,
+        rollout,
+    )
 
     module = load_fb_checkpoint(ckpt)
     block, min_count = tuple(settings["lacey_block"]), float(settings["lacey_min_count"])
@@ -118,7 +126,8 @@ def markdown(rows: list[dict[str, Any]], corrections: list[float], command: str)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m neuraldem.eval.fb_advection_oracle", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.eval.fb_advection_oracle"),
+                                description=__doc__.split("\n")[0])
     p.add_argument("dataset", type=Path, help="a fluidized-bed dataset folder (with manifest.json)")
     p.add_argument("--sims", nargs="*", help="trajectories (default: the test part of the velocity split)")
     p.add_argument("--part", default="test", choices=["train", "val", "test", "train+val"],

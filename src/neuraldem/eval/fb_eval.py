@@ -36,6 +36,7 @@ from neuraldem.eval import fb_plots
 from neuraldem.eval.checkpoints import checkpoint_dataset
 from neuraldem.eval.fb_report import metric_settings
 from neuraldem.eval.fb_rollout import (
+    DEFAULT_INIT_SNAPSHOT,
     DivergenceLimits,
     ModelStepper,
     Rollout,
@@ -43,7 +44,6 @@ from neuraldem.eval.fb_rollout import (
     Stepper,
     check_grid,
     check_velocity,
-    DEFAULT_INIT_SNAPSHOT,
     initial_state,
     load_fb_checkpoint,
     rollout,
@@ -266,10 +266,12 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     result = {
         "checkpoint": str(Path(ckpt).resolve()), "dataset": str(dataset_dir), "split": split, "part": part,
         "trained_velocity_range": [norm.velocity_lo, norm.velocity_hi], "dt": norm.dt,
-        "training": {"input_noise": meta.get("input_noise", 0.0), "push_forward_steps": meta.get("push_forward_steps", 1),
+        "training": {"input_noise": meta.get("input_noise", 0.0),
+                     "push_forward_steps": meta.get("push_forward_steps", 1),
                      "parameters": sum(p.numel() for p in module.parameters()),
                      "solids_flux": bool(meta.get("solids_flux", False)),
-                     "conserve_volume": module.stability.conserve_volume, "trained_stability": module.stability.to_dict()},
+                     "conserve_volume": module.stability.conserve_volume,
+                     "trained_stability": module.stability.to_dict()},
         "training_horizon_steps": norm.horizon_steps, "horizons": horizons, "rollout_steps": steps,
         "conserve_solid_volume": options.conserve_volume, "stability": options.to_dict(),
         "init_snapshot": init_snapshot,

@@ -49,7 +49,7 @@ def mass_conservation_error(volume: np.ndarray, reference: float | None = None) 
 def block_sums(field: np.ndarray, block: Sequence[int]) -> np.ndarray:
     """Sum the last three axes (nx, ny, nz) over blocks of `block` cells; edge blocks may be partial."""
     out = field
-    for axis_from_end, b in zip((3, 2, 1), block):
+    for axis_from_end, b in zip((3, 2, 1), block, strict=False):
         axis = out.ndim - axis_from_end
         n = out.shape[axis]
         starts = np.arange(0, n, int(b))
@@ -136,7 +136,7 @@ def bubble_fraction(solid_fraction: np.ndarray, z_edges: np.ndarray, heights: np
     """(T,) volume share of the bed (below heights[t]) in cells with solid fraction < threshold."""
     dz = np.diff(z_edges)
     out = np.full(len(solid_fraction), np.nan)
-    for t, (a, h) in enumerate(zip(solid_fraction, heights)):
+    for t, (a, h) in enumerate(zip(solid_fraction, heights, strict=False)):
         if not np.isfinite(h):
             continue
         w = np.clip((h - z_edges[:-1]) / dz, 0.0, 1.0)  # share of each layer below the bed surface

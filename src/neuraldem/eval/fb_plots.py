@@ -20,7 +20,7 @@ def plot_curves(series: Mapping[str, Mapping[str, Any]], path: Path, title: str)
     "lacey_particles"}} (arrays over the snapshots; heights in m)."""
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
     colors = plt.cm.coolwarm(np.linspace(0, 1, max(len(series), 2)))
-    for color, (label, s) in zip(colors, series.items()):
+    for color, (label, s) in zip(colors, series.items(), strict=False):
         t = np.asarray(s["time"])
         axes[0].plot(t, 1000 * np.asarray(s["bed_height"]), color=color, label=f"{label} (field)")
         if "bed_height_particles" in s:
@@ -54,8 +54,8 @@ def plot_time_averages(stats: Mapping[str, Mapping[str, np.ndarray]], extent: tu
     fig, axes = plt.subplots(len(stats), len(keys), figsize=(2.6 * len(keys), 4.2 * len(stats)), squeeze=False)
     vmax = {k: max(float(np.max(s[k])) for s in stats.values()) for k, _, _ in keys}
     mm = [1000 * v for v in extent]
-    for row, (label, s) in zip(axes, stats.items()):
-        for ax, (key, name, cmap) in zip(row, keys):
+    for row, (label, s) in zip(axes, stats.items(), strict=False):
+        for ax, (key, name, cmap) in zip(row, keys, strict=False):
             field = s[key]
             sl = field[:, field.shape[1] // 2, :]  # central y slice (x, z)
             im = ax.imshow(sl.T, origin="lower", extent=mm, cmap=cmap, vmin=0, vmax=vmax[key], aspect="equal")

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from neuraldem.cli import report_user_errors
+from neuraldem.cli import report_user_errors, tool_prog
 from neuraldem.data.fb_store import FbFile
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import atomic_write_json
@@ -146,7 +146,7 @@ def build_report(dataset: Path, out: Path, sims: list[str] | None = None, note: 
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m neuraldem.eval.fb_report", description=__doc__,
+    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.eval.fb_report"), description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("dataset", help="dataset folder or name")
     p.add_argument("--out", type=Path, required=True, help="output folder (created)")

@@ -36,6 +36,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from neuraldem.cli import tool_prog
 from neuraldem.config import checks
 from neuraldem.data.fb_fields import mixing_concentration, particle_volumes, solid_fraction
 from neuraldem.data.gns_datamodule import GnsNormalizer, ParticleRun, graph_inputs
@@ -189,7 +190,7 @@ def model_accelerator(module: GnsModule) -> Accelerator:
 
 # ---- metrics with the ground truth's functions
 def hopper_particle_metrics(times: np.ndarray, positions: np.ndarray,
-                            settings: hm.HopperMetricSettings = hm.HopperMetricSettings()) -> dict[str, float]:
+                            settings: hm.HopperMetricSettings = hm.HopperMetricSettings()) -> dict[str, float]:  # noqa: B008 frozen dataclass, immutable
     """`hopper_metrics.hopper_summary` with the particles as the points: occupied = present above the outlet
     plane (z >= 0), material = each particle's initial height."""
     with np.errstate(invalid="ignore"):
@@ -301,7 +302,7 @@ def _jsonable(v: Any) -> Any:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m neuraldem.eval.gns_rollout", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.eval.gns_rollout"), description=__doc__.split("\n")[0])
     p.add_argument("--ckpt", type=Path, required=True, help="a GNS checkpoint (experiment=gns_hopper / gns_fb)")
     p.add_argument("--sim", default=None, help="simulation id (default: the first test run of the split)")
     p.add_argument("--steps", type=int, default=None, help="steps (default: the stored run's length)")

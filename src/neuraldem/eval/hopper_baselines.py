@@ -80,7 +80,7 @@ def coverage(truths: list[dict[str, float]], answers: list[dict[str, Any]]) -> d
     out = {}
     for t in TARGETS:
         hits = []
-        for truth, a in zip(truths, answers):
+        for truth, a in zip(truths, answers, strict=False):
             value = float(truth.get(t, np.nan))
             if np.isfinite(value):
                 lo, hi = a["interval"][t]
@@ -112,7 +112,7 @@ def score_baseline(kind: str, train: list[SimRecord], test: list[SimRecord], con
     truths = [rec.metrics for rec in test]
     return {"method": kind, "inputs": inputs, "n_train": len(train),
             "aggregate": score_answers(truths, answers),
-            "answers": [{"sim_id": rec.sim_id, **a} for rec, a in zip(test, answers)],
+            "answers": [{"sim_id": rec.sim_id, **a} for rec, a in zip(test, answers, strict=False)],
             "n_extrapolated": int(sum(bool(a["extrapolation"]) for a in answers)),
             "fit_s": fit_s, "answer_s": answer_seconds(model, design_matrix(test[:1], inputs)),
             "n_parameters": model.n_parameters, "coverage_95": coverage(truths, answers)}

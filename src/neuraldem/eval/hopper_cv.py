@@ -24,10 +24,10 @@ from typing import Any
 
 import numpy as np
 
-from neuraldem.cli import report_user_errors
-from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
-from neuraldem.data.schema import atomic_write_json
+from neuraldem.cli import report_user_errors, tool_prog
 from neuraldem.data.hopper_datamodule import cv_records
+from neuraldem.data.manifest import Manifest, require_dataset
+from neuraldem.data.schema import atomic_write_json
 from neuraldem.data.splits import cv_split
 from neuraldem.errors import DataError
 from neuraldem.eval.hopper_baselines import score_baseline
@@ -177,8 +177,9 @@ def cell(v: dict[str, float] | None) -> str:
 
 def render(result: dict[str, Any]) -> str:
     within = f" of its first {result['n_sims']} simulations" if result.get("n_sims") else ""
-    lines = [f"Dataset `{result['dataset']}`: {result['n_usable']} usable LIGGGHTS runs{within}, {result['n_folds']}-fold "
-             "cross-validation; mean +- std over the folds of each fold's mean error on its held-out runs.", ""]
+    lines = [f"Dataset `{result['dataset']}`: {result['n_usable']} usable LIGGGHTS runs{within}, "
+             f"{result['n_folds']}-fold cross-validation; mean +- std over the folds of each fold's mean error on its "
+             "held-out runs.", ""]
     header = ("| conditioning | method | folds (test runs) | " + " | ".join(COLUMNS.values())
               + " | time per answer [s] | validation score |")
     sep = "|---|---|---|" + "---|" * (len(COLUMNS) + 2)
@@ -222,7 +223,7 @@ def build(result: dict[str, Any], seed_floor: dict[str, Any] | None) -> dict[str
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m neuraldem.eval.hopper_cv", description=__doc__,
+    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.eval.hopper_cv"), description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("grids", type=Path, nargs="*", help="folders holding evaluated cross-validation runs")
     p.add_argument("--dataset", type=Path, required=True, help="the hopper dataset dir")

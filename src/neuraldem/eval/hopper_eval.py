@@ -72,7 +72,8 @@ def summarise(fields: TrajectoryFields, initial_z: np.ndarray,
 
 def evaluate_sims(records: list[SimRecord], dataset_dir: Path, truth: HopperPredictor,
                   model: HopperPredictor, times: np.ndarray, box_size: np.ndarray, horizon: float,
-                  settings: HopperMetricSettings = HopperMetricSettings(), keep_fields: int = 0,
+                  settings: HopperMetricSettings = HopperMetricSettings(),  # noqa: B008 frozen dataclass, immutable
+                  keep_fields: int = 0,
                   progress: bool = True) -> list[SimEvaluation]:
     out = []
     for i, rec in enumerate(tqdm(records, desc="evaluate", unit="sim", disable=not progress)):

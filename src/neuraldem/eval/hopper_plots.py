@@ -18,7 +18,7 @@ QUANTITIES = {"drainage_time": ("drainage time [s]", 1.0), "residual_fraction": 
 
 def scatter_predicted_vs_dem(evals: list[SimEvaluation], path: Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(12, 4))
-    for ax, (key, (label, scale)) in zip(axes, QUANTITIES.items()):
+    for ax, (key, (label, scale)) in zip(axes, QUANTITIES.items(), strict=False):
         t = np.array([e.truth[key] for e in evals]) * scale
         p = np.array([e.predicted[key] for e in evals]) * scale
         ax.scatter(t, p, s=18, alpha=0.8)
@@ -34,8 +34,9 @@ def scatter_predicted_vs_dem(evals: list[SimEvaluation], path: Path) -> None:
 def stripes_over_time(cases: dict[str, SimEvaluation], times: np.ndarray, path: Path) -> None:
     """Volume of each initial height layer over time, DEM vs prediction, one row per case."""
     fig, axes = plt.subplots(len(cases), 2, figsize=(10, 3.2 * len(cases)), squeeze=False)
-    for row, (title, e) in zip(axes, cases.items()):
-        for ax, (who, stripes) in zip(row, (("DEM", e.stripes_truth), ("NeuralDEM", e.stripes_predicted))):
+    for row, (title, e) in zip(axes, cases.items(), strict=False):
+        for ax, (who, stripes) in zip(row, (("DEM", e.stripes_truth), ("NeuralDEM", e.stripes_predicted)),
+                                      strict=False):
             n0 = max(stripes[0].sum(), 1.0)
             ax.stackplot(times, (stripes / n0).T, colors=plt.cm.viridis(np.linspace(0, 1, stripes.shape[1])))
             ax.set(title=f"{title} ({e.sim_id}): {who}", xlabel="t [s]", ylabel="fraction of initial material",
@@ -51,7 +52,7 @@ def residence_slice(e: SimEvaluation, points: np.ndarray, slab: float, path: Pat
     sel = np.abs(points[:, 1]) < slab
     vmax = float(np.nanmax(e.fields_truth.residence[0][sel]))
     fig, axes = plt.subplots(1, 2, figsize=(9, 4.5), sharey=True)
-    for ax, (who, f) in zip(axes, (("DEM", e.fields_truth), ("NeuralDEM", e.fields_predicted))):
+    for ax, (who, f) in zip(axes, (("DEM", e.fields_truth), ("NeuralDEM", e.fields_predicted)), strict=False):
         sc = ax.scatter(points[sel, 0], points[sel, 2], c=f.residence[0][sel], s=12, cmap="magma_r", vmin=0,
                         vmax=vmax)
         ax.set(title=f"{who}: residence time at t = 0", xlabel="x [m]", aspect="equal")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neuraldem.cli import report_user_errors
+from neuraldem.cli import report_user_errors, tool_prog
 from neuraldem.data.hopper_fields import nearest_particle
 from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import require_dataset
@@ -48,7 +48,7 @@ def coverage_rows(dataset: Path, n_runs: int, radii: list[float], times: list[fl
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m neuraldem.eval.occupancy_coverage", description=__doc__,
+    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.eval.occupancy_coverage"), description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("dataset", type=Path)
     p.add_argument("--runs", type=int, default=6, help="the first N usable runs")

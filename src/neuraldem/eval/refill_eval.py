@@ -253,7 +253,8 @@ def aggregate_refill(evals: list[RefillSimEvaluation]) -> dict[str, float]:
             "label_agreement": pooled("label_agreement"), "transport_mse": pooled("transport_mse"),
             "residence_mse": pooled("residence_mse"), "rtd_wasserstein_s": pooled("rtd_wasserstein_s"),
             "rtd_median_error_s": pooled("rtd_median_error_s"),
-            "rtd_answer_cpu_s": pooled("rtd_answer_cpu_s", np.median), "solver_cpu_s": pooled("solver_cpu_s", np.median)}
+            "rtd_answer_cpu_s": pooled("rtd_answer_cpu_s", np.median),
+            "solver_cpu_s": pooled("solver_cpu_s", np.median)}
 
 
 def write_refill_vtk(e: RefillSimEvaluation, folder: Path) -> Path:

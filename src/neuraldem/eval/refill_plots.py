@@ -36,7 +36,8 @@ def refill_transport_figure(e: Any, diameter: float, path: Path) -> Path:
     d = e.figure_data
     n_layers = len(e.fractions_truth) - 1
     fig, axes = plt.subplots(1, 3, figsize=(11, 4.5), sharey=True)
-    _slice_scatter(axes[0], d["points_ref"], d["labels_ref"], n_layers, diameter, f"(a) layers at t_ref = {e.t_ref:g} s")
+    _slice_scatter(axes[0], d["points_ref"], d["labels_ref"], n_layers, diameter,
+                   f"(a) layers at t_ref = {e.t_ref:g} s")
     _slice_scatter(axes[1], d["points_t"], d["labels_truth"], n_layers, diameter,
                    f"(b) DEM, t_ref + {e.horizon:g} s")
     _slice_scatter(axes[2], d["points_t"], d["labels_predicted"], n_layers, diameter,

@@ -8,6 +8,7 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
+from neuraldem.cli import tool_prog
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 
@@ -15,9 +16,9 @@ from neuraldem.errors import DataError
 def disambiguate(found: list[dict], roots: list[Path]) -> None:
     """Where two folders hold runs of one name (e.g. two seeds of one sweep), prefix each with its folder's name."""
     folders: dict[str, set[Path]] = {}
-    for result, folder in zip(found, roots):
+    for result, folder in zip(found, roots, strict=False):
         folders.setdefault(result["run"], set()).add(folder)
-    for result, folder in zip(found, roots):
+    for result, folder in zip(found, roots, strict=False):
         if len(folders[result["run"]]) > 1:
             result["run"] = f"{folder.resolve().name}/{result['run']}"
 
@@ -56,7 +57,7 @@ def table_main(argv: list[str] | None, prog: str, doc: str | None, collect: Call
                render: Callable[[list[dict]], str], summary: Callable[[dict], dict]) -> int:
     """The command line of the collectors: `prog FOLDER... --out FILE.md` writes render(results) to FILE.md and
     summary(result) of every result to FILE.json beside it, and prints the table."""
-    p = argparse.ArgumentParser(prog=f"python -m {prog}", description=doc,
+    p = argparse.ArgumentParser(prog=tool_prog(prog), description=doc,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("folders", type=Path, nargs="+")
     p.add_argument("--out", type=Path, required=True,

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from neuraldem.cli import report_user_errors
+from neuraldem.cli import report_user_errors, tool_prog
 from neuraldem.config import checks
 from neuraldem.data.gns_datamodule import ParticleRun
 from neuraldem.data.manifest import Manifest
@@ -48,7 +48,7 @@ def step_statistics(dataset_dir: Path, n_runs: int = 5) -> dict[str, Any]:
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m neuraldem.eval.step_displacement", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.eval.step_displacement"), description=__doc__.split("\n")[0])
     p.add_argument("dataset", type=Path, help="a generated dataset folder (hopper or fluidized bed)")
     p.add_argument("--runs", type=int, default=5, help="the first N usable runs")
     p.add_argument("--out", type=Path, default=None, help="write the statistics to this JSON file")
@@ -58,7 +58,8 @@ def main(argv: list[str] | None = None) -> int:
           f"displacement per snapshot [particle diameters] median {s['median']:.3f}, p90 {s['p90']:.3f}, "
           f"p99 {s['p99']:.3f}, max {s['max']:.3f} ({s['n_displacements']} values)")
     if a.out is not None:
-        s["command"] = " ".join(["python -m neuraldem.eval.step_displacement", *(argv if argv is not None else sys.argv[1:])])
+        s["command"] = " ".join(["python -m neuraldem.eval.step_displacement",
+                                 *(argv if argv is not None else sys.argv[1:])])
         atomic_write_json(a.out, s)
         print(f"wrote {a.out}")
     return 0

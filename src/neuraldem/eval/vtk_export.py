@@ -14,7 +14,7 @@ def write_point_series(folder: Path, name: str, times: np.ndarray, points: list[
     """One .vtu per time (vertex cells) and `<name>.pvd` that lists them with their times."""
     folder.mkdir(parents=True, exist_ok=True)
     files = []
-    for k, (pts, data) in enumerate(zip(points, point_data)):
+    for k, (pts, data) in enumerate(zip(points, point_data, strict=False)):
         fname = f"{name}_{k:04d}.vtu"
         cells = [("vertex", np.arange(len(pts), dtype=np.int64)[:, None])]
         meshio.write(folder / fname, meshio.Mesh(np.asarray(pts, dtype=np.float64), cells,
@@ -45,7 +45,8 @@ def write_grid_series(folder: Path, name: str, times: np.ndarray, lo: Sequence[f
 
 
 def _write_pvd(folder: Path, name: str, times: np.ndarray, files: list[str]) -> Path:
-    entries = [f'    <DataSet timestep="{float(t):.6g}" part="0" file="{f}"/>' for t, f in zip(times, files)]
+    entries = [f'    <DataSet timestep="{float(t):.6g}" part="0" file="{f}"/>'
+               for t, f in zip(times, files, strict=False)]
     pvd = folder / f"{name}.pvd"
     pvd.write_text('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n'
                    + "\n".join(entries) + "\n  </Collection>\n</VTKFile>\n")

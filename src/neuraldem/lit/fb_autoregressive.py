@@ -21,8 +21,8 @@ import torch
 
 from neuraldem.data.fb_normalization import FbNormalizer
 from neuraldem.lit.fb_stability import FbStability
-from neuraldem.models.modules.patch_embedding import cell_centres
 from neuraldem.models.modules.conservative_advection import advect_tagged
+from neuraldem.models.modules.patch_embedding import cell_centres
 from neuraldem.models.multi_branch_operator import MultiBranchOperator, OperatorInputs
 
 SOLID_FRACTION_CHANNEL = 3  # fluid branch channels: fluid velocity (3), solid fraction (1)[, solids flux (3)]

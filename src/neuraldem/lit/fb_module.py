@@ -7,9 +7,10 @@ steps (`fb_autoregressive`, with the volume projection and mixing advection when
 step detached from the previous one's graph, and is scored on every step (or the last, `stability.loss_on`)
 against the data at t + 1 .. t + k (`neuraldem.lit.fb_stability`). `residual=true`: the grid branches predict the
 change over the step in units of its typical size per channel (the loss is then the squared error of the
-change relative to that size, every channel weighted alike); the next state is the input plus the change. The net is built here with as many input
-scalars as the data's conditioning list; checkpoints carry the data's metadata (scene, conditioning,
-normalisation, velocities seen in training) that rollouts and evaluation check before using a model.
+change relative to that size, every channel weighted alike); the next state is the input plus the change. The
+net is built here with as many input scalars as the data's conditioning list; checkpoints carry the data's
+metadata (scene, conditioning, normalisation, velocities seen in training) that rollouts and evaluation check
+before using a model.
 """
 
 from __future__ import annotations
@@ -224,7 +225,7 @@ def check_fits_data(net_cfg: DictConfig, norm: FbNormalizer, particles_per_sampl
     """The patches must tile the data's grid and the supernodes fit in a sample: say so before training."""
     patch = check_patch_size(list(net_cfg.get("patch_size", [2, 1, 2])))
     shape = tuple(norm.grid_shape)
-    if len(patch) != len(shape) or any(g % p for g, p in zip(shape, patch)):
+    if len(patch) != len(shape) or any(g % p for g, p in zip(shape, patch, strict=False)):
         divisors = [[d for d in range(1, g + 1) if g % d == 0] for g in shape]
         raise ConfigError(f"config value model.net.patch_size={list(patch)} is invalid: the dataset's grid has "
                           f"{list(shape)} cells, so each patch size must divide its axis (divisors: {divisors}) "

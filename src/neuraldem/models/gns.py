@@ -144,6 +144,7 @@ class GraphNetworkSimulator(nn.Module):
             "box_hi": torch.full((n_graphs, 3), box),
             "batch": torch.arange(n_graphs).repeat_interleave(n_particles),
             "scalars": torch.rand(n_graphs, self.n_scalars, generator=generator),
-            "wall_distance": box * torch.rand(n, self.n_extra_walls, generator=generator) if self.n_extra_walls else None,
+            "wall_distance": (box * torch.rand(n, self.n_extra_walls, generator=generator)
+                              if self.n_extra_walls else None),
         }
         return {k: (v.to(device) if v is not None else None) for k, v in out.items()}

@@ -175,5 +175,6 @@ class MultiBranchOperator(nn.Module):
             grid=rand(batch_size, self.channels["fluid"], *grid_shape),
             mixing_grid=rand(batch_size, self.channels["mixing"], *grid_shape),
             scalars=rand(batch_size, self.n_scalars),
-            query_pos=({"particles": particle_pos} if self.particle_branch else {}) | {"fluid": centres, "mixing": centres},
+            query_pos=(({"particles": particle_pos} if self.particle_branch else {})
+                       | {"fluid": centres, "mixing": centres}),
         )

@@ -100,7 +100,7 @@ class ScalarBaseline:
         """Inputs of one run outside the trained range: {name: [value, lo, hi]} (same rule as the field model)."""
         assert self.lo is not None and self.hi is not None
         out = {}
-        for name, v, lo, hi in zip(self.inputs, row, self.lo, self.hi):
+        for name, v, lo, hi in zip(self.inputs, row, self.lo, self.hi, strict=False):
             if v < lo - 1e-9 * max(1.0, abs(lo)) or v > hi + 1e-9 * max(1.0, abs(hi)):
                 out[name] = [float(v), float(lo), float(hi)]
         return out
@@ -139,7 +139,7 @@ class ScalarBaseline:
         if not isinstance(model, cls) or payload.get("inputs") != model.inputs:
             raise DataError(f"scalar baseline file {path} holds a {payload.get('kind')!r} model with inputs "
                             f"{payload.get('inputs')}, not a {cls.name!r} baseline",
-                            f"load it with the class of that model")
+                            "load it with the class of that model")
         return model
 
     # ---- checks
@@ -151,7 +151,7 @@ class ScalarBaseline:
         if x.ndim != 2 or x.shape[1] != len(self.inputs):
             raise DataError(f"{what} inputs have shape {x.shape}, expected (runs, {len(self.inputs)}) with columns "
                             f"{self.inputs}")
-        bad = [name for name, ok in zip(self.inputs, np.isfinite(x).all(axis=0)) if not ok]
+        bad = [name for name, ok in zip(self.inputs, np.isfinite(x).all(axis=0), strict=False) if not ok]
         if bad:
             raise DataError(f"{what} inputs {bad} contain NaN or infinite values")
         return x

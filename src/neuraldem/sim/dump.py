@@ -51,7 +51,7 @@ def read_dump(path: Path, required: tuple[str, ...] = ("id", "x", "y", "z"),
             hint = " (a killed run? pass drop_truncated_tail to keep the complete frames)" if last else ""
             raise DataError(f"{path}: frame {k}: {err}{hint}") from None
     steps = [f.step for f in frames]
-    if any(b <= a for a, b in zip(steps, steps[1:])):
+    if any(b <= a for a, b in zip(steps, steps[1:], strict=False)):
         raise DataError(f"{path}: timesteps are not increasing ({steps[:5]}...); two runs appended to one file?")
     return frames
 

@@ -13,7 +13,7 @@ def revolve(profile: list[tuple[float, float]], n_segments: int) -> np.ndarray:
     theta = np.linspace(0.0, 2.0 * math.pi, n_segments + 1)
     c, s = np.cos(theta), np.sin(theta)
     tris = []
-    for (r0, z0), (r1, z1) in zip(profile[:-1], profile[1:]):
+    for (r0, z0), (r1, z1) in zip(profile[:-1], profile[1:], strict=False):
         for i in range(n_segments):
             p00 = (r0 * c[i], r0 * s[i], z0)
             p01 = (r0 * c[i + 1], r0 * s[i + 1], z0)
@@ -37,7 +37,7 @@ def write_stl(path: Path, triangles: np.ndarray, name: str) -> None:
     normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
     lines = [f"solid {name}"]
-    for n, tri in zip(normals, triangles):
+    for n, tri in zip(normals, triangles, strict=False):
         lines.append(f"  facet normal {n[0]:.6e} {n[1]:.6e} {n[2]:.6e}")
         lines.append("    outer loop")
         lines.extend(f"      vertex {v[0]:.6e} {v[1]:.6e} {v[2]:.6e}" for v in tri)

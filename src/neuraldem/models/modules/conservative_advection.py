@@ -143,7 +143,8 @@ def _substep(alpha: torch.Tensor, beta: torch.Tensor, share: torch.Tensor, j: to
     return new_alpha, new_beta
 
 
-def prior_share(solid_fraction: torch.Tensor, concentration: torch.Tensor, prior: float = DEFAULT_PRIOR) -> torch.Tensor:
+def prior_share(solid_fraction: torch.Tensor, concentration: torch.Tensor,
+                prior: float = DEFAULT_PRIOR) -> torch.Tensor:
     """The global share p_B (B, 1, 1, 1) of a concentration field made with the prior: sum_c beta = p_B sum_c alpha
     and c = (beta + a0 p_B) / (alpha + a0) give p_B = sum c (alpha + a0) / (sum alpha + a0 n_cells)."""
     alpha, c = solid_fraction.double(), concentration.double()

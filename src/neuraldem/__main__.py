@@ -1,0 +1,81 @@
+"""`neuraldem COMMAND ...`: one command line for everything the package does.
+
+Two argument styles, one per kind of command:
+- runs composed from the config tree take Hydra overrides (`key=value`, `-m` for sweeps, `--cfg job` to
+  print the composed config): datagen, train, evaluate, rollout;
+- tools that read files take flags (`--out DIR`): import, report, bench, transfer, doctor.
+`neuraldem COMMAND --help` shows a command's own options. `python -m neuraldem.<module>` still works for each.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+# command -> (module whose main() runs it, one line of help); a dict value is a group of subcommands
+COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
+    "doctor": ("neuraldem.doctor", "check solvers, torch, torch-cluster and the data dir"),
+    "datagen": ("neuraldem.datagen.__main__", "run the real solvers for a dataset (data=hopper_small n_sims=200)"),
+    "train": ("neuraldem.train", "train a surrogate (experiment=hopper_macro; -m for sweeps)"),
+    "evaluate": ("neuraldem.evaluate", "score a checkpoint against its solver (ckpt=PATH)"),
+    "rollout": ("neuraldem.rollout", "roll a fluidized-bed model out (ckpt=PATH velocity=1.6 steps=3000)"),
+    "import": {
+        "liggghts": ("neuraldem.import_liggghts", "LIGGGHTS dump files of your own hopper runs as a dataset"),
+        "foam": ("neuraldem.import_foam", "OpenFOAM DPMFoam cases of your own fluidized beds as a dataset"),
+    },
+    "report": {
+        "dataset": ("neuraldem.eval.dataset_report", "what a generated dataset holds and what it cost"),
+        "fb-dataset": ("neuraldem.eval.fb_report", "ground-truth report of a fluidized-bed dataset"),
+        "hopper-table": ("neuraldem.eval.collect_hopper_table", "hopper runs side by side"),
+        "fb-table": ("neuraldem.eval.collect_fb_table", "fluidized-bed runs and baselines side by side"),
+        "refill-table": ("neuraldem.eval.collect_refill_table", "refilling-hopper runs side by side"),
+        "fb-baselines": ("neuraldem.eval.fb_baselines", "nearest / interpolated / constant CFD-DEM baselines"),
+        "hopper-cv": ("neuraldem.eval.hopper_cv", "the hopper table cross-validated (model, constant, GP, seed floor)"),
+        "occupancy": ("neuraldem.eval.occupancy_coverage", "how well the occupancy field counts hopper material"),
+        "step-displacement": ("neuraldem.eval.step_displacement", "how far particles move per snapshot (GNS step)"),
+        "advection-oracle": ("neuraldem.eval.fb_advection_oracle", "mixing advection with CFD-DEM's own fields"),
+        "gns-rollout": ("neuraldem.eval.gns_rollout", "roll out and score a GNS (particle) checkpoint"),
+    },
+    "bench": ("neuraldem.bench.__main__", "speed / accuracy benchmarks (results written to files)"),
+    "transfer": ("neuraldem.data.transfer", "pack / unpack compact copies of a hopper dataset"),
+}
+
+
+def usage(group: dict[str, tuple[str, str] | dict[str, tuple[str, str]]], prefix: str) -> str:
+    lines = [f"usage: {prefix} COMMAND [args]   ({prefix} COMMAND --help for its options)", "", "commands:"]
+    for name, entry in group.items():
+        text = entry[1] if isinstance(entry, tuple) else "; ".join(entry)
+        lines.append(f"  {name:<18} {text}")
+    return "\n".join(lines)
+
+
+def resolve(argv: list[str]) -> tuple[str, str, list[str]] | str:
+    """(program name, module, its arguments) for a command line, or the text to print instead."""
+    group, prefix = COMMANDS, "neuraldem"
+    while True:
+        if not argv or argv[0] in ("-h", "--help"):
+            return usage(group, prefix)
+        name, argv = argv[0], argv[1:]
+        entry = group.get(name) or group.get(name.replace("_", "-"))
+        if entry is None:
+            return f"{prefix}: error: unknown command {name!r}: choose from {', '.join(group)}"
+        prefix = f"{prefix} {name}"
+        if isinstance(entry, tuple):
+            return prefix, entry[0], argv
+        group = entry
+
+
+def main(argv: list[str] | None = None) -> int:
+    resolved = resolve(sys.argv[1:] if argv is None else list(argv))
+    if isinstance(resolved, str):
+        failed = " error: " in resolved.splitlines()[0]
+        print(resolved, file=sys.stderr if failed else sys.stdout)
+        return 2 if failed else 0
+    prog, module, args = resolved
+    sys.argv = [prog, *args]  # Hydra and argparse read the command line from here
+    result = importlib.import_module(module).main()
+    return result if isinstance(result, int) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

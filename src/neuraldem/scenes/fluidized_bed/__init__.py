@@ -1,0 +1,59 @@
+"""The fluidized bed (OpenFOAM DPMFoam, CFD-DEM): scored by time statistics, bubbles, Lacey mixing, solid
+volume and rollout stability against CFD-DEM (`neuraldem.eval.fb_eval`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig
+
+from neuraldem.config import checks
+from neuraldem.scenes import Scene
+
+
+def pipeline(data_cfg: DictConfig) -> Any:
+    from neuraldem.datagen.fb import FluidizedBedPipeline
+
+    return FluidizedBedPipeline(data_cfg)
+
+
+def evaluate(cfg: DictConfig) -> None:
+    from neuraldem.eval.fb_eval import evaluate_checkpoint
+    from neuraldem.eval.fb_rollout import DivergenceLimits
+    from neuraldem.lit.fb_stability import MIXING_MODES
+
+    fb = cfg.fluidized_bed
+    conserve = fb.conserve_solid_volume
+    correction = fb.get("advection_correction")
+    result = evaluate_checkpoint(
+        Path(cfg.ckpt), out_dir=Path(cfg.paths.output_dir), datasets_dir=Path(cfg.paths.datasets_dir),
+        dataset_dir=cfg.dataset_dir, split=cfg.split, part=cfg.part, max_sims=cfg.max_sims,
+        horizons=list(fb.horizons), limits=DivergenceLimits(fb.max_packing, fb.tolerance),
+        seed=checks.positive_int("fluidized_bed.seed", fb.seed, allow_zero=True), vtk=cfg.vtk, device=cfg.device,
+        conserve_solid_volume=None if conserve is None else checks.boolean("fluidized_bed.conserve_solid_volume",
+                                                                           conserve),
+        mixing=None if fb.get("mixing") is None else checks.one_of("fluidized_bed.mixing", fb.mixing, MIXING_MODES),
+        init_snapshot=checks.positive_int("fluidized_bed.init_snapshot", fb.get("init_snapshot", 1), allow_zero=True),
+        advection_correction=None if correction is None else checks.number(
+            "fluidized_bed.advection_correction", correction, lo=0.0, hi=1.0))
+    agg = result["aggregate"]
+    print((Path(cfg.paths.output_dir) / "report.md").read_text())
+    print(f"{agg['n_trajectories']} held-out velocities: mean solid-fraction rel. L2 "
+          f"{agg['solid_fraction_mean_rel_l2']:.3f}, max mass drift {agg['mass_max_abs_drift_pct']:.2f} % over "
+          f"{result['rollout_steps']} steps, Lacey MAE {agg['lacey_mae']:.3f}")
+    print(f"results in {cfg.paths.output_dir}")
+
+
+def evaluate_run(cfg: DictConfig, ckpt: Path) -> dict[str, Any]:
+    from neuraldem.eval.fb_eval import evaluate_checkpoint
+
+    out = Path(cfg.paths.output_dir) / "evaluation"
+    result = evaluate_checkpoint(ckpt, out_dir=out, datasets_dir=Path(cfg.paths.datasets_dir),
+                                 dataset_dir=cfg.data.dataset_dir, progress=False)
+    print((out / "report.md").read_text())
+    return result
+
+
+SCENE = Scene(kind="fluidized_bed", description="OpenFOAM DPMFoam fluidized bed (CFD-DEM)", experiment="experiment=fb",
+              pipeline=pipeline, evaluate=evaluate, evaluate_run=evaluate_run)
