@@ -1,13 +1,17 @@
-"""`python -m neuraldem.import_liggghts`: bring your own LIGGGHTS hopper run into a neuraldem dataset.
+"""`neuraldem import liggghts`: bring your own LIGGGHTS hopper run into a neuraldem dataset.
 
 Reads a text `dump custom` file with columns `id x y z vx vy vz` (plus an optional exit file written by
 `fix massflow/mesh ... file F writeTime`), converts it into the dataset format (one HDF5 file per
 simulation, quantised positions) and adds or replaces its record in the dataset's manifest, with the
-ground-truth metrics computed exactly as for generated data. The first frame at or after --open-step is
-t = 0 (the moment the outlet opens); coordinates must have the outlet centre at the origin, z up.
+ground-truth metrics computed exactly as for generated data. The manifest records the scene as stated here
+(hopper and outlet diameter, cone height, particle diameter, timestep), so that `neuraldem evaluate
+ckpt=... dataset_dir=DATASET` scores a hopper checkpoint on these runs when its scene matches (geometry and
+particle size within 1 %) and names the keys that differ when not; one dataset holds one scene. The first
+frame at or after --open-step is t = 0 (the moment the outlet opens); coordinates must have the outlet centre
+at the origin, z up.
 
 Example:
-  python -m neuraldem.import_liggghts --dump post/dump.txt --exits post/exits.txt \\
+  neuraldem import liggghts --dump post/dump.txt --exits post/exits.txt \\
       --dataset ~/neuraldem-data/datasets/my_hoppers --sim-id plant_a --dt 1e-5 --open-step 60000 \\
       --diameter 0.004 --radius 0.12 --outlet-radius 0.025 --cone-height 0.08 \\
       --param alpha=45 --param mu_s=0.4 --param mu_r=0.1 --macro theta=24.1 --macro repose=30.2
@@ -18,6 +22,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -27,6 +32,7 @@ from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import sha256
 from neuraldem.datagen.hopper import stored_metrics
 from neuraldem.errors import ConfigError
+from neuraldem.eval.checkpoints import dotted, imported_scene_differences
 from neuraldem.sim.hopper import HopperGeometry, trajectory_from_files
 
 
@@ -51,6 +57,27 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+def imported_scene(a: argparse.Namespace) -> dict[str, Any]:
+    """What the user stated about the run's scene, under the keys a generated hopper scene uses, so that a
+    checkpoint's scene can be compared with it (`eval.checkpoints.check_scene`)."""
+    return {"imported": True, "position_resolution": a.resolution,
+            "hopper": {"hopper_diameter": 2 * a.radius, "outlet_diameter": 2 * a.outlet_radius,
+                       "cone_height": a.cone_height, "material": {"diameter": a.diameter, "dt": a.dt}}}
+
+
+def check_same_scene(m: Manifest, scene: dict[str, Any], dataset: Path) -> None:
+    """One dataset holds one scene: a run of another geometry or particle size goes into its own dataset."""
+    if not m.scene.get("imported"):
+        raise ConfigError(f"{dataset} holds generated {m.kind} runs; import your runs into a dataset of their own",
+                          fix="pass another --dataset folder")
+    if dotted(m.scene, "hopper.hopper_diameter") is None:  # imported before scenes were recorded
+        return
+    diff = imported_scene_differences("hopper", m.scene, scene)
+    if diff:
+        raise ConfigError(f"{dataset} holds imported runs of another scene: {'; '.join(diff)}",
+                          fix="import this run into a dataset of its own (--dataset)")
+
+
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
@@ -70,11 +97,14 @@ def main(argv: list[str] | None = None) -> int:
     rel = f"sims/{a.sim_id}.h5"
     (a.dataset / "sims").mkdir(exist_ok=True)
     write_hopper_file(a.dataset / rel, a.sim_id, traj, params, "imported", a.resolution)
+    scene = imported_scene(a)
     if (a.dataset / MANIFEST_NAME).exists():
         m = Manifest.load(a.dataset)
+        check_same_scene(m, scene, a.dataset)
+        m.scene = scene if m.scene.get("imported") else m.scene
         m.simulations = [r for r in m.simulations if r.sim_id != a.sim_id]
     else:
-        m = Manifest(name=a.dataset.name, kind="hopper", scene={"imported": True},
+        m = Manifest(name=a.dataset.name, kind="hopper", scene=scene,
                      solver={"name": "LIGGGHTS", "version": "imported"}, parameters={"names": sorted(params)})
     rec = SimRecord(sim_id=a.sim_id, index=len(m.simulations), params=params, macro=macro, status="ok",
                     file=rel, sha256=sha256(a.dataset / rel),

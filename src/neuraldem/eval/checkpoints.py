@@ -4,6 +4,7 @@ with a message instead of failing somewhere inside the model."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -11,6 +12,13 @@ import torch
 
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
 from neuraldem.errors import DataError
+
+# Imported runs (neuraldem import ...) record the keys of their scene a user can state: geometry and particle
+# size must match the checkpoint's scene within IMPORT_SCENE_RTOL; the timestep is a numerical setting of the
+# solver, reported when it differs, not refused.
+IMPORT_SCENE_RTOL = 0.01
+IMPORT_MATCH_KEYS = {"hopper": ("hopper.hopper_diameter", "hopper.outlet_diameter", "hopper.material.diameter")}
+IMPORT_REPORT_KEYS = {"hopper": ("hopper.material.dt",)}
 
 TRAIN_HINT = {"hopper": "experiment=hopper_micro", "fluidized_bed": "experiment=fb",
               "gns": "experiment=gns_hopper (or gns_fb)"}
@@ -39,8 +47,43 @@ def require_kind(meta: dict[str, Any], kind: str, path: Path, purpose: str) -> N
                         f"{TRAIN_HINT.get(kind, 'experiment=...')}")
 
 
+def dotted(d: dict[str, Any], key: str) -> Any:
+    for part in key.split("."):
+        d = d.get(part) if isinstance(d, dict) else None
+    return d
+
+
+def imported_scene_differences(kind: str, trained: dict[str, Any], imported: dict[str, Any],
+                               keys: tuple[str, ...] | None = None,
+                               rtol: float = IMPORT_SCENE_RTOL) -> list[str]:
+    """`key: trained X, imported Y` for every matched key whose values differ by more than rtol (or is missing)."""
+    out = []
+    for key in IMPORT_MATCH_KEYS.get(kind, ()) if keys is None else keys:
+        a, b = dotted(trained, key), dotted(imported, key)
+        if a is None or b is None or abs(float(a) - float(b)) > rtol * abs(float(a)):
+            out.append(f"{key}: trained {a}, imported {b}")
+    return out
+
+
 def check_scene(meta: dict[str, Any], m: Manifest, ckpt: Path, dataset_dir: Path) -> None:
-    """The dataset must come from the scene the model was trained on (geometry, material, solver settings)."""
+    """The dataset must come from the scene the model was trained on (geometry, material, solver settings);
+    imported runs must match its geometry and particle size within IMPORT_SCENE_RTOL."""
+    if m.scene.get("imported"):
+        kind = meta.get("kind", m.kind)
+        if kind not in IMPORT_MATCH_KEYS:
+            raise DataError(f"{dataset_dir} holds imported {m.kind} runs; scoring a {kind} checkpoint on imported "
+                            "runs is supported for hopper models only")
+        if not any(dotted(m.scene, k) is not None for k in IMPORT_MATCH_KEYS[kind]):
+            raise DataError(f"{dataset_dir} was imported without its scene (an import from before scenes were "
+                            "recorded)", fix="import the runs again with `neuraldem import liggghts`")
+        diff = imported_scene_differences(kind, meta["scene"], m.scene)
+        if diff:
+            raise DataError(f"checkpoint {ckpt} was trained on another scene than the runs imported into "
+                            f"{dataset_dir} (tolerance {100 * IMPORT_SCENE_RTOL:g} %): {'; '.join(diff)}",
+                            fix="score it on runs of the scene it was trained on, or train on yours")
+        for note in imported_scene_differences(kind, meta["scene"], m.scene, IMPORT_REPORT_KEYS[kind]):
+            print(f"note: {dataset_dir}: {note} (a solver setting: scored anyway)", file=sys.stderr)
+        return
     if meta["scene"] != m.scene:
         keys = differing_keys(meta["scene"], m.scene)
         raise DataError(f"checkpoint {ckpt} was trained on dataset {meta['data_name']!r} whose scene differs "

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from neuraldem.data.hopper_store import HopperFile
-from neuraldem.data.manifest import Manifest, SimRecord
+from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError, NeuraldemError
@@ -99,7 +99,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), datasets_dir, dataset_dir)
     records, split = checkpoint_records(meta, m, dataset_dir, split, part, max_sims)
     norm = HopperNormalizer.from_dict(meta["normalizer"])
-    hop = m.scene["hopper"]
+    hop = meta["scene"]["hopper"]  # the model's scene (an imported dataset matches it within tolerance)
     times = time_grid(norm.horizon, float(hop["snapshot_interval"]))
     settings = dataset_metric_settings(m)
     if abs(float(meta["occupancy_radius_d"]) - settings.occupancy_radius_d) > 1e-9:
@@ -114,7 +114,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
                           keep_fields=len(records), progress=progress)
     warn_extrapolation(evals)
     agg = aggregate(evals)
-    baselines = baseline_scores(meta, m, records)
+    baselines = baseline_scores(meta, training_manifest(meta, m, datasets_dir), records)
     rows = [table_row(meta, agg)] + [table_row(meta, b["aggregate"], kind) for kind, b in baselines.items()
                                      if "aggregate" in b]
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -135,10 +135,38 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     return result
 
 
+IMPORTED_SPLIT = "imported (every run)"
+
+
+def training_manifest(meta: dict[str, Any], m: Manifest, datasets_dir: Path) -> Manifest:
+    """The manifest holding the runs the checkpoint trained on (the baselines are fitted on them): `m` itself,
+    or for imported runs the training dataset under `datasets_dir` when it is there (else `m`: no baselines)."""
+    if not m.scene.get("imported"):
+        return m
+    path = Path(datasets_dir) / meta["data_name"]
+    return Manifest.load(path) if (path / MANIFEST_NAME).is_file() else m
+
+
+def imported_records(meta: dict[str, Any], m: Manifest, dataset_dir: Path,
+                     max_sims: int | None) -> list[SimRecord]:
+    """Every finished imported run; each must carry the scalars the model is conditioned on."""
+    records = m.usable()[:max_sims]
+    for rec in records:
+        missing = [k for k in meta["conditioning"] if k != "t" and k not in rec.conditioning()]  # t: the query time
+        if missing:
+            raise DataError(f"imported run {rec.sim_id} in {dataset_dir} lacks {', '.join(missing)}, which the "
+                            f"model is conditioned on", fix="import it again with " +
+                            " ".join(f"--param {k}=VALUE" for k in missing) + " (--macro for measured ones)")
+    return records
+
+
 def checkpoint_records(meta: dict[str, Any], m: Manifest, dataset_dir: Path, split: str | None, part: str,
                        max_sims: int | None) -> tuple[list[SimRecord], str]:
     """The runs of `part` that the checkpoint was trained with (its recorded ids: a cross-validation fold,
-    or the manifest's split as it was at training time), or those of another split of the manifest."""
+    or the manifest's split as it was at training time), or those of another split of the manifest; every run
+    of an imported dataset."""
+    if m.scene.get("imported"):
+        return imported_records(meta, m, dataset_dir, max_sims), IMPORTED_SPLIT
     ids = (meta.get("split_ids") or {}).get(part)
     if (split is None or split == meta["split"]) and ids:
         missing = [i for i in ids if i not in {r.sim_id for r in m.usable()}]
