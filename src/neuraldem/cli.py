@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import argparse
 import functools
 import os
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import hydra
@@ -41,6 +43,33 @@ def tool_prog(module: str) -> str:
     """A tool's name in its usage line: `neuraldem report fb-table` when the `neuraldem` command runs it
     (which puts that name in argv[0]), else `python -m <module>` (e.g. `neuraldem.bench fb_speed`)."""
     return sys.argv[0] if sys.argv[0].startswith("neuraldem ") else f"python -m {module}"
+
+
+def doc_parser(module: str, doc: str | None) -> argparse.ArgumentParser:
+    """A tool's parser whose --help shows its whole module docstring as written (examples keep their line
+    breaks)."""
+    return argparse.ArgumentParser(prog=tool_prog(module), description=doc,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+def add_trajectory_options(p: argparse.ArgumentParser, ckpt_help: str, sim_help: str) -> None:
+    """`--ckpt`, `--dataset`, `--sim`: one trajectory of a checkpoint's dataset, found from the checkpoint by
+    default, as every tool that times one checkpoint asks for it."""
+    p.add_argument("--ckpt", type=Path, required=True, help=ckpt_help)
+    p.add_argument("--dataset", type=Path, default=None,
+                   help="dataset dir of the checkpoint's scene (default: <data dir>/datasets/<its data name>)")
+    p.add_argument("--sim", default=None, help=sim_help)
+
+
+def split_kind_factor(text: str) -> tuple[str, float]:
+    """A `KIND:FACTOR` command-line value as (kind, factor); the factor is NaN when it is not a number, so a
+    caller rejects it with its own range check and message."""
+    kind, _, value = text.partition(":")
+    try:
+        factor = float(value)
+    except ValueError:
+        factor = float("nan")
+    return kind, factor
 
 
 def parse_assignments(items: list[str], flag: str, example: str) -> dict[str, float]:

@@ -30,7 +30,7 @@ from neuraldem.bench.hopper_solver import default_workdir
 from neuraldem.bench.hopper_surrogate import pick_record
 from neuraldem.bench.report import command_line, machine_info, resolve_out, warn_if_busy, write_results
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock, Sample, Timing, side_by_side, time_call, torch_threads
-from neuraldem.cli import tool_prog
+from neuraldem.cli import add_trajectory_options, tool_prog
 from neuraldem.config import checks
 from neuraldem.data.fb_store import FbFile
 from neuraldem.data.manifest import Manifest, SimRecord
@@ -313,10 +313,8 @@ def measure(plan: Plan, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
 
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
-    p.add_argument("--ckpt", type=Path, required=True, help="fluidized-bed checkpoint (<run>/checkpoints/last.ckpt)")
-    p.add_argument("--dataset", type=Path, default=None,
-                   help="dataset dir of the checkpoint's scene (default: <data dir>/datasets/<its data name>)")
-    p.add_argument("--sim", default=None, help="trajectory id (default: the first test trajectory of its split)")
+    add_trajectory_options(p, ckpt_help="fluidized-bed checkpoint (<run>/checkpoints/last.ckpt)",
+                           sim_help="trajectory id (default: the first test trajectory of its split)")
     p.add_argument("--repeats", type=int, default=3, help="timed rollouts per thread setting (median)")
     p.add_argument("--solver-repeats", type=int, default=3, help="fresh DPMFoam runs (median)")
     p.add_argument("--sim-seconds", type=float, default=DEFAULT_SIM_SECONDS,

@@ -43,7 +43,7 @@ from neuraldem.bench import plots
 from neuraldem.bench.fb_speed import surrogate_timing
 from neuraldem.bench.pareto import pareto_front
 from neuraldem.bench.report import command_line, machine_info, read_results, resolve_out, warn_if_busy, write_results
-from neuraldem.cli import tool_prog
+from neuraldem.cli import split_kind_factor, tool_prog
 from neuraldem.config import checks
 from neuraldem.data.fb_store import FbFile, write_fb_file
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
@@ -192,11 +192,7 @@ class SolverVariant:
 
     @classmethod
     def parse(cls, text: str) -> SolverVariant:
-        kind, _, value = text.partition(":")
-        try:
-            factor = float(value)
-        except ValueError:
-            factor = float("nan")
+        kind, factor = split_kind_factor(text)
         if kind not in VARIANT_KINDS or not factor > 0:
             raise ConfigError(f"--solver-variants {text!r} is invalid: write KIND:FACTOR with KIND one of "
                               f"{sorted(VARIANT_KINDS)} and FACTOR > 0 (e.g. dt:2 or substeps:0.5)")

@@ -172,6 +172,16 @@ def merge_maps(*maps: dict[str, Any]) -> dict[str, Any]:
     return {**first, "limits": [m.get("limits") for m in maps], "series": series}
 
 
+def write_map(name: str, results: dict[str, Any], argv: list[str], out: Path, machine: dict[str, Any]) -> None:
+    """Write a stability map's JSON and figure and print each series' failures: the field surrogates' map and
+    the GNS's are reported alike, so that they read (and merge) alike."""
+    path = write_results(name, results, command=command_line(name, argv), path=out, machine=machine)
+    plots.fb_stability_figure(results, path.with_suffix(".png"))
+    for s in results["series"]:
+        print(f"{s['label']}: {s['n_failed']} of {len(s['points'])} velocities failed within {results['steps']} steps")
+    print(f"wrote {path} and {path.with_suffix('.png')}")
+
+
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
     p.add_argument("--ckpt", type=Path, nargs="+", required=True,
@@ -197,9 +207,5 @@ def main(argv: list[str]) -> int:
     checks.positive_int("--n-velocities", a.n_velocities)
     machine = machine_info()
     results = run(a.ckpt, a.labels, a.velocities, a.n_velocities, a.steps, a.dataset, a.drift_limit_pct, a.seed)
-    path = write_results(NAME, results, command=command_line(NAME, argv), path=out, machine=machine)
-    plots.fb_stability_figure(results, path.with_suffix(".png"))
-    for s in results["series"]:
-        print(f"{s['label']}: {s['n_failed']} of {len(s['points'])} velocities failed within {results['steps']} steps")
-    print(f"wrote {path} and {path.with_suffix('.png')}")
+    write_map(NAME, results, argv, out, machine)
     return 0

@@ -21,7 +21,6 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from neuraldem.bench import plots
 from neuraldem.bench.fb_stability import (
     DEFAULT_DRIFT_LIMIT_PCT,
     DEFAULT_HORIZON_MULTIPLE,
@@ -29,8 +28,9 @@ from neuraldem.bench.fb_stability import (
     assess,
     check_options,
     velocity_grid,
+    write_map,
 )
-from neuraldem.bench.report import command_line, machine_info, read_results, resolve_out, write_results
+from neuraldem.bench.report import machine_info, read_results, resolve_out
 from neuraldem.cli import tool_prog
 from neuraldem.config import checks
 from neuraldem.data.gns_datamodule import ParticleRun
@@ -122,9 +122,5 @@ def main(argv: list[str]) -> int:
     checks.positive_int("--n-velocities", a.n_velocities)
     machine = machine_info()
     results = run(a.ckpt, a.labels, a.velocities, a.n_velocities, a.steps, a.dataset, a.drift_limit_pct)
-    path = write_results(NAME, results, command=command_line(NAME, argv), path=out, machine=machine)
-    plots.fb_stability_figure(results, path.with_suffix(".png"))
-    for s in results["series"]:
-        print(f"{s['label']}: {s['n_failed']} of {len(s['points'])} velocities failed within {results['steps']} steps")
-    print(f"wrote {path} and {path.with_suffix('.png')}")
+    write_map(NAME, results, argv, out, machine)
     return 0

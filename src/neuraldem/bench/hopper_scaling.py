@@ -44,14 +44,7 @@ from neuraldem.bench.hopper_surrogate import (
     synthetic_question,
     untrained_surrogate,
 )
-from neuraldem.bench.report import (
-    command_line,
-    default_path,
-    machine_info,
-    read_results,
-    warn_if_busy,
-    write_results,
-)
+from neuraldem.bench.report import command_line, default_path, machine_info, read_results, warn_if_busy, write_results
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock, time_call, torch_threads
 from neuraldem.cli import parse_assignments, tool_prog
 from neuraldem.config import checks

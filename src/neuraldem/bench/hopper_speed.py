@@ -28,7 +28,7 @@ from neuraldem.bench.hopper_surrogate import (
 )
 from neuraldem.bench.report import command_line, default_path, machine_info, warn_if_busy, write_results
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock, Sample, Timing, side_by_side, time_call, torch_threads
-from neuraldem.cli import tool_prog
+from neuraldem.cli import add_trajectory_options, tool_prog
 from neuraldem.config import checks
 from neuraldem.data.hopper_fields import capped_exit_times, trajectory_fields_at
 from neuraldem.data.hopper_store import HopperFile
@@ -157,10 +157,8 @@ def run(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: int, 
 
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
-    p.add_argument("--ckpt", type=Path, required=True, help="hopper checkpoint (e.g. <run>/checkpoints/last.ckpt)")
-    p.add_argument("--dataset", type=Path, default=None,
-                   help="dataset dir of the checkpoint's scene (default: <data dir>/datasets/<its data name>)")
-    p.add_argument("--sim", default=None, help="simulation id (default: the first test simulation)")
+    add_trajectory_options(p, ckpt_help="hopper checkpoint (e.g. <run>/checkpoints/last.ckpt)",
+                           sim_help="simulation id (default: the first test simulation)")
     p.add_argument("--repeats", type=int, default=5, help="timed surrogate/post-processing repeats (median)")
     p.add_argument("--solver-repeats", type=int, default=3, help="LIGGGHTS runs (median)")
     p.add_argument("--reuse-dataset", action="store_true",

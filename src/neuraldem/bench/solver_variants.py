@@ -27,6 +27,7 @@ import numpy as np
 from neuraldem.bench.hopper_runs import HOPPER_ERRORS
 from neuraldem.bench.hopper_solver import run_scene
 from neuraldem.bench.timing import Sample
+from neuraldem.cli import split_kind_factor
 from neuraldem.data.manifest import SimRecord
 from neuraldem.datagen.hopper import stored_metrics, trajectory_metrics
 from neuraldem.errors import ConfigError
@@ -45,11 +46,7 @@ class SolverVariant:
 
     @classmethod
     def parse(cls, spec: str) -> SolverVariant:
-        kind, _, value = spec.partition(":")
-        try:
-            factor = float(value)
-        except ValueError:
-            factor = float("nan")
+        kind, factor = split_kind_factor(spec)
         if kind not in KINDS or not np.isfinite(factor):
             raise ConfigError(f"solver variant {spec!r}: expected KIND:FACTOR with KIND one of {list(KINDS)}, "
                               "e.g. fewer:0.5, coarser:2, dt:2, same:1")

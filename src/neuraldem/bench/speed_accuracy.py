@@ -25,14 +25,7 @@ from neuraldem.bench.gns_points import gns_point, require_hopper_gns
 from neuraldem.bench.hopper_runs import HOPPER_ERRORS, EvaluatedRun, collect_runs, time_to_answer
 from neuraldem.bench.hopper_solver import dataset_scene, default_workdir, split_records
 from neuraldem.bench.pareto import pareto_front
-from neuraldem.bench.report import (
-    command_line,
-    default_path,
-    machine_info,
-    read_results,
-    warn_if_busy,
-    write_results,
-)
+from neuraldem.bench.report import command_line, default_path, machine_info, read_results, warn_if_busy, write_results
 from neuraldem.bench.solver_variants import DEFAULT_VARIANTS, SolverVariant, score_variant
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock
 from neuraldem.cli import tool_prog

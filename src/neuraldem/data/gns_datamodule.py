@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Self
 
@@ -36,6 +36,7 @@ from neuraldem.data.fb_store import FbFile
 from neuraldem.data.file_samples import FileSamples
 from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
+from neuraldem.data.normalization import DictStats, scaled_scalar
 from neuraldem.data.part_loaders import PartLoaders
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.sim.hopper import HopperGeometry
@@ -131,7 +132,7 @@ def random_walk_noise(rng: np.random.Generator, n: int, history: int, std: float
 
 # ---- normalisation
 @dataclass
-class GnsNormalizer:
+class GnsNormalizer(DictStats):
     kind: str
     length: float  # [m] the graph's length unit (mean particle diameter)
     dt: float  # [s] one step (snapshot interval)
@@ -145,13 +146,6 @@ class GnsNormalizer:
     scalar_hi: dict[str, float] = field(default_factory=dict)
     horizon_steps: int = 0  # steps of the longest training run (the "training horizon")
 
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> GnsNormalizer:
-        return cls(**d)
-
     def velocities(self, v: np.ndarray) -> np.ndarray:
         return (v - np.asarray(self.velocity_mean)) / np.asarray(self.velocity_std)
 
@@ -162,13 +156,7 @@ class GnsNormalizer:
         return np.asarray(u) * np.asarray(self.acceleration_std) + np.asarray(self.acceleration_mean)
 
     def scalars(self, values: dict[str, float]) -> np.ndarray:
-        out = []
-        for name in self.conditioning:
-            if name not in values:
-                raise DataError(f"conditioning scalar {name!r} is not available (have {sorted(values)}); "
-                                "macroscopic scalars need datagen with data.characterization.enabled=true")
-            lo, hi = self.scalar_lo[name], self.scalar_hi[name]
-            out.append((values[name] - lo) / (hi - lo) if hi > lo else 0.5)
+        out = [scaled_scalar(values, name, self.scalar_lo, self.scalar_hi) for name in self.conditioning]
         return np.asarray(out, dtype=np.float32)
 
     @classmethod

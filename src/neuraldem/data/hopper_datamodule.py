@@ -97,14 +97,23 @@ class HopperSnapshots(FileSamples):
             transport, residence = np.zeros((q, 3)), np.zeros(q)
         scalars = self.norm.scalars(self.records[s].conditioning(), self.conditioning, t)
         return {
-            "scalars": torch.from_numpy(scalars),
-            "occupancy_pos": torch.from_numpy(self.norm.positions(occ_pos)).float(),
-            "occupancy": torch.from_numpy(occ),
-            "particle_pos": torch.from_numpy(self.norm.positions(part_pos)).float(),
-            "particle_mask": torch.from_numpy(mask),
+            **query_tensors(self.norm, scalars, occ_pos, occ, part_pos, mask),
             "transport": torch.from_numpy(transport).float(),
             "residence": torch.from_numpy(np.asarray(residence)).float(),
         }
+
+
+def query_tensors(norm: HopperNormalizer, scalars: np.ndarray, occ_pos: np.ndarray, occ: np.ndarray,
+                  part_pos: np.ndarray, mask: np.ndarray) -> dict[str, torch.Tensor]:
+    """The model inputs and occupancy labels of one sample (positions normalised into the scene box): the same
+    keys and dtypes for the draining and the refilling hopper, whose targets follow them."""
+    return {
+        "scalars": torch.from_numpy(scalars),
+        "occupancy_pos": torch.from_numpy(norm.positions(occ_pos)).float(),
+        "occupancy": torch.from_numpy(occ),
+        "particle_pos": torch.from_numpy(norm.positions(part_pos)).float(),
+        "particle_mask": torch.from_numpy(mask),
+    }
 
 
 def occupancy_queries(rng: np.random.Generator, initial: np.ndarray, n_queries: int, n_box: int, jitter: float,
@@ -285,11 +294,17 @@ class HopperDataModule(L.LightningDataModule):
                                 scalar_hi={k: float(max(v)) for k, v in values.items()})
 
     def setup(self, stage: str | None = None) -> None:
+        """Manifest, normaliser (fitted on the training runs unless given) and datasets, once per module."""
         if self.datasets:
             return
         self.prepare_manifest()
         if self.norm is None:
             self.norm = self.fit_normalizer()
+        self.build_datasets()
+
+    def build_datasets(self) -> None:
+        """The train/val/test datasets; the val and test files are validated up front."""
+        assert self.norm is not None
         for part in ("val", "test"):
             for rec in self.records(part):
                 HopperFile(self.dataset_dir / str(rec.file)).close()  # validate once, up front

@@ -16,6 +16,7 @@ import json
 from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -23,7 +24,7 @@ import numpy as np
 from neuraldem import __version__
 from neuraldem.data.schema import SCHEMA_VERSION, ValidatedH5File, atomic_write_h5
 from neuraldem.errors import DataError
-from neuraldem.sim.hopper import HopperGeometry, HopperTrajectory
+from neuraldem.sim.hopper import HopperGeometry, HopperTrajectory, TrajectorySize
 
 KIND = "hopper"
 MISSING = np.iinfo(np.int16).min
@@ -42,6 +43,25 @@ def quantise(positions: np.ndarray, origin: np.ndarray, resolution: float) -> np
     return out
 
 
+def write_header(f: h5py.File, kind: str, sim_id: str, params: dict[str, float], solver_version: str,
+                 **extra: Any) -> None:
+    """The root attributes of every hopper-family file; `extra` (the kind's own) go before the version stamp."""
+    f.attrs.update(schema_version=SCHEMA_VERSION, kind=kind, sim_id=sim_id, params=json.dumps(params),
+                   solver="LIGGGHTS", solver_version=solver_version, **extra, neuraldem_version=__version__,
+                   created_utc=datetime.now(UTC).isoformat(timespec="seconds"))
+
+
+def write_motion(s: h5py.Group, q: np.ndarray, velocities: np.ndarray | None, chunks: tuple[int, ...],
+                 **position_attrs: Any) -> None:
+    """/snapshots/position (quantised, with `position_attrs`) and the optional float16 velocities, gzip'ed in
+    `chunks`: one storage rule for the dense and the ragged layout."""
+    dq = s.create_dataset("position", data=q, chunks=chunks, compression="gzip", compression_opts=4, shuffle=True)
+    dq.attrs.update(position_attrs)
+    if velocities is not None:
+        s.create_dataset("velocity", data=velocities.astype(np.float16), chunks=chunks, compression="gzip",
+                         compression_opts=4, shuffle=True).attrs["units"] = "m/s"
+
+
 def write_hopper_file(path: Path, sim_id: str, traj: HopperTrajectory, params: dict[str, float],
                       solver_version: str, position_resolution: float, origin: np.ndarray | None = None) -> None:
     """`origin` of the quantisation grid: default the centre of the positions' bounding box (uses the int16
@@ -53,28 +73,20 @@ def write_hopper_file(path: Path, sim_id: str, traj: HopperTrajectory, params: d
     q = quantise(pos, origin, position_resolution)
 
     def fill(f: h5py.File) -> None:
-        f.attrs.update(schema_version=SCHEMA_VERSION, kind=KIND, sim_id=sim_id, params=json.dumps(params),
-                       solver="LIGGGHTS", solver_version=solver_version, n_inserted=traj.n_inserted,
-                       neuraldem_version=__version__,
-                       created_utc=datetime.now(UTC).isoformat(timespec="seconds"))
+        write_header(f, KIND, sim_id, params, solver_version, n_inserted=traj.n_inserted)
         g = f.create_group("particles")
         g.create_dataset("ids", data=traj.ids.astype(np.int64))
         g.create_dataset("exit_time", data=traj.exit_times.astype(np.float32))
         s = f.create_group("snapshots")
         s.create_dataset("time", data=traj.times.astype(np.float64))
-        chunks = (1, pos.shape[1], 3)
-        dq = s.create_dataset("position", data=q, chunks=chunks, compression="gzip", compression_opts=4,
-                              shuffle=True)
-        dq.attrs.update(origin=origin, resolution=position_resolution, missing=MISSING, units="m")
-        if traj.velocities is not None:
-            s.create_dataset("velocity", data=traj.velocities.astype(np.float16), chunks=chunks,
-                             compression="gzip", compression_opts=4, shuffle=True).attrs["units"] = "m/s"
+        write_motion(s, q, traj.velocities, (1, pos.shape[1], 3), origin=origin, resolution=position_resolution,
+                     missing=MISSING, units="m")
         f.create_group("geometry").attrs.update(asdict(traj.geometry))
 
     atomic_write_h5(path, fill)
 
 
-class HopperFile(ValidatedH5File):
+class HopperFile(ValidatedH5File, TrajectorySize):
     """Validating reader. Positions come back as float64 metres with NaN for exited particles.
 
     Use as a context manager, or call `close()`; `load()` reads everything into a HopperTrajectory."""
@@ -91,16 +103,7 @@ class HopperFile(ValidatedH5File):
         self._vel = self.f.get("snapshots/velocity")  # optional: compact copies have no velocities
         self.origin = np.asarray(self._pos.attrs["origin"], dtype=np.float64)
         self.resolution = float(self._pos.attrs["resolution"])
-        g = self._field("geometry").attrs
-        self.geometry = HopperGeometry(**{k: float(g[k]) for k in HopperGeometry.__dataclass_fields__})
-
-    @property
-    def n_particles(self) -> int:
-        return len(self.ids)
-
-    @property
-    def n_snapshots(self) -> int:
-        return len(self.times)
+        self.geometry = HopperGeometry.from_attrs(self._field("geometry").attrs)
 
     def validate(self) -> None:
         """Shapes, ordering and value ranges; the error names the file and the field."""

@@ -8,27 +8,42 @@ scaling it was trained with.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 
 from neuraldem.errors import DataError
 
 
+class DictStats:
+    """`to_dict` / `from_dict` of a dataclass of fitted statistics: the plain dict travels inside every
+    checkpoint, and the same dict builds the normalizer again."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)  # type: ignore[call-overload]  # every user is a dataclass
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Self:
+        return cls(**d)
+
+
+def scaled_scalar(values: dict[str, float], name: str, lo: dict[str, float], hi: dict[str, float]) -> float:
+    """One conditioning scalar mapped from its training range to [0, 1] (0.5 where training saw one value);
+    a missing one is an error that says how to record it."""
+    if name not in values:
+        raise DataError(f"conditioning scalar {name!r} is not available (have {sorted(values)}); "
+                        "macroscopic scalars need datagen with data.characterization.enabled=true")
+    low, high = lo[name], hi[name]
+    return (values[name] - low) / (high - low) if high > low else 0.5
+
+
 @dataclass
-class HopperNormalizer:
+class HopperNormalizer(DictStats):
     box_lo: list[float]  # scene box [m], 3 values
     box_hi: list[float]
     horizon: float  # [s] time range covered; particles that never leave get this as exit time
     scalar_lo: dict[str, float] = field(default_factory=dict)
     scalar_hi: dict[str, float] = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> HopperNormalizer:
-        return cls(**d)
 
     # ---- positions
     def positions(self, x: np.ndarray) -> np.ndarray:
@@ -75,9 +90,5 @@ class HopperNormalizer:
             if name == "t":
                 out.append(float(self.time(t)))
                 continue
-            if name not in values:
-                raise DataError(f"conditioning scalar {name!r} is not available (have {sorted(values)}); "
-                                "macroscopic scalars need datagen with data.characterization.enabled=true")
-            lo, hi = self.scalar_lo[name], self.scalar_hi[name]
-            out.append((values[name] - lo) / (hi - lo) if hi > lo else 0.5)
+            out.append(scaled_scalar(values, name, self.scalar_lo, self.scalar_hi))
         return np.asarray(out, dtype=np.float32)

@@ -19,7 +19,7 @@ import torch
 
 from neuraldem.config import checks
 from neuraldem.data.file_samples import FileSamples
-from neuraldem.data.hopper_datamodule import HopperDataModule, occupancy_samples
+from neuraldem.data.hopper_datamodule import HopperDataModule, occupancy_samples, query_tensors
 from neuraldem.data.manifest import SimRecord
 from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.data.refill_store import RefillFile
@@ -91,11 +91,7 @@ class RefillSamples(FileSamples):
             transport, residence = np.zeros((q, 3)), np.zeros(q)
         scalars = self.norm.scalars(reference_scalars(self.records[s], t, t_ref), self.conditioning, t)
         return {
-            "scalars": torch.from_numpy(scalars),
-            "occupancy_pos": torch.from_numpy(self.norm.positions(occ_pos)).float(),
-            "occupancy": torch.from_numpy(occ),
-            "particle_pos": torch.from_numpy(self.norm.positions(part_pos)).float(),
-            "particle_mask": torch.from_numpy(mask),
+            **query_tensors(self.norm, scalars, occ_pos, occ, part_pos, mask),
             "transport_mask": torch.from_numpy(transport_mask & mask),
             "transport": torch.from_numpy(transport).float(),
             "residence": torch.from_numpy(np.asarray(residence)).float(),
@@ -151,12 +147,9 @@ class RefillDataModule(HopperDataModule):
         return HopperNormalizer(box_lo=(lo - d).tolist(), box_hi=(hi + d).tolist(), horizon=self.window,
                                 scalar_lo=scalar_lo, scalar_hi=scalar_hi)
 
-    def setup(self, stage: str | None = None) -> None:
-        if self.datasets:
-            return
-        self.prepare_manifest()
-        if self.norm is None:
-            self.norm = self.fit_normalizer()
+    def build_datasets(self) -> None:
+        """One RefillSamples per part, with each file's snapshot count (the val and test files validated)."""
+        assert self.norm is not None
         for part in ("train", "val", "test"):
             counts = []
             for rec in self.records(part):

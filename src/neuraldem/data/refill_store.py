@@ -18,18 +18,16 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
 
-from neuraldem import __version__
-from neuraldem.data.hopper_store import MISSING, quantise
-from neuraldem.data.schema import SCHEMA_VERSION, ValidatedH5File, atomic_write_h5
+from neuraldem.data.hopper_store import MISSING, quantise, write_header, write_motion
+from neuraldem.data.schema import ValidatedH5File, atomic_write_h5
 from neuraldem.errors import DataError
-from neuraldem.sim.hopper import HopperGeometry
+from neuraldem.sim.hopper import HopperGeometry, TrajectorySize
 from neuraldem.sim.hopper_refill import RefillTrajectory, consistency_problem
 
 KIND = "hopper_refill"
@@ -47,10 +45,8 @@ def write_refill_file(path: Path, sim_id: str, traj: RefillTrajectory, params: d
     chunk = (max(1, min(ROW_CHUNK, len(q))), 3)
 
     def fill(f: h5py.File) -> None:
-        f.attrs.update(schema_version=SCHEMA_VERSION, kind=KIND, sim_id=sim_id, params=json.dumps(params),
-                       solver="LIGGGHTS", solver_version=solver_version, n_initial=traj.n_initial,
-                       refill=json.dumps(refill or {}), neuraldem_version=__version__,
-                       created_utc=datetime.now(UTC).isoformat(timespec="seconds"))
+        write_header(f, KIND, sim_id, params, solver_version, n_initial=traj.n_initial,
+                     refill=json.dumps(refill or {}))
         g = f.create_group("particles")
         g.create_dataset("ids", data=traj.ids.astype(np.int64))
         g.create_dataset("insert_time", data=traj.insert_times.astype(np.float64))
@@ -60,18 +56,13 @@ def write_refill_file(path: Path, sim_id: str, traj: RefillTrajectory, params: d
         s.create_dataset("offsets", data=traj.offsets.astype(np.int64))
         s.create_dataset("index", data=traj.index.astype(np.int32), chunks=(chunk[0],), compression="gzip",
                          compression_opts=4, shuffle=True)
-        dq = s.create_dataset("position", data=q, chunks=chunk, compression="gzip", compression_opts=4,
-                              shuffle=True)
-        dq.attrs.update(origin=origin, resolution=position_resolution, units="m")
-        if traj.velocities is not None:
-            s.create_dataset("velocity", data=traj.velocities.astype(np.float16), chunks=chunk,
-                             compression="gzip", compression_opts=4, shuffle=True).attrs["units"] = "m/s"
+        write_motion(s, q, traj.velocities, chunk, origin=origin, resolution=position_resolution, units="m")
         f.create_group("geometry").attrs.update(asdict(traj.geometry))
 
     atomic_write_h5(path, fill)
 
 
-class RefillFile(ValidatedH5File):
+class RefillFile(ValidatedH5File, TrajectorySize):
     """Validating reader of a refill trajectory. `frame(k)` reads one snapshot (particle rows, positions in
     metres); `load()` reads everything into a RefillTrajectory."""
 
@@ -96,16 +87,7 @@ class RefillFile(ValidatedH5File):
         self.origin = np.asarray(self._pos.attrs["origin"], dtype=np.float64)
         self.resolution = float(self._pos.attrs["resolution"])
         self.n_initial = int(self.f.attrs.get("n_initial", 0))
-        g = self._field("geometry").attrs
-        self.geometry = HopperGeometry(**{k: float(g[k]) for k in HopperGeometry.__dataclass_fields__})
-
-    @property
-    def n_particles(self) -> int:
-        return len(self.ids)
-
-    @property
-    def n_snapshots(self) -> int:
-        return len(self.times)
+        self.geometry = HopperGeometry.from_attrs(self._field("geometry").attrs)
 
     def validate(self) -> None:
         """Shapes, ordering, finite values and one particle per id; errors name the file and the field."""

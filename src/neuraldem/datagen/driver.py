@@ -15,7 +15,7 @@ import shutil
 from collections import Counter
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -56,6 +56,19 @@ class Pipeline(Protocol):
         record (never raise for solver trouble)."""
 
     def splits(self, manifest: Manifest) -> dict[str, dict[str, list[str]]]: ...
+
+
+@dataclass
+class DataConfigPipeline:
+    """What every scene's pipeline starts from: its `data` config, whose name and folder identify the dataset."""
+
+    cfg: Any  # the `data` config (DictConfig)
+    name: str = field(init=False)
+    dataset_dir: Path = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.name = str(self.cfg.name)
+        self.dataset_dir = Path(self.cfg.dataset_dir)
 
 
 @dataclass

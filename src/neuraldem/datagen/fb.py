@@ -19,18 +19,19 @@ from __future__ import annotations
 
 import shutil
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import OmegaConf
 
 from neuraldem.config import checks
 from neuraldem.data.fb_store import FbFile, write_fb_file
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import sha256
 from neuraldem.data.splits import random_split
+from neuraldem.datagen.driver import DataConfigPipeline
 from neuraldem.datagen.sampling import latin_hypercube
 from neuraldem.errors import ConfigError
 from neuraldem.eval.fb_metrics import bed_height_particles, fb_summary, lacey_from_particles
@@ -121,16 +122,12 @@ def file_metrics(path: Path, settings: FbMetricSettings) -> dict[str, float]:
 
 
 @dataclass
-class FluidizedBedPipeline:
-    cfg: DictConfig  # the `data` config
+class FluidizedBedPipeline(DataConfigPipeline):
     kind: str = "fluidized_bed"
-    name: str = field(init=False)
-    dataset_dir: Path = field(init=False)
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         c = self.cfg
-        self.name = str(c.name)
-        self.dataset_dir = Path(c.dataset_dir)
         self.scene = FluidizedBedScene.from_config(c.scene, "data.scene")
         p = c.parameters
         self.seed = checks.positive_int("data.parameters.seed", p.seed, allow_zero=True)

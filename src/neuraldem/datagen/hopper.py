@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from omegaconf import DictConfig
 from tqdm import tqdm
 
 from neuraldem.config import checks
@@ -17,7 +16,7 @@ from neuraldem.data.hopper_store import HopperFile, write_hopper_file
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import sha256
 from neuraldem.data.splits import auto_theta_band, band_split, random_split
-from neuraldem.datagen.driver import fresh_dir, simulation_done
+from neuraldem.datagen.driver import DataConfigPipeline, fresh_dir, simulation_done
 from neuraldem.datagen.sampling import latin_hypercube
 from neuraldem.errors import ConfigError, SolverError
 from neuraldem.eval.hopper_metrics import HopperMetricSettings, hopper_summary, metric_times
@@ -61,16 +60,12 @@ def stored_metrics(path: Path, diameter: float,
 
 
 @dataclass
-class HopperPipeline:
-    cfg: DictConfig  # the `data` config
+class HopperPipeline(DataConfigPipeline):
     kind: str = "hopper"
-    name: str = field(init=False)
-    dataset_dir: Path = field(init=False)
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         c = self.cfg
-        self.name = str(c.name)
-        self.dataset_dir = Path(c.dataset_dir)
         self.scene = HopperScene.from_config(c.scene, "data.scene")
         self.ranges = {}
         for k, v in c.parameters.ranges.items():

@@ -21,7 +21,6 @@ so `python -m neuraldem.eval.collect_fb_table` puts them in one table with the m
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Callable
 from datetime import UTC, datetime
@@ -30,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from neuraldem.cli import report_user_errors, tool_prog
+from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.data.fb_store import FbFile
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import atomic_write_json
@@ -157,8 +156,7 @@ def evaluate_baselines(dataset_dir: Path, out_dir: Path, split: str = "velocity"
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.eval.fb_baselines"), description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser("neuraldem.eval.fb_baselines", __doc__)
     p.add_argument("dataset", help="dataset folder or name under $NEURALDEM_DATA/datasets (e.g. fb_small)")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--split", default="velocity")

@@ -13,7 +13,6 @@ and the JSON (e.g. "short 1-s runs").
 
 from __future__ import annotations
 
-import argparse
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
@@ -21,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from neuraldem.cli import report_user_errors, tool_prog
+from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.data.fb_store import FbFile
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import atomic_write_json
@@ -146,8 +145,7 @@ def build_report(dataset: Path, out: Path, sims: list[str] | None = None, note: 
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.eval.fb_report"), description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser("neuraldem.eval.fb_report", __doc__)
     p.add_argument("dataset", help="dataset folder or name")
     p.add_argument("--out", type=Path, required=True, help="output folder (created)")
     p.add_argument("--sims", nargs="*", help="sim ids to report (default: lowest and highest inlet velocity)")

@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any
 
-import lightning as L
 import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
@@ -27,6 +26,7 @@ from neuraldem.config import checks
 from neuraldem.data.fb_datamodule import FluidizedBedDataModule
 from neuraldem.data.fb_normalization import FbNormalizer
 from neuraldem.errors import ConfigError
+from neuraldem.lit.base import SurrogateModule
 from neuraldem.lit.fb_autoregressive import (
     apply_stability,
     decode_grid,
@@ -37,12 +37,12 @@ from neuraldem.lit.fb_autoregressive import (
 )
 from neuraldem.lit.fb_stability import FbStability
 from neuraldem.lit.module_setup import loss_weight_settings, net_config_and_metadata
-from neuraldem.lit.optim import lion_warmup_cosine, optimizer_settings, plain
+from neuraldem.lit.optim import optimizer_settings, plain
 from neuraldem.models.modules.patch_embedding import check_patch_size
 from neuraldem.models.multi_branch_operator import BRANCHES, OperatorInputs
 
 
-class FluidizedBedModule(L.LightningModule):
+class FluidizedBedModule(SurrogateModule):
     def __init__(self, net: DictConfig | dict, datamodule: FluidizedBedDataModule | None = None,
                  optimizer: DictConfig | dict | None = None, scheduler: DictConfig | dict | None = None,
                  loss_weights: DictConfig | dict | None = None, chunk_size: int | None = None,
@@ -179,26 +179,10 @@ class FluidizedBedModule(L.LightningModule):
         losses["loss"] = sum(self.loss_weights[k] * losses[k] for k in self.net.branches)
         return losses
 
-    def _step(self, batch: dict[str, torch.Tensor], stage: str) -> torch.Tensor:
+    def stage_losses(self, batch: dict[str, torch.Tensor], stage: str) -> dict[str, torch.Tensor]:
+        """Training draws the unroll length per batch; validation and test score the one-step map."""
         train = stage == "train"
-        losses = self.losses(batch, self.draw_unroll() if train else 1, train=train)
-        bs = batch["scalars"].shape[0]
-        self.log(f"{stage}/loss", losses["loss"], prog_bar=True, batch_size=bs, on_step=train, on_epoch=not train)
-        self.log_dict({f"{stage}/{k}": v for k, v in losses.items() if k != "loss"}, batch_size=bs,
-                      on_step=train, on_epoch=not train)
-        return losses["loss"]
-
-    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        return self._step(batch, "train")
-
-    def validation_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
-        self._step(batch, "val")
-
-    def test_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
-        self._step(batch, "test")
-
-    def configure_optimizers(self) -> dict[str, Any]:
-        return lion_warmup_cosine(self.parameters(), self.opt_cfg, self.sched_cfg, self.trainer.max_steps)
+        return self.losses(batch, self.draw_unroll() if train else 1, train=train)
 
 
 def fair_crps(members: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

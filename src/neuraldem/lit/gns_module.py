@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import lightning as L
 import numpy as np
 import torch
 from hydra.utils import instantiate
@@ -18,13 +17,14 @@ from omegaconf import DictConfig, OmegaConf
 
 from neuraldem.data.gns_datamodule import GnsDataModule, GnsNormalizer
 from neuraldem.errors import ConfigError
+from neuraldem.lit.base import SurrogateModule
 from neuraldem.lit.module_setup import net_config_and_metadata
-from neuraldem.lit.optim import lion_warmup_cosine, optimizer_settings
+from neuraldem.lit.optim import optimizer_settings
 
 SET_FROM_DATA = {"history": "data.datamodule.history", "n_extra_walls": "the dataset's scene"}
 
 
-class GnsModule(L.LightningModule):
+class GnsModule(SurrogateModule):
     def __init__(self, net: DictConfig | dict, datamodule: GnsDataModule | None = None,
                  optimizer: DictConfig | dict | None = None, scheduler: DictConfig | dict | None = None,
                  metadata: dict[str, Any] | None = None):
@@ -66,21 +66,8 @@ class GnsModule(L.LightningModule):
         err = (pred - batch.y).square().mean(dim=-1)
         return {"loss": (err * mask).sum() / mask.sum().clamp(min=1.0)}
 
-    def _step(self, batch: Any, stage: str) -> torch.Tensor:
-        losses = self.losses(batch)
-        train = stage == "train"
-        self.log(f"{stage}/loss", losses["loss"], prog_bar=True, batch_size=int(batch.num_graphs), on_step=train,
-                 on_epoch=not train)
-        return losses["loss"]
+    def stage_losses(self, batch: Any, stage: str) -> dict[str, torch.Tensor]:
+        return self.losses(batch)
 
-    def training_step(self, batch: Any, batch_idx: int) -> torch.Tensor:
-        return self._step(batch, "train")
-
-    def validation_step(self, batch: Any, batch_idx: int) -> None:
-        self._step(batch, "val")
-
-    def test_step(self, batch: Any, batch_idx: int) -> None:
-        self._step(batch, "test")
-
-    def configure_optimizers(self) -> dict[str, Any]:
-        return lion_warmup_cosine(self.parameters(), self.opt_cfg, self.sched_cfg, self.trainer.max_steps)
+    def batch_size(self, batch: Any) -> int:
+        return int(batch.num_graphs)

@@ -9,20 +9,20 @@ from __future__ import annotations
 
 from typing import Any
 
-import lightning as L
 import torch
 import torch.nn.functional as F
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from neuraldem.data.hopper_datamodule import HopperDataModule
+from neuraldem.lit.base import SurrogateModule
 from neuraldem.lit.module_setup import loss_weight_settings, net_config_and_metadata
-from neuraldem.lit.optim import lion_warmup_cosine, optimizer_settings
+from neuraldem.lit.optim import optimizer_settings
 
 LOSSES = ("occupancy", "transport", "residence")
 
 
-class HopperModule(L.LightningModule):
+class HopperModule(SurrogateModule):
     def __init__(self, net: DictConfig | dict, datamodule: HopperDataModule | None = None,
                  optimizer: DictConfig | dict | None = None, scheduler: DictConfig | dict | None = None,
                  loss_weights: DictConfig | dict | None = None, chunk_size: int | None = None,
@@ -60,23 +60,5 @@ class HopperModule(L.LightningModule):
         losses["loss"] = sum(self.loss_weights[k] * losses[k] for k in LOSSES)
         return losses
 
-    def _step(self, batch: dict[str, torch.Tensor], stage: str) -> torch.Tensor:
-        losses = self.losses(batch)
-        bs = batch["scalars"].shape[0]
-        self.log(f"{stage}/loss", losses["loss"], prog_bar=True, batch_size=bs, on_step=stage == "train",
-                 on_epoch=stage != "train")
-        self.log_dict({f"{stage}/{k}": v for k, v in losses.items() if k != "loss"}, batch_size=bs,
-                      on_step=stage == "train", on_epoch=stage != "train")
-        return losses["loss"]
-
-    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        return self._step(batch, "train")
-
-    def validation_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
-        self._step(batch, "val")
-
-    def test_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
-        self._step(batch, "test")
-
-    def configure_optimizers(self) -> dict[str, Any]:
-        return lion_warmup_cosine(self.parameters(), self.opt_cfg, self.sched_cfg, self.trainer.max_steps)
+    def stage_losses(self, batch: dict[str, torch.Tensor], stage: str) -> dict[str, torch.Tensor]:
+        return self.losses(batch)

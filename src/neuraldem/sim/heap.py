@@ -30,19 +30,18 @@ import numpy as np
 
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError, SolverError
-from neuraldem.sim.liggghts import preamble
 from neuraldem.sim.material import Material
 from neuraldem.sim.runner import SolverRun
 from neuraldem.sim.shear import (
-    DISTRIBUTION_SEED,
     GRAVITY,
     INSERT_FRACTION,
-    TEMPLATE_SEED,
+    PresetSettings,
+    box_input,
     check_seed,
     missing_output,
+    pour_input,
     read_info,
     run_input,
-    settings_from_config,
 )
 from neuraldem.sim.stl import polyline, revolve, write_stl
 
@@ -51,7 +50,7 @@ _SETTLED_FRACTION = 0.6
 
 
 @dataclass(frozen=True)
-class HeapSettings:
+class HeapSettings(PresetSettings):
     """Heap-test settings. The defaults are the "small" production preset for the 10 mm hopper material
     (~25-35 CPU-s per test); `HeapSettings.tiny()` is a few CPU-s for tests (coarser, a few deg)."""
 
@@ -82,7 +81,7 @@ class HeapSettings:
         if cfg is not None and "fit_band" in cfg:
             cfg = {**{str(k): v for k, v in cfg.items()}, "fit_band": tuple(checks.interval(
                 f"{key}.fit_band", cfg["fit_band"]))}
-        return settings_from_config(cls, cfg, key)
+        return super().from_config(cfg, key)
 
     def fill_height(self) -> float:
         """Estimated height of the settled fill in the tube [d]."""
@@ -168,12 +167,7 @@ def heap_input(material: Material, s: HeapSettings) -> str:
     rest_run = f"run {steps['rest']}\n" if s.rest_time > 0 else ""
     return f"""\
 # neuraldem lifted-cylinder heap: angle of repose (written by neuraldem.sim.heap)
-{preamble("f f f")}
-region domain block {-half!r} {half!r} {-half!r} {half!r} {-0.5 * d!r} {z_top!r} units box
-create_box 2 domain
-neighbor {0.3 * d!r} bin
-neigh_modify delay 0
-{material.liggghts_definition(n_types=2)}
+{box_input(material, "f f f", (-half, -half, -0.5 * d), (half, half, z_top), n_types=2)}
 fix grav all gravity {GRAVITY} vector 0.0 0.0 -1.0
 # base plane and tube wall (type 2) with the particles' own contact law
 fix base all wall/gran {material.wall_model} primitive type 2 zplane 0.0
@@ -182,13 +176,7 @@ fix tubewall all wall/gran {material.wall_model} mesh n_meshes 1 meshes tube
 
 # ---- 1. pour into the tube and settle
 region fillreg cylinder z 0.0 0.0 {(s.tube_radius - 0.6) * d!r} {d!r} {z_ins!r} units box
-fix tmpl all particletemplate/sphere {TEMPLATE_SEED} atom_type 1 density constant {material.density!r} \
-radius constant {material.radius!r}
-fix dist all particledistribution/discrete {DISTRIBUTION_SEED} 1 tmpl 1.0
-fix fill all insert/pack seed {s.seed} distributiontemplate dist vel constant 0.0 0.0 -0.5 \
-insert_every once overlapcheck yes all_in yes particles_in_region {s.n_particles} region fillreg ntry_mc 20000
-fix integ all nve/sphere
-thermo_style custom step time atoms ke cpu
+{pour_input(material, s.seed, s.n_particles)}
 thermo 2000
 thermo_modify lost ignore norm no
 run {steps['settle']}

@@ -9,9 +9,10 @@ are counted with their exit time and deleted; stop when empty, when nothing left
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 
@@ -25,6 +26,7 @@ from neuraldem.sim.seeds import prime_seeds
 from neuraldem.sim.stl import polyline, revolve, write_stl
 
 STATUS_OK, STATUS_CLOGGED, STATUS_FAILED = "ok", "clogged", "failed"
+TrajectoryT = TypeVar("TrajectoryT")
 
 
 @dataclass(frozen=True)
@@ -103,6 +105,11 @@ class HopperGeometry:
         h_fill = v_particles / scene.insertion_fraction / (math.pi * (r_ins - d / 2) ** 2) + d
         return cls(radius=R, outlet_radius=ro, cone_height=hc, wall_height=hc + h_fill + 2.5 * d,
                    sink_z=-scene.sink_depth)
+
+    @classmethod
+    def from_attrs(cls, attrs: Mapping[str, Any]) -> HopperGeometry:
+        """From stored attributes (a dataset file's /geometry): every field as a float, other keys ignored."""
+        return cls(**{k: float(attrs[k]) for k in cls.__dataclass_fields__})
 
     def box(self) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) corners of the box the particles live in: the cylinder's square, sink plane to wall top."""
@@ -196,8 +203,24 @@ print "NEURALDEM_END"
 """
 
 
+class TrajectorySize:
+    """`n_particles` and `n_snapshots` of anything with per-particle `ids` and snapshot `times`: the
+    trajectories and the files that store them count the same way."""
+
+    ids: np.ndarray
+    times: np.ndarray
+
+    @property
+    def n_particles(self) -> int:
+        return len(self.ids)
+
+    @property
+    def n_snapshots(self) -> int:
+        return len(self.times)
+
+
 @dataclass
-class HopperTrajectory:
+class HopperTrajectory(TrajectorySize):
     """A finished run, on the time axis t = 0 at outlet opening."""
 
     ids: np.ndarray  # (N0,) ids of the particles present at t = 0, sorted
@@ -208,21 +231,24 @@ class HopperTrajectory:
     n_inserted: int
     geometry: HopperGeometry
 
-    @property
-    def n_particles(self) -> int:
-        return len(self.ids)
-
     def counts(self) -> np.ndarray:
         return np.isfinite(self.positions[..., 0]).sum(axis=1)
 
 
 @dataclass
-class HopperRunResult:
+class RunResult(Generic[TrajectoryT]):
+    """One hopper run as datagen records it: ok / clogged / failed with the reason, the solver run, the
+    trajectory (None when the run failed before one could be read) and the diagnostics."""
+
     status: str
     reason: str
     solver: SolverRun | None
-    trajectory: HopperTrajectory | None
+    trajectory: TrajectoryT | None
     diagnostics: dict[str, Any]
+
+
+class HopperRunResult(RunResult[HopperTrajectory]):
+    """A draining-hopper run."""
 
 
 def trajectory_from_files(dump_path: Path, exit_path: Path | None, dt: float, open_step: int,
@@ -292,20 +318,13 @@ def run_hopper(scene: HopperScene, alpha: float, mu_s: float, mu_r: float, workd
     workdir.mkdir(parents=True, exist_ok=True)
     geom = HopperGeometry.for_angle(scene, alpha)
     geom.write_meshes(workdir, scene.n_segments)
-    (workdir / "in.hopper").write_text(hopper_input(scene, geom, material, prime_seeds(index, 3)))
-    run = run_liggghts(workdir, "in.hopper", timeout_s=scene.timeout_s)
-    diag: dict[str, Any] = {"cpu_s": run.cpu_s, "wall_s": run.wall_s, "max_rss_mb": run.max_rss_mb}
-    if run.returncode != 0 or run.error_line or "NEURALDEM_END" not in run.log:
-        status = "killed at the time limit" if run.returncode == -9 else f"exit status {run.returncode}"
-        reason = f"{run.error_line}: {status}" if run.error_line else f"{status}, no end marker in the log"
-        return HopperRunResult(STATUS_FAILED, f"{reason} (see {workdir}/log.liggghts)", run, None, diag)
-    n_inserted = _log_int(run.log, "NEURALDEM_INSERTED")
-    open_step = _log_int(run.log, "NEURALDEM_OPEN_STEP")
-    if n_inserted != scene.n_particles:
-        return HopperRunResult(STATUS_FAILED, f"{n_inserted} of {scene.n_particles} particles in the hopper "
-                               "after filling: either the insertion region was too small (lower "
-                               f"insertion_fraction) or particles flew out (is dt = {material.dt:g} s stable "
-                               "for this stiffness?)", run, None, diag)
+    run, diag, failure, open_step = run_hopper_input(
+        workdir, hopper_input(scene, geom, material, prime_seeds(index, 3)), scene,
+        "either the insertion region was too small (lower insertion_fraction) or particles flew out (is dt = "
+        f"{material.dt:g} s stable for this stiffness?)")
+    if failure:
+        return HopperRunResult(STATUS_FAILED, failure, run, None, diag)
+    n_inserted = scene.n_particles  # checked by run_hopper_input
     traj = trajectory_from_files(workdir / "dump.txt", workdir / "exits.txt", material.dt, open_step, geom,
                                  n_inserted)
     counts = [n_inserted] + [int(line.split()[2]) for line in run.log.splitlines()
@@ -320,6 +339,26 @@ def run_hopper(scene: HopperScene, alpha: float, mu_s: float, mu_r: float, workd
     if diag["n_lost"] != 0:
         status, reason = STATUS_FAILED, f"{diag['n_lost']} particles left the domain without passing the sink"
     return HopperRunResult(status, reason, run, traj, diag)
+
+
+def run_hopper_input(workdir: Path, text: str, scene: HopperScene,
+                     underfill_hint: str) -> tuple[SolverRun, dict[str, Any], str, int]:
+    """Write `text` to workdir/in.hopper, run LIGGGHTS and check the fill stage that the draining and the
+    refilling hopper share: (run, diagnostics, failure, opening step). `failure` is "" when the run reached
+    NEURALDEM_END with all particles inserted, else why not (`underfill_hint`: what to change when the fill fell
+    short); the opening step is -1 for a run that did not end. Both callers record a failure, never raise it."""
+    (workdir / "in.hopper").write_text(text)
+    run = run_liggghts(workdir, "in.hopper", timeout_s=scene.timeout_s)
+    diag: dict[str, Any] = {"cpu_s": run.cpu_s, "wall_s": run.wall_s, "max_rss_mb": run.max_rss_mb}
+    if run.returncode != 0 or run.error_line or "NEURALDEM_END" not in run.log:
+        status = "killed at the time limit" if run.returncode == -9 else f"exit status {run.returncode}"
+        reason = f"{run.error_line}: {status}" if run.error_line else f"{status}, no end marker in the log"
+        return run, diag, f"{reason} (see {workdir}/log.liggghts)", -1
+    n_inserted = _log_int(run.log, "NEURALDEM_INSERTED")
+    open_step = _log_int(run.log, "NEURALDEM_OPEN_STEP")
+    failure = "" if n_inserted == scene.n_particles else \
+        f"{n_inserted} of {scene.n_particles} particles in the hopper after filling: {underfill_hint}"
+    return run, diag, failure, open_step
 
 
 def particle_balance(n_inserted: int, final_count: int, n_exited: int, ended_by: str) -> tuple[int, int]:

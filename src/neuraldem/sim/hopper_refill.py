@@ -37,14 +37,16 @@ from neuraldem.sim.hopper import (
     STATUS_OK,
     HopperGeometry,
     HopperScene,
+    RunResult,
+    TrajectorySize,
     _log_int,
     _particle_steps,
     fill_and_settle_input,
     particles_over_outlet,
+    run_hopper_input,
     settle_steps,
 )
 from neuraldem.sim.material import Material
-from neuraldem.sim.runner import SolverRun, run_liggghts
 from neuraldem.sim.seeds import prime_seeds
 
 INSERT_VELOCITY = -0.5  # [m/s] downward velocity of inserted particles (as in the fill)
@@ -183,7 +185,7 @@ print "NEURALDEM_END"
 
 
 @dataclass
-class RefillTrajectory:
+class RefillTrajectory(TrajectorySize):
     """A refilling run on the time axis t = 0 at outlet opening. The particle set changes: every particle
     present in at least one snapshot has a row in the per-particle arrays; each snapshot lists its own
     particles (a ragged layout: snapshot k holds rows offsets[k]:offsets[k+1] of the frame arrays)."""
@@ -198,14 +200,6 @@ class RefillTrajectory:
     velocities: np.ndarray | None  # (sum n_k, 3); None in compact copies
     n_initial: int  # particles in the hopper at t = 0
     geometry: HopperGeometry
-
-    @property
-    def n_particles(self) -> int:
-        return len(self.ids)
-
-    @property
-    def n_snapshots(self) -> int:
-        return len(self.times)
 
     def frame(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """(particle rows, positions) of snapshot k."""
@@ -223,13 +217,8 @@ class RefillTrajectory:
         return np.diff(self.offsets)
 
 
-@dataclass
-class RefillRunResult:
-    status: str
-    reason: str
-    solver: SolverRun | None
-    trajectory: RefillTrajectory | None
-    diagnostics: dict[str, Any]
+class RefillRunResult(RunResult[RefillTrajectory]):
+    """A refilling-hopper run."""
 
 
 def refill_trajectory_from_files(dump_path: Path, exit_path: Path | None, dt: float, open_step: int,
@@ -330,18 +319,11 @@ def run_refill(scene: HopperScene, settings: RefillSettings, alpha: float, mu_s:
     workdir.mkdir(parents=True, exist_ok=True)
     geom.write_meshes(workdir, scene.n_segments)
     seeds = prime_seeds(index, 3 + n_intervals(scene, settings))
-    (workdir / "in.hopper").write_text(refill_input(scene, settings, geom, material, seeds))
-    run = run_liggghts(workdir, "in.hopper", timeout_s=scene.timeout_s)
-    diag: dict[str, Any] = {"cpu_s": run.cpu_s, "wall_s": run.wall_s, "max_rss_mb": run.max_rss_mb}
-    if run.returncode != 0 or run.error_line or "NEURALDEM_END" not in run.log:
-        status = "killed at the time limit" if run.returncode == -9 else f"exit status {run.returncode}"
-        reason = f"{run.error_line}: {status}" if run.error_line else f"{status}, no end marker in the log"
-        return RefillRunResult(STATUS_FAILED, f"{reason} (see {workdir}/log.liggghts)", run, None, diag)
-    n_inserted = _log_int(run.log, "NEURALDEM_INSERTED")
-    open_step = _log_int(run.log, "NEURALDEM_OPEN_STEP")
-    if n_inserted != scene.n_particles:
-        return RefillRunResult(STATUS_FAILED, f"{n_inserted} of {scene.n_particles} particles in the hopper after "
-                               "filling: lower insertion_fraction, or check that dt is stable", run, None, diag)
+    run, diag, failure, open_step = run_hopper_input(
+        workdir, refill_input(scene, settings, geom, material, seeds), scene,
+        "lower insertion_fraction, or check that dt is stable")
+    if failure:
+        return RefillRunResult(STATUS_FAILED, failure, run, None, diag)
     refills = [line.split()[1:] for line in run.log.splitlines() if line.startswith("NEURALDEM_REFILL ")]
     added = np.array([int(float(r[1])) for r in refills], dtype=np.int64)
     final_count = _log_int(run.log, "NEURALDEM_FINAL")

@@ -27,7 +27,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 
@@ -94,6 +94,46 @@ def run_input(text: str, workdir: Path, input_name: str, what: str, timeout_s: f
     return run
 
 
+class PresetSettings:
+    """Base of the test settings (frozen dataclasses with `tiny()` and `validate(key)`): a preset, `small` (the
+    defaults) or `tiny`, plus field overrides from config, so both tests read their config the same way."""
+
+    @classmethod
+    def from_config(cls, cfg: Any, key: str) -> Self:
+        """From a mapping such as `data.characterization.shear`: `preset` (small | tiny) + overrides."""
+        return settings_from_config(cls, cfg, key)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)  # type: ignore[call-overload]  # every subclass is a dataclass
+
+
+def box_input(material: Material, boundary: str, lo: tuple[float, float, float], hi: tuple[float, float, float],
+              n_types: int) -> str:
+    """The LIGGGHTS lines from the preamble to the material: the box [lo, hi] with `n_types` atom types and a
+    neighbour skin of 0.3 d, the same in every test so the tests differ only where their physics does."""
+    d = material.diameter
+    return f"""\
+{preamble(boundary)}
+region domain block {lo[0]!r} {hi[0]!r} {lo[1]!r} {hi[1]!r} {lo[2]!r} {hi[2]!r} units box
+create_box {n_types} domain
+neighbor {0.3 * d!r} bin
+neigh_modify delay 0
+{material.liggghts_definition(n_types=n_types)}"""
+
+
+def pour_input(material: Material, seed: int, n_particles: int) -> str:
+    """The LIGGGHTS lines that pour `n_particles` spheres into region `fillreg` (a loose insert/pack, overlap-
+    checked, with the fixed template seeds) and integrate them: one packing procedure for every test."""
+    return f"""\
+fix tmpl all particletemplate/sphere {TEMPLATE_SEED} atom_type 1 density constant {material.density!r} \
+radius constant {material.radius!r}
+fix dist all particledistribution/discrete {DISTRIBUTION_SEED} 1 tmpl 1.0
+fix fill all insert/pack seed {seed} distributiontemplate dist vel constant 0.0 0.0 -0.5 \
+insert_every once overlapcheck yes all_in yes particles_in_region {n_particles} region fillreg ntry_mc 20000
+fix integ all nve/sphere
+thermo_style custom step time atoms ke cpu"""
+
+
 def missing_output(path: Path, what: str) -> SolverError:
     return SolverError(f"{what}: the solver finished without writing {path.name} "
                        f"(see {path.parent}/log.liggghts)")
@@ -114,7 +154,7 @@ def read_info(path: Path, what: str) -> dict[str, float]:
 # settings and result
 # ----------------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class ShearSettings:
+class ShearSettings(PresetSettings):
     """Shear-cell settings. The defaults are the "small" production preset for the 10 mm hopper material
     (~20-35 CPU-s per test); `ShearSettings.tiny()` is a few CPU-s for tests (noisier, ~1-2 deg)."""
 
@@ -137,11 +177,6 @@ class ShearSettings:
         """A few CPU seconds: 7 d box, 500 particles, strain 1.5 at I = 0.02. Noisy (~1-2 deg)."""
         return cls(box_size=7.0, n_particles=500, inertial_number=0.02, strain=1.5, average_from=0.5,
                    settle_time=0.25, consolidation_time=0.05, n_blocks=4)
-
-    @classmethod
-    def from_config(cls, cfg: Any, key: str) -> ShearSettings:
-        """From a mapping such as `data.characterization.shear`: `preset` (small | tiny) + overrides."""
-        return settings_from_config(cls, cfg, key)
 
     def validate(self, key: str = "shear") -> None:
         checks.number(f"{key}.box_size", self.box_size, lo=4.0)
@@ -169,9 +204,6 @@ class ShearSettings:
                 f"config value {key}.n_particles={self.n_particles!r} is invalid: with {key}.box_size="
                 f"{self.box_size} the sheared layer between the slabs would be only ~{gap:.1f} particle "
                 f"diameters thick (needs >= 3); raise {key}.n_particles")
-
-    def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 @dataclass(frozen=True)
@@ -214,23 +246,12 @@ def shear_input(material: Material, s: ShearSettings) -> str:
     n_shear = math.ceil(s.strain / gdot / material.dt / s.average_steps) * s.average_steps
     return f"""\
 # neuraldem periodic shear cell: theta = atan(tau / sigma_n) (written by neuraldem.sim.shear)
-{preamble("p p f")}
-region domain block 0 {edge!r} 0 {edge!r} {-0.5 * d!r} {fill_height + 2 * d!r} units box
-create_box 1 domain
-neighbor {0.3 * d!r} bin
-neigh_modify delay 0
-{material.liggghts_definition(n_types=1)}
+{box_input(material, "p p f", (0, 0, -0.5 * d), (edge, edge, fill_height + 2 * d), n_types=1)}
 # ---- 1. pour onto a flat floor and settle under gravity
 fix grav all gravity {GRAVITY} vector 0.0 0.0 -1.0
 fix floor all wall/gran {material.wall_model} primitive type 1 zplane 0.0
 region fillreg block 0 {edge!r} 0 {edge!r} 0 {fill_height!r} units box
-fix tmpl all particletemplate/sphere {TEMPLATE_SEED} atom_type 1 density constant {material.density!r} \
-radius constant {material.radius!r}
-fix dist all particledistribution/discrete {DISTRIBUTION_SEED} 1 tmpl 1.0
-fix fill all insert/pack seed {s.seed} distributiontemplate dist vel constant 0.0 0.0 -0.5 \
-insert_every once overlapcheck yes all_in yes particles_in_region {s.n_particles} region fillreg ntry_mc 20000
-fix integ all nve/sphere
-thermo_style custom step time atoms ke cpu
+{pour_input(material, s.seed, s.n_particles)}
 thermo 1000
 thermo_modify norm no
 run {n_settle}
