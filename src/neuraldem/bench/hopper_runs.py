@@ -13,12 +13,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import torch
 from omegaconf import OmegaConf
 
 from neuraldem.bench.hopper_surrogate import answer, full_question, load_surrogate, pick_record, surrogate_dataset
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock, Timing, time_call, torch_threads
 from neuraldem.errors import DataError
+from neuraldem.eval.checkpoints import read_checkpoint
 from neuraldem.eval.hopper_eval import HOPPER_ERRORS
 from neuraldem.paths import data_dir
 
@@ -88,10 +88,10 @@ def read_run(run_dir: Path) -> EvaluatedRun | None:
     if missing:
         raise DataError(f"{path}: field 'aggregate' lacks {missing}: re-run the evaluation with this neuraldem")
     ckpt = locate_checkpoint(run_dir, result)
-    raw = torch.load(ckpt, map_location="cpu", weights_only=False, mmap=True)
-    hp = raw.get("hyper_parameters", {})
+    c = read_checkpoint(ckpt)
+    hp = c.hyper_parameters
     meta, net = hp.get("metadata") or {}, hp.get("net") or {}
-    params = sum(v.numel() for k, v in raw.get("state_dict", {}).items() if k.startswith("net."))
+    params = c.net_parameters
     size = {"parameters": int(params), "dim": net.get("dim"), "depth": net.get("depth"),
             "n_latent_tokens": net.get("n_latent_tokens"), "train_queries": train_queries(run_dir)}
     return EvaluatedRun(run_dir=run_dir, checkpoint=ckpt, data_name=str(meta.get("data_name")),

@@ -20,7 +20,7 @@ from omegaconf import OmegaConf
 from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.normalization import HopperNormalizer
-from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, require_kind
+from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, read_checkpoint, require_kind
 from neuraldem.eval.hopper_predict import ModelPredictor, TrajectoryFields, time_grid
 from neuraldem.eval.hopper_report import load_hopper_checkpoint
 from neuraldem.models.registry import build_net
@@ -104,9 +104,9 @@ UNIT_BOX = ([0.0, 0.0, 0.0], [1.0, 1.0, 1.0])
 
 def net_config_of(ckpt: Path) -> dict:
     """The `net:` config a checkpoint was trained with (to build untrained copies of other sizes)."""
-    require_kind(checkpoint_metadata(Path(ckpt)), "hopper", Path(ckpt), "this benchmark")
-    raw = torch.load(Path(ckpt), map_location="cpu", weights_only=False, mmap=True)
-    return dict(raw["hyper_parameters"]["net"])
+    c = read_checkpoint(ckpt)
+    require_kind(c.metadata, "hopper", Path(ckpt), "this benchmark")
+    return dict(c.hyper_parameters["net"])
 
 
 def untrained_surrogate(net_cfg: dict | str, conditioning: list[str], **net_overrides: int) -> Surrogate:

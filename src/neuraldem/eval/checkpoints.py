@@ -4,7 +4,12 @@ with a message instead of failing somewhere inside the model."""
 
 from __future__ import annotations
 
+import copy
+import functools
+import importlib
+import inspect
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -24,11 +29,54 @@ TRAIN_HINT = {"hopper": "experiment=hopper_micro", "fluidized_bed": "experiment=
               "gns": "experiment=gns_hopper (or gns_fb)"}
 
 
-def checkpoint_metadata(path: Path) -> dict[str, Any]:
-    """The metadata dict of a checkpoint written by `neuraldem.train` (memory-mapped: weights not read)."""
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"checkpoint {path} does not exist")
+# the LightningModule of each checkpoint kind (imported when a model is built, not when metadata is read)
+MODULES = {"hopper": ("neuraldem.lit.hopper_module", "HopperModule"),
+           "hopper_refill": ("neuraldem.lit.hopper_module", "HopperModule"),
+           "fluidized_bed": ("neuraldem.lit.fb_module", "FluidizedBedModule"),
+           "gns": ("neuraldem.lit.gns_module", "GnsModule")}
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """A checkpoint written by `neuraldem train`, read once (memory-mapped: weights are paged in when used)."""
+
+    path: Path
+    raw: dict[str, Any]
+
+    @property
+    def hyper_parameters(self) -> dict[str, Any]:
+        """A copy (the read is shared by everyone in the process: nobody may change it for the others)."""
+        return copy.deepcopy(self.raw.get("hyper_parameters", {}))
+
+    @property
+    def metadata(self) -> dict[str, Any]:
+        return self.hyper_parameters["metadata"]
+
+    @property
+    def kind(self) -> str:
+        return str(self.raw["hyper_parameters"]["metadata"]["kind"])
+
+    @property
+    def net_parameters(self) -> int:
+        return int(sum(v.numel() for k, v in self.raw.get("state_dict", {}).items() if k.startswith("net.")))
+
+    def module(self, kind: str, device: str = "cpu", purpose: str = "this command") -> Any:
+        """The trained LightningModule in eval mode on `device`, built from what was read (as Lightning's
+        `load_from_checkpoint` does: constructor arguments from the hyper-parameters, `on_load_checkpoint`, a
+        strict state dict); a checkpoint of another kind is refused with the command that trains one."""
+        require_kind(self.metadata, kind, self.path, purpose)
+        module_name, class_name = MODULES[kind]
+        cls = getattr(importlib.import_module(module_name), class_name)
+        accepted = inspect.signature(cls.__init__).parameters
+        module = cls(**{k: v for k, v in self.hyper_parameters.items() if k in accepted})
+        checkpoint = {**self.raw, "state_dict": dict(self.raw["state_dict"])}  # hooks may add entries
+        module.on_load_checkpoint(checkpoint)
+        module.load_state_dict(checkpoint["state_dict"], strict=True)
+        return module.to(device).eval()
+
+
+@functools.lru_cache(maxsize=4)
+def _read(path: Path, mtime_ns: int, size: int) -> Checkpoint:
     try:
         raw = torch.load(path, map_location="cpu", weights_only=False, mmap=True)
     except Exception as err:  # noqa: BLE001 - any unreadable file
@@ -36,8 +84,23 @@ def checkpoint_metadata(path: Path) -> dict[str, Any]:
     meta = raw.get("hyper_parameters", {}).get("metadata") if isinstance(raw, dict) else None
     if not meta or "kind" not in meta:
         raise DataError(f"{path} is not a neuraldem checkpoint (no metadata): train one with "
-                        "python -m neuraldem.train experiment=...")
-    return meta
+                        "neuraldem train experiment=...")
+    return Checkpoint(path, raw)
+
+
+def read_checkpoint(path: Path) -> Checkpoint:
+    """The one way a checkpoint is read: validated, and read once per process (the same file, unchanged on
+    disk, is not read again when a command first looks at its metadata and then builds its model)."""
+    if not Path(path).is_file():
+        raise DataError(f"checkpoint {path} does not exist")
+    path = Path(path).resolve()
+    stat = path.stat()
+    return _read(path, stat.st_mtime_ns, stat.st_size)
+
+
+def checkpoint_metadata(path: Path) -> dict[str, Any]:
+    """The metadata dict of a checkpoint written by `neuraldem train` (kind, dataset, scene, normalisation)."""
+    return read_checkpoint(path).metadata
 
 
 def require_kind(meta: dict[str, Any], kind: str, path: Path, purpose: str) -> None:

@@ -44,7 +44,7 @@ from neuraldem.data.fb_normalization import FbNormalizer
 from neuraldem.data.fb_store import FbFile
 from neuraldem.data.schema import SCHEMA_VERSION, ValidatedH5File, atomic_write_h5, atomic_write_json
 from neuraldem.errors import ConfigError, DataError
-from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, require_kind
+from neuraldem.eval.checkpoints import checkpoint_dataset, read_checkpoint
 from neuraldem.eval.vtk_export import write_grid_series, write_point_series
 from neuraldem.lit.fb_autoregressive import advance
 from neuraldem.lit.fb_module import FluidizedBedModule
@@ -357,10 +357,7 @@ def write_rollout_vtk(folder: Path, name: str, r: Rollout, grid: BoxGrid, every:
 # ---- checkpoints and conditions
 def load_fb_checkpoint(path: Path, device: str = "cpu") -> FluidizedBedModule:
     """A trained fluidized-bed model; a checkpoint of another kind is refused with a message."""
-    meta = checkpoint_metadata(path)
-    require_kind(meta, "fluidized_bed", Path(path), "a fluidized-bed rollout or evaluation")
-    module = FluidizedBedModule.load_from_checkpoint(path, map_location=device)
-    return module.to(device).eval()
+    return read_checkpoint(path).module("fluidized_bed", device, "a fluidized-bed rollout or evaluation")
 
 
 def check_velocity(norm: FbNormalizer, velocity: float) -> bool:

@@ -44,7 +44,7 @@ from neuraldem.data.manifest import Manifest
 from neuraldem.data.schema import atomic_write_h5, atomic_write_json
 from neuraldem.errors import DataError, NeuraldemError
 from neuraldem.eval import hopper_metrics as hm
-from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, require_kind
+from neuraldem.eval.checkpoints import checkpoint_dataset, read_checkpoint
 from neuraldem.lit.gns_module import GnsModule
 from neuraldem.paths import data_dir
 
@@ -243,9 +243,7 @@ def score(r: GnsRollout, run: ParticleRun, manifest: Manifest) -> dict[str, Any]
 # ---- checkpoints and files
 def load_gns_checkpoint(path: Path, device: str = "cpu") -> GnsModule:
     """A trained GNS; a checkpoint of another kind is refused with a message."""
-    meta = checkpoint_metadata(path)
-    require_kind(meta, "gns", Path(path), "a GNS rollout")
-    return GnsModule.load_from_checkpoint(path, map_location=device).to(device).eval()
+    return read_checkpoint(path).module("gns", device, "a GNS rollout")
 
 
 def run_gns_rollout(ckpt: Path, out_dir: Path | None = None, sim: str | None = None, steps: int | None = None,

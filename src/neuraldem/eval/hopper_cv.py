@@ -30,6 +30,7 @@ from neuraldem.data.manifest import Manifest, require_dataset
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.data.splits import cv_split
 from neuraldem.errors import DataError
+from neuraldem.eval.checkpoints import read_checkpoint
 from neuraldem.eval.hopper_baselines import score_baseline
 from neuraldem.eval.run_results import scan_results
 from neuraldem.machine import machine_info
@@ -88,10 +89,8 @@ def score_fold(m: Manifest, parts: dict[str, list[str]], conditioning: list[str]
 
 def field_entry(field_run: dict[str, Any]) -> dict[str, Any]:
     """A field model's fold: its aggregate (the evaluation's), time per answer and size."""
-    import torch
-
-    raw = torch.load(field_run["checkpoint"], map_location="cpu", weights_only=False, mmap=True)
-    params = sum(v.numel() for k, v in raw.get("state_dict", {}).items() if k.startswith("net."))
+    ckpt = read_checkpoint(field_run["checkpoint"])
+    raw, params = ckpt.raw, ckpt.net_parameters
     best = next((v for k, v in raw.get("callbacks", {}).items() if k.startswith("ModelCheckpoint")), {})
     score = best.get("best_model_score")
     return {"aggregate": field_run["aggregate"], "answer_s": field_run["aggregate"].get("answer_s"),

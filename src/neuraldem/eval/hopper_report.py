@@ -16,7 +16,7 @@ from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError, NeuraldemError
 from neuraldem.eval import hopper_plots
-from neuraldem.eval.checkpoints import checkpoint_dataset, split_records
+from neuraldem.eval.checkpoints import checkpoint_dataset, read_checkpoint, split_records
 from neuraldem.eval.hopper_baselines import score_baseline
 from neuraldem.eval.hopper_eval import SimEvaluation, aggregate, dataset_metric_settings, evaluate_sims
 from neuraldem.eval.hopper_metrics import layer_edges
@@ -36,21 +36,7 @@ def resolve_device(device: str) -> str:
 
 
 def load_hopper_checkpoint(path: Path, device: str = "cpu") -> HopperModule:
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"checkpoint {path} does not exist")
-    try:
-        raw = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as err:  # noqa: BLE001 - any unreadable file
-        raise DataError(f"{path} is not a readable checkpoint ({type(err).__name__})") from None
-    meta = raw.get("hyper_parameters", {}).get("metadata") if isinstance(raw, dict) else None
-    if not meta:
-        raise DataError(f"{path} is not a neuraldem checkpoint (no metadata): train one with "
-                        "python -m neuraldem.train experiment=...")
-    if meta.get("kind") != "hopper":
-        raise DataError(f"{path} is a {meta.get('kind')!r} checkpoint; hopper evaluation needs a hopper model")
-    module = HopperModule.load_from_checkpoint(path, map_location=device)
-    return module.to(device).eval()
+    return read_checkpoint(path).module("hopper", device, "hopper evaluation")
 
 
 def table_row(meta: dict[str, Any], agg: dict[str, float], method: str = "field model") -> str:

@@ -41,7 +41,11 @@ from neuraldem.data.refill_targets import (
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.eval import refill_metrics as rm
-from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, require_kind, split_records
+from neuraldem.eval.checkpoints import (
+    checkpoint_dataset,
+    read_checkpoint,
+    split_records,
+)
 
 # A model's material counts as new when its predicted residence falls short of t - t_ref by more than this
 # fraction of the window (the residence is regressed in units of the window, so its errors scale with it). A
@@ -272,10 +276,7 @@ def write_refill_vtk(e: RefillSimEvaluation, folder: Path) -> Path:
 
 
 def load_refill_checkpoint(path: Path, device: str = "cpu") -> Any:
-    from neuraldem.lit.hopper_module import HopperModule
-
-    require_kind(checkpoint_metadata(Path(path)), "hopper_refill", Path(path), "refill evaluation")
-    return HopperModule.load_from_checkpoint(path, map_location=device).to(device).eval()
+    return read_checkpoint(path).module("hopper_refill", device, "refill evaluation")
 
 
 def evaluate_refill_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_dir: Path | None = None,
