@@ -10,7 +10,8 @@ model: for each simulation of the chosen split part, the model is rolled over th
 scalars alone, its occupancy and transport fields are evaluated at the initial particle positions, and the
 same functions that scored the DEM data compute drainage time, residual, outflow, flow regime, stripes and
 residence time. Writes metrics.json, table.md (layout of the paper's Table 4), PNG figures and VTK files into
-the run folder, and prints the table. (`python -m neuraldem.evaluate` is the same command.)
+the run folder, and prints the table. A GNS (particle) checkpoint is rolled out on one stored run with its
+stability checks (options under `gns:`). (`python -m neuraldem.evaluate` is the same command.)
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ from omegaconf import DictConfig
 
 from neuraldem.cli import hydra_app
 from neuraldem.config import checks
-from neuraldem.errors import DataError
 from neuraldem.eval.checkpoints import checkpoint_metadata
 from neuraldem.scenes import scene
 
@@ -35,10 +35,23 @@ def main(cfg: DictConfig) -> None:
     if cfg.max_sims is not None:
         checks.positive_int("max_sims", cfg.max_sims)
     kind = checkpoint_metadata(Path(cfg.ckpt))["kind"]
-    if kind == "gns":  # a particle model, not a scene's field surrogate
-        raise DataError(f"{cfg.ckpt} is a GNS checkpoint: score it with python -m neuraldem.eval.gns_rollout "
-                        f"--ckpt {cfg.ckpt} --out DIR")
+    if kind == "gns":  # the particle-based baseline: one model kind for both scenes
+        evaluate_gns(cfg)
+        return
     scene(kind, key=f"the kind of checkpoint {cfg.ckpt}").evaluate(cfg)
+
+
+def evaluate_gns(cfg: DictConfig) -> None:
+    """A GNS rolled out on one stored run with its stability checks and scored with the scene's metrics
+    (`neuraldem.eval.gns_rollout`): gns_rollout.json and .h5 in the run folder."""
+    from neuraldem.eval.gns_rollout import run_gns_rollout
+
+    g = cfg.gns
+    steps = None if g.steps is None else checks.positive_int("gns.steps", g.steps)
+    result = run_gns_rollout(Path(cfg.ckpt), Path(cfg.paths.output_dir), g.sim, steps, cfg.dataset_dir)
+    state = f"failed at step {result['steps_to_failure']}: {result['failure']}" if result["failed"] else "stable"
+    print(f"{result['sim_id']}: {result['steps_done']} of {result['steps_requested']} steps, {state}")
+    print(f"results in {cfg.paths.output_dir}")
 
 
 if __name__ == "__main__":

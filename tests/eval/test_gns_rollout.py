@@ -17,7 +17,7 @@ from neuraldem.eval.gns_rollout import (
     rollout,
     run_gns_rollout,
 )
-from tests.helpers import oracle, train_tiny_gns
+from tests.helpers import oracle, run_module, train_tiny_gns
 
 LENIENT = StabilityLimits(box_tolerance_d=1e6, overlap_fraction=0.0, max_overlaps=10**9)
 
@@ -144,3 +144,13 @@ def test_bad_limits_name_the_key():
 def test_other_checkpoints_are_refused(fb_tiny_checkpoint):
     with pytest.raises(DataError, match="is a 'fluidized_bed' checkpoint"):
         load_gns_checkpoint(fb_tiny_checkpoint)
+
+
+@pytest.mark.solver
+def test_neuraldem_evaluate_takes_a_gns_checkpoint(hopper_gns, tmp_path):
+    proc = run_module("neuraldem", "evaluate", f"ckpt={hopper_gns}", "gns.steps=3", f"hydra.run.dir={tmp_path}")
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads((tmp_path / "gns_rollout.json").read_text())
+    assert result["steps_requested"] == 3 and result["sim_id"] in proc.stdout
+    proc = run_module("neuraldem", "evaluate", f"ckpt={hopper_gns}", "gns.steps=0", f"hydra.run.dir={tmp_path}")
+    assert proc.returncode == 2 and "gns.steps" in proc.stderr
