@@ -3,6 +3,7 @@ and metrics as datagen's own conversion; damaged cases end in one line naming th
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 from pathlib import Path
@@ -102,3 +103,22 @@ def test_damaged_or_wrong_cases_end_in_one_line(fb_tiny_case: Path, tmp_path: Pa
     bad = _import(fb_tiny_case, tmp_path / "ds", "--dt-ml", "-1")
     assert bad.returncode == 2 and "--dt-ml must be positive" in bad.stderr
     assert not (tmp_path / "ds" / "manifest.json").exists()
+
+
+def test_a_bed_checkpoint_rolls_out_on_imported_cases_of_its_scene(fb_tiny_case: Path, fb_tiny_checkpoint: Path,
+                                                                    tmp_path: Path):
+    assert _import(fb_tiny_case, tmp_path / "ds").returncode == 0
+    scene = Manifest.load(tmp_path / "ds").scene["fluidized_bed"]
+    assert scene["cells"] == [6, 1, 15] and scene["snapshot_interval"] == pytest.approx(0.01)
+    proc = run_module("neuraldem", "evaluate", f"ckpt={fb_tiny_checkpoint}", f"dataset_dir={tmp_path / 'ds'}",
+                      "vtk=false", "fluidized_bed.horizons=[1]", f"hydra.run.dir={tmp_path / 'eval'}")
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads((tmp_path / "eval" / "metrics.json").read_text())
+    assert result["split"] == "imported (every run)" and [t["sim_id"] for t in result["trajectories"]] == ["mine"]
+    # particles of another density: another bed, refused naming the key (and a second case cannot join)
+    assert _import(fb_tiny_case, tmp_path / "other", "--density", "3000").returncode == 0
+    proc = run_module("neuraldem", "evaluate", f"ckpt={fb_tiny_checkpoint}", f"dataset_dir={tmp_path / 'other'}",
+                      "vtk=false", f"hydra.run.dir={tmp_path / 'eval2'}")
+    assert proc.returncode == 2 and "fluidized_bed.density: trained 2526.0, imported 3000.0" in proc.stderr
+    proc = _import(fb_tiny_case, tmp_path / "ds", "--density", "3000")
+    assert proc.returncode == 2 and "holds imported runs of another bed" in proc.stderr

@@ -1,4 +1,4 @@
-"""`python -m neuraldem.import_foam`: bring your own DPMFoam / MPPICFoam fluidized-bed run into a dataset.
+"""`neuraldem import foam`: bring your own DPMFoam / MPPICFoam fluidized-bed run into a dataset.
 
 Reads an ASCII OpenFOAM case (serial, or parallel after `reconstructPar`): the cell fields of the continuous
 phase and the particle cloud of every time directory from --t0 on, one snapshot every --dt-ml seconds.
@@ -7,14 +7,17 @@ sampled at the nearest cell centre of a grid you give (--grid, --lo, --hi). The 
 mixing concentration are computed exactly as for generated data, the file is written in the dataset format
 (one HDF5 file per trajectory) and its record (metrics included) is added to the dataset's manifest or
 replaces the one with the same --sim-id. Coordinates: z must point up (against gravity); the mixing groups
-split the box at its mid-plane in x.
+split the box at its mid-plane in x. The manifest records the bed's scene as read (box, grid, mean particle
+diameter and density, snapshot interval, field kernels), so that `neuraldem evaluate ckpt=...
+dataset_dir=DATASET` rolls a bed checkpoint out on these cases when its scene matches (within 1 %, the grid
+exactly) and names the keys that differ when not; one dataset holds one bed.
 
 CFDEM cases: pass the CFD folder as --case with --fluid-fraction voidfraction --fluid-velocity U, and the
 particles from the LIGGGHTS dump with --liggghts-dump (columns id x y z vx vy vz, radius optional) and
 --dem-dt (see docs/fluidized-bed.md).
 
 Example:
-  python -m neuraldem.import_foam --case ~/runs/bed_u16 --dataset ~/neuraldem-data/datasets/my_beds \\
+  neuraldem import foam --case ~/runs/bed_u16 --dataset ~/neuraldem-data/datasets/my_beds \\
       --sim-id bed_u16 --inlet-velocity 1.6 --t0 0.2 --dt-ml 0.01
 """
 
@@ -23,15 +26,17 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from neuraldem.cli import parse_assignments, report_user_errors, tool_prog
-from neuraldem.data.fb_store import KIND, write_fb_file
+from neuraldem.data.fb_store import KIND, FbFile, write_fb_file
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import sha256
 from neuraldem.datagen.fb import FbMetricSettings, FieldSettings, file_metrics
 from neuraldem.errors import ConfigError, DataError
+from neuraldem.eval.checkpoints import dotted, imported_scene_differences
 from neuraldem.sim import openfoam
 from neuraldem.sim.dpmfoam import read_trajectory
 from neuraldem.sim.foam_reader import BoxGrid, CloudSnapshot, FoamCase, mesh_bounds, read_dict_entries, resolve
@@ -55,6 +60,31 @@ def choose_grid(case: FoamCase, a: argparse.Namespace) -> BoxGrid:
         raise ConfigError(f"{case.path}: the mesh is not a regular box grid; give the grid to sample it on with "
                           "--grid NX NY NZ")
     return BoxGrid(lo=tuple(lo), hi=tuple(hi), shape=shape)  # type: ignore[arg-type]
+
+
+def imported_scene(path: Path, grid: BoxGrid, dt_ml: float, kernel_sigma: float,
+                   mixing_sigma: float) -> dict[str, Any]:
+    """The bed's scene as read from the case, under the keys a generated bed scene uses, so that a checkpoint's
+    scene can be compared with it (`eval.checkpoints.check_scene`): box, grid, mean particle diameter and
+    density, snapshot interval and the kernels of the stored fields."""
+    with FbFile(path) as f:
+        diameter, density = float(np.mean(f.diameters)), float(f.density)
+    size = np.asarray(grid.hi) - np.asarray(grid.lo)
+    return {"imported": True,
+            "fluidized_bed": {"width": float(size[0]), "thickness": float(size[1]), "height": float(size[2]),
+                              "cells": list(grid.shape), "diameter": diameter, "density": density,
+                              "snapshot_interval": float(dt_ml)},
+            "fields": {"kernel_sigma": float(kernel_sigma), "mixing_sigma": float(mixing_sigma)}}
+
+
+def check_same_scene(m: Manifest, scene: dict[str, Any], dataset: Path) -> None:
+    """One dataset holds one bed: a case of another box, grid, particles or snapshot interval goes elsewhere."""
+    if dotted(m.scene, "fluidized_bed.width") is None:  # imported before scenes were recorded
+        return
+    diff = imported_scene_differences("fluidized_bed", m.scene, scene)
+    if diff:
+        raise ConfigError(f"{dataset} holds imported runs of another bed: {'; '.join(diff)}",
+                          fix="import this case into a dataset of its own (--dataset)")
 
 
 def particle_density(case: Path, cloud: str) -> float:
@@ -166,13 +196,16 @@ def main(argv: list[str] | None = None) -> int:
     rel = f"sims/{a.sim_id}.h5"
     write_fb_file(a.dataset / rel, a.sim_id, traj, params, "imported", a.kernel_sigma, a.mixing_sigma)
     metrics = FbMetricSettings(lacey_block=tuple(a.lacey_block))  # type: ignore[arg-type]
+    scene = imported_scene(a.dataset / rel, grid, dt_ml, a.kernel_sigma, a.mixing_sigma)
     if (a.dataset / MANIFEST_NAME).exists():
         m = Manifest.load(a.dataset)
         if m.kind != KIND:
             raise DataError(f"{a.dataset} holds a {m.kind!r} dataset; import fluidized beds into their own dataset")
+        check_same_scene(m, scene, a.dataset)
+        m.scene = scene
         m.simulations = [r for r in m.simulations if r.sim_id != a.sim_id]
     else:
-        m = Manifest(name=a.dataset.name, kind=KIND, scene={"imported": True},
+        m = Manifest(name=a.dataset.name, kind=KIND, scene=scene,
                      solver={"name": "OpenFOAM", "version": "imported"},
                      parameters={"names": sorted(params), "metrics": {
                          "lacey_block": list(metrics.lacey_block), "lacey_min_count": metrics.lacey_min_count,

@@ -22,8 +22,14 @@ from neuraldem.errors import DataError
 # size must match the checkpoint's scene within IMPORT_SCENE_RTOL; the timestep is a numerical setting of the
 # solver, reported when it differs, not refused.
 IMPORT_SCENE_RTOL = 0.01
-IMPORT_MATCH_KEYS = {"hopper": ("hopper.hopper_diameter", "hopper.outlet_diameter", "hopper.material.diameter")}
-IMPORT_REPORT_KEYS = {"hopper": ("hopper.material.dt",)}
+IMPORT_MATCH_KEYS = {
+    "hopper": ("hopper.hopper_diameter", "hopper.outlet_diameter", "hopper.material.diameter"),
+    # a bed model steps by the snapshot interval and reads kernel fields: both must be the ones it learned
+    "fluidized_bed": ("fluidized_bed.width", "fluidized_bed.thickness", "fluidized_bed.height", "fluidized_bed.cells",
+                      "fluidized_bed.diameter", "fluidized_bed.density", "fluidized_bed.snapshot_interval",
+                      "fields.kernel_sigma", "fields.mixing_sigma"),
+}
+IMPORT_REPORT_KEYS = {"hopper": ("hopper.material.dt",), "fluidized_bed": ()}
 
 TRAIN_HINT = {"hopper": "experiment=hopper_micro", "fluidized_bed": "experiment=fb",
               "gns": "experiment=gns_hopper (or gns_fb)"}
@@ -123,7 +129,11 @@ def imported_scene_differences(kind: str, trained: dict[str, Any], imported: dic
     out = []
     for key in IMPORT_MATCH_KEYS.get(kind, ()) if keys is None else keys:
         a, b = dotted(trained, key), dotted(imported, key)
-        if a is None or b is None or abs(float(a) - float(b)) > rtol * abs(float(a)):
+        if isinstance(a, list) or isinstance(b, list):  # grid cells: equal or not
+            differs = list(a or []) != list(b or [])
+        else:
+            differs = a is None or b is None or abs(float(a) - float(b)) > rtol * abs(float(a))
+        if differs:
             out.append(f"{key}: trained {a}, imported {b}")
     return out
 
@@ -135,10 +145,10 @@ def check_scene(meta: dict[str, Any], m: Manifest, ckpt: Path, dataset_dir: Path
         kind = meta.get("kind", m.kind)
         if kind not in IMPORT_MATCH_KEYS:
             raise DataError(f"{dataset_dir} holds imported {m.kind} runs; scoring a {kind} checkpoint on imported "
-                            "runs is supported for hopper models only")
+                            f"runs is supported for {' and '.join(IMPORT_MATCH_KEYS)} models")
         if not any(dotted(m.scene, k) is not None for k in IMPORT_MATCH_KEYS[kind]):
             raise DataError(f"{dataset_dir} was imported without its scene (an import from before scenes were "
-                            "recorded)", fix="import the runs again with `neuraldem import liggghts`")
+                            "recorded)", fix="import the runs again with `neuraldem import liggghts` (or `foam`)")
         diff = imported_scene_differences(kind, meta["scene"], m.scene)
         if diff:
             raise DataError(f"checkpoint {ckpt} was trained on another scene than the runs imported into "

@@ -56,6 +56,7 @@ from neuraldem.machine import machine_info
 from neuraldem.sim.foam_reader import BoxGrid
 
 DEFAULT_HORIZONS = (1, 3, 10)
+IMPORTED_SPLIT = "imported (every run)"
 STAT_FIELDS = ("solid_fraction_mean", "solid_fraction_std", "fluid_speed_mean", "fluid_speed_std", "mixing_mean",
                "mixing_std")
 
@@ -235,8 +236,11 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     module = load_fb_checkpoint(ckpt, device)
     meta, norm = module.metadata, module.norm
     dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), datasets_dir, dataset_dir)
-    split = split or meta["split"]
-    records = held_out(m, split, part, max_sims)
+    if m.scene.get("imported"):  # a user's own cases (scene checked above): every one of them
+        split, records = IMPORTED_SPLIT, sorted(m.usable(), key=lambda r: r.sim_id)[:max_sims]
+    else:
+        split = split or meta["split"]
+        records = held_out(m, split, part, max_sims)
     if not records:
         raise DataError(f"no {part} trajectories in split {split!r} of {dataset_dir}")
     settings = metric_settings(m)
