@@ -36,7 +36,7 @@ from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import sha256
 from neuraldem.datagen.fb import FbMetricSettings, FieldSettings, file_metrics
 from neuraldem.errors import ConfigError, DataError
-from neuraldem.eval.checkpoints import dotted, imported_scene_differences
+from neuraldem.eval.checkpoints import check_import_joins
 from neuraldem.sim import openfoam
 from neuraldem.sim.dpmfoam import read_trajectory
 from neuraldem.sim.foam_reader import BoxGrid, CloudSnapshot, FoamCase, mesh_bounds, read_dict_entries, resolve
@@ -75,16 +75,6 @@ def imported_scene(path: Path, grid: BoxGrid, dt_ml: float, kernel_sigma: float,
                               "cells": list(grid.shape), "diameter": diameter, "density": density,
                               "snapshot_interval": float(dt_ml)},
             "fields": {"kernel_sigma": float(kernel_sigma), "mixing_sigma": float(mixing_sigma)}}
-
-
-def check_same_scene(m: Manifest, scene: dict[str, Any], dataset: Path) -> None:
-    """One dataset holds one bed: a case of another box, grid, particles or snapshot interval goes elsewhere."""
-    if dotted(m.scene, "fluidized_bed.width") is None:  # imported before scenes were recorded
-        return
-    diff = imported_scene_differences("fluidized_bed", m.scene, scene)
-    if diff:
-        raise ConfigError(f"{dataset} holds imported runs of another bed: {'; '.join(diff)}",
-                          fix="import this case into a dataset of its own (--dataset)")
 
 
 def particle_density(case: Path, cloud: str) -> float:
@@ -201,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
         m = Manifest.load(a.dataset)
         if m.kind != KIND:
             raise DataError(f"{a.dataset} holds a {m.kind!r} dataset; import fluidized beds into their own dataset")
-        check_same_scene(m, scene, a.dataset)
+        check_import_joins(m, scene, a.dataset, "bed")
         m.scene = scene
         m.simulations = [r for r in m.simulations if r.sim_id != a.sim_id]
     else:

@@ -32,7 +32,7 @@ from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import sha256
 from neuraldem.datagen.hopper import stored_metrics
 from neuraldem.errors import ConfigError
-from neuraldem.eval.checkpoints import dotted, imported_scene_differences
+from neuraldem.eval.checkpoints import check_import_joins
 from neuraldem.sim.hopper import HopperGeometry, trajectory_from_files
 
 
@@ -65,19 +65,6 @@ def imported_scene(a: argparse.Namespace) -> dict[str, Any]:
                        "cone_height": a.cone_height, "material": {"diameter": a.diameter, "dt": a.dt}}}
 
 
-def check_same_scene(m: Manifest, scene: dict[str, Any], dataset: Path) -> None:
-    """One dataset holds one scene: a run of another geometry or particle size goes into its own dataset."""
-    if not m.scene.get("imported"):
-        raise ConfigError(f"{dataset} holds generated {m.kind} runs; import your runs into a dataset of their own",
-                          fix="pass another --dataset folder")
-    if dotted(m.scene, "hopper.hopper_diameter") is None:  # imported before scenes were recorded
-        return
-    diff = imported_scene_differences("hopper", m.scene, scene)
-    if diff:
-        raise ConfigError(f"{dataset} holds imported runs of another scene: {'; '.join(diff)}",
-                          fix="import this run into a dataset of its own (--dataset)")
-
-
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
@@ -100,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     scene = imported_scene(a)
     if (a.dataset / MANIFEST_NAME).exists():
         m = Manifest.load(a.dataset)
-        check_same_scene(m, scene, a.dataset)
+        check_import_joins(m, scene, a.dataset, "scene")
         m.scene = scene if m.scene.get("imported") else m.scene
         m.simulations = [r for r in m.simulations if r.sim_id != a.sim_id]
     else:

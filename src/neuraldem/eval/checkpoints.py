@@ -16,7 +16,7 @@ from typing import Any
 import torch
 
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
-from neuraldem.errors import DataError
+from neuraldem.errors import ConfigError, DataError
 
 # Imported runs (neuraldem import ...) record the keys of their scene a user can state: geometry and particle
 # size must match the checkpoint's scene within IMPORT_SCENE_RTOL; the timestep is a numerical setting of the
@@ -136,6 +136,21 @@ def imported_scene_differences(kind: str, trained: dict[str, Any], imported: dic
         if differs:
             out.append(f"{key}: trained {a}, imported {b}")
     return out
+
+
+def check_import_joins(m: Manifest, scene: dict[str, Any], dataset: Path, label: str) -> None:
+    """One imported dataset holds one scene: a run whose stated scene differs from the dataset's (geometry,
+    particles, ... beyond IMPORT_SCENE_RTOL) goes into a dataset of its own; a dataset imported before scenes
+    were recorded takes it (and records its scene)."""
+    if not m.scene.get("imported"):
+        raise ConfigError(f"{dataset} holds generated {m.kind} runs; import your runs into a dataset of their own",
+                          fix="pass another --dataset folder")
+    if all(dotted(m.scene, k) is None for k in IMPORT_MATCH_KEYS[m.kind]):
+        return
+    diff = imported_scene_differences(m.kind, m.scene, scene)
+    if diff:
+        raise ConfigError(f"{dataset} holds imported runs of another {label}: {'; '.join(diff)}",
+                          fix="import this run into a dataset of its own (--dataset)")
 
 
 def check_scene(meta: dict[str, Any], m: Manifest, ckpt: Path, dataset_dir: Path) -> None:
