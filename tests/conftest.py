@@ -139,7 +139,7 @@ def hopper_refill_tiny_dataset(data_root: Path) -> Path:
     from omegaconf import open_dict
 
     from neuraldem.datagen.driver import DatagenOptions, generate
-    from neuraldem.datagen.hopper_refill import RefillPipeline
+    from neuraldem.scenes.hopper_refill.datagen import RefillPipeline
     from tests.helpers import compose_cfg
 
     os.environ["NEURALDEM_DATA"] = str(data_root)
@@ -155,9 +155,9 @@ def hopper_refill_tiny_dataset(data_root: Path) -> Path:
 @pytest.fixture(scope="session")
 def refill_tiny_checkpoint(hopper_refill_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A refill HopperModule trained for 3 steps on hopper_refill_tiny (window 0.25 s; plumbing, not accuracy)."""
-    from neuraldem.data.refill_datamodule import RefillDataModule
     from neuraldem.lit.hopper_module import HopperModule
     from neuraldem.models.registry import net_config
+    from neuraldem.scenes.hopper_refill.datamodule import RefillDataModule
 
     dm = RefillDataModule(str(hopper_refill_tiny_dataset), "hopper_refill_tiny", ["dt_ref", "alpha", "mu_s", "mu_r"],
                           window=0.25, n_queries=32, batch_size=2)

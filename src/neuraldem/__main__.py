@@ -28,7 +28,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
         "fb-dataset": ("neuraldem.eval.fb_report", "ground-truth report of a fluidized-bed dataset"),
         "hopper-table": ("neuraldem.eval.collect_hopper_table", "hopper runs side by side"),
         "fb-table": ("neuraldem.eval.collect_fb_table", "fluidized-bed runs and baselines side by side"),
-        "refill-table": ("neuraldem.eval.collect_refill_table", "refilling-hopper runs side by side"),
+        "refill-table": ("neuraldem.scenes.hopper_refill.table", "refilling-hopper runs side by side"),
         "fb-baselines": ("neuraldem.eval.fb_baselines", "nearest / interpolated / constant CFD-DEM baselines"),
         "hopper-cv": ("neuraldem.eval.hopper_cv", "the hopper table cross-validated (model, constant, GP, seed floor)"),
         "occupancy": ("neuraldem.eval.occupancy_coverage", "how well the occupancy field counts hopper material"),

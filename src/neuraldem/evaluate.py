@@ -4,7 +4,7 @@ The checkpoint says what it is; its scene (`neuraldem.scenes`) scores it. A flui
 `neuraldem.eval.fb_eval`: one rollout per held-out inlet velocity against CFD-DEM (time statistics, mass
 drift, Lacey curves, stability at 1x, 3x, 10x the training horizon; options under `fluidized_bed:`), into
 metrics.json, report.md, PNG figures and VTK. A refilling-hopper model is scored by
-`neuraldem.eval.refill_eval` (transport `refill.horizon` seconds after a reference time, residence-time
+`neuraldem.scenes.hopper_refill.evaluation` (transport `refill.horizon` seconds after a reference time, residence-time
 distribution at the outlet over a rollout with periodic reference resets; options under `refill:`). A hopper
 model: for each simulation of the chosen split part, the model is rolled over the whole trajectory from the
 scalars alone, its occupancy and transport fields are evaluated at the initial particle positions, and the

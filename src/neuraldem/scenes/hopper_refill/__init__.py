@@ -1,5 +1,5 @@
 """The refilling hopper (LIGGGHTS, inflow and outflow): scored by transport after a reference time and the
-outlet residence-time distribution (`neuraldem.eval.refill_eval`)."""
+outlet residence-time distribution (`neuraldem.scenes.hopper_refill.evaluation`)."""
 
 from __future__ import annotations
 
@@ -13,14 +13,14 @@ from neuraldem.scenes import Scene
 
 
 def pipeline(data_cfg: DictConfig) -> Any:
-    from neuraldem.datagen.hopper_refill import RefillPipeline
+    from neuraldem.scenes.hopper_refill.datagen import RefillPipeline
 
     return RefillPipeline(data_cfg)
 
 
 def evaluate(cfg: DictConfig) -> None:
     from neuraldem.eval.hopper_report import resolve_device
-    from neuraldem.eval.refill_eval import evaluate_refill_checkpoint
+    from neuraldem.scenes.hopper_refill.evaluation import evaluate_refill_checkpoint
 
     r = cfg.refill
     t_ref = None if r.t_ref is None else checks.number("refill.t_ref", r.t_ref, lo=0.0)
@@ -46,7 +46,7 @@ def evaluate(cfg: DictConfig) -> None:
 
 
 def evaluate_run(cfg: DictConfig, ckpt: Path) -> dict[str, Any]:
-    from neuraldem.eval.refill_eval import evaluate_refill_checkpoint
+    from neuraldem.scenes.hopper_refill.evaluation import evaluate_refill_checkpoint
 
     return evaluate_refill_checkpoint(ckpt, out_dir=Path(cfg.paths.output_dir) / "evaluation",
                                       datasets_dir=Path(cfg.paths.datasets_dir), dataset_dir=cfg.data.dataset_dir)

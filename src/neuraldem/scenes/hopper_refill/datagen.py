@@ -9,16 +9,16 @@ from typing import Any
 import numpy as np
 
 from neuraldem.data.manifest import SimRecord
-from neuraldem.data.refill_store import RefillFile, write_refill_file
 from neuraldem.data.schema import sha256
 from neuraldem.datagen.driver import fresh_dir
 from neuraldem.datagen.hopper import HopperPipeline
-from neuraldem.sim.hopper_refill import RefillSettings, RefillTrajectory, fill_levels, run_refill
+from neuraldem.scenes.hopper_refill.solver import RefillSettings, RefillTrajectory, fill_levels, run_refill
+from neuraldem.scenes.hopper_refill.store import RefillFile, write_refill_file
 
 
 def refill_run_metrics(traj: RefillTrajectory, band_start: float) -> dict[str, float]:
     """Ground-truth scalars of one refilling run for the manifest (particle counts; the field-based scores
-    against a model are in neuraldem.eval.refill_metrics)."""
+    against a model are in neuraldem.scenes.hopper_refill.metrics)."""
     levels = fill_levels(traj)
     steady = levels[traj.times >= band_start]
     left = np.isfinite(traj.exit_times)

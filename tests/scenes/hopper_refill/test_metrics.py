@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neuraldem.eval.refill_metrics import (
+from neuraldem.scenes.hopper_refill.metrics import (
     EMPTY,
     NEW,
     fraction_error,

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from neuraldem.data.refill_datamodule import RefillDataModule
-from neuraldem.data.refill_targets import particle_targets
 from neuraldem.errors import ConfigError
+from neuraldem.scenes.hopper_refill.datamodule import RefillDataModule
+from neuraldem.scenes.hopper_refill.targets import particle_targets
 
 pytestmark = pytest.mark.solver
 

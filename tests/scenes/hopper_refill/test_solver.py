@@ -1,5 +1,5 @@
 """The refilling hopper's settings and LIGGGHTS input (no solver run here: the real runs are in
-tests/datagen/test_refill_datagen.py)."""
+tests/scenes/hopper_refill/test_datagen.py)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 from omegaconf import OmegaConf
 
 from neuraldem.errors import ConfigError
+from neuraldem.scenes.hopper_refill.solver import RefillSettings, n_intervals, refill_input, refill_region, settled_top
 from neuraldem.sim.hopper import HopperGeometry, HopperScene
-from neuraldem.sim.hopper_refill import RefillSettings, n_intervals, refill_input, refill_region, settled_top
 from neuraldem.sim.seeds import prime_seeds
 from tests.helpers import REPO
 

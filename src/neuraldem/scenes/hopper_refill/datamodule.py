@@ -1,6 +1,6 @@
 """RefillDataModule: (simulation, time t, reference time t_ref) samples from a refilling-hopper dataset.
 
-The targets are relative to t_ref (neuraldem.data.refill_targets): transport = position at t_ref of the
+The targets are relative to t_ref (neuraldem.scenes.hopper_refill.targets): transport = position at t_ref of the
 material now at a point (material inserted after t_ref is left out of the transport loss:
 `transport_mask`), residence = time spent in the hopper since t_ref. The model is conditioned on
 dt_ref = t - t_ref (scaled by the window), optionally on t_ref itself, and on the simulation's scalars.
@@ -22,9 +22,9 @@ from neuraldem.data.file_samples import FileSamples
 from neuraldem.data.hopper_datamodule import HopperDataModule, occupancy_samples, query_tensors
 from neuraldem.data.manifest import SimRecord
 from neuraldem.data.normalization import HopperNormalizer
-from neuraldem.data.refill_store import RefillFile
-from neuraldem.data.refill_targets import particle_targets
 from neuraldem.errors import ConfigError
+from neuraldem.scenes.hopper_refill.store import RefillFile
+from neuraldem.scenes.hopper_refill.targets import particle_targets
 
 REFILL_CONDITIONING = ("dt_ref", "t_ref", "alpha", "mu_s", "mu_r", "theta", "repose")
 

@@ -28,23 +28,23 @@ import torch
 from neuraldem.data.hopper_fields import nearest_particle
 from neuraldem.data.manifest import SimRecord
 from neuraldem.data.normalization import HopperNormalizer
-from neuraldem.data.refill_datamodule import reference_scalars
-from neuraldem.data.refill_store import RefillFile
-from neuraldem.data.refill_targets import (
+from neuraldem.data.schema import atomic_write_json
+from neuraldem.errors import DataError
+from neuraldem.eval.checkpoints import (
+    checkpoint_dataset,
+    read_checkpoint,
+    split_records,
+)
+from neuraldem.scenes.hopper_refill import metrics as rm
+from neuraldem.scenes.hopper_refill.datamodule import reference_scalars
+from neuraldem.scenes.hopper_refill.store import RefillFile
+from neuraldem.scenes.hopper_refill.targets import (
     FieldQuery,
     aggregated_residence,
     check_reference,
     particle_query,
     reference_fields_at,
     reset_times,
-)
-from neuraldem.data.schema import atomic_write_json
-from neuraldem.errors import DataError
-from neuraldem.eval import refill_metrics as rm
-from neuraldem.eval.checkpoints import (
-    checkpoint_dataset,
-    read_checkpoint,
-    split_records,
 )
 
 # A model's material counts as new when its predicted residence falls short of t - t_ref by more than this
@@ -287,7 +287,7 @@ def evaluate_refill_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, da
     """Score a refill checkpoint on one split part; writes metrics.json, the figures and (vtk) the first
     simulation's labelled particles for ParaView into out_dir.
     Defaults: horizon = the model's window, t_ref = the last snapshot time that leaves `horizon` to the end."""
-    from neuraldem.eval import refill_plots
+    from neuraldem.scenes.hopper_refill import plots as refill_plots
 
     module = load_refill_checkpoint(ckpt, device)
     meta = module.metadata

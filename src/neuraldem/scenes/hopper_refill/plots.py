@@ -12,7 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from neuraldem.eval.refill_metrics import EMPTY, NEW
+from neuraldem.scenes.hopper_refill.metrics import EMPTY, NEW
 
 
 def _slice_scatter(ax: Any, points: np.ndarray, labels: np.ndarray, n_layers: int, half_width: float,

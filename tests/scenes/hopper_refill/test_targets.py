@@ -2,14 +2,15 @@
 
 All inputs here are synthetic unit-test inputs made by hand (a few particles with chosen positions,
 insertion and exit times), so every expected number can be checked on paper; the real LIGGGHTS data goes
-through the same functions in tests/datagen/test_refill_datagen.py."""
+through the same functions in tests/scenes/hopper_refill/test_datagen.py."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from neuraldem.data.refill_targets import (
+from neuraldem.errors import DataError
+from neuraldem.scenes.hopper_refill.targets import (
     aggregated_residence,
     particle_query,
     particle_targets,
@@ -17,7 +18,6 @@ from neuraldem.data.refill_targets import (
     reset_times,
     window_of,
 )
-from neuraldem.errors import DataError
 
 # synthetic: 3 particles on snapshots every 0.5 s. Row 0 and 1 come from the fill (inserted at -0.3 s);
 # row 0 sinks 1 cm per 0.5 s, row 1 rests and exits at 1.2 s; row 2 is refilled at 1.0 s and first seen at 1.5 s.

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from neuraldem.data.manifest import Manifest
-from neuraldem.data.refill_store import RefillFile
+from neuraldem.scenes.hopper_refill.store import RefillFile
 
 pytestmark = pytest.mark.solver
 

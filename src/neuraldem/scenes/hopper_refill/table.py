@@ -1,4 +1,4 @@
-"""`python -m neuraldem.eval.collect_refill_table STUDY_DIR... --out FILE.md`: the refilling hopper's errors
+"""`python -m neuraldem.scenes.hopper_refill.table STUDY_DIR... --out FILE.md`: the refilling hopper's errors
 against LIGGGHTS, model beside the persistence answer, one row per (run, evaluation).
 
 Finds every `evaluation*/metrics.json` of a refill checkpoint under the folders (`scripts/refill_study.sh`
@@ -83,7 +83,7 @@ def summary(r: dict) -> dict:
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    return table_main(argv, "neuraldem.eval.collect_refill_table", __doc__, find_refill_results, render, summary)
+    return table_main(argv, "neuraldem.scenes.hopper_refill.table", __doc__, find_refill_results, render, summary)
 
 
 if __name__ == "__main__":

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from neuraldem.data.manifest import Manifest
-from neuraldem.data.refill_store import RefillFile
-from neuraldem.data.refill_targets import aggregated_residence, reset_times
 from neuraldem.errors import DataError
-from neuraldem.eval.refill_eval import PersistenceRefillQuery, dem_query, evaluate_refill_checkpoint
+from neuraldem.scenes.hopper_refill.evaluation import PersistenceRefillQuery, dem_query, evaluate_refill_checkpoint
+from neuraldem.scenes.hopper_refill.store import RefillFile
+from neuraldem.scenes.hopper_refill.targets import aggregated_residence, reset_times
 
 pytestmark = pytest.mark.solver
 
@@ -37,7 +37,7 @@ def test_aggregation_across_resets_equals_direct_residence_on_liggghts_data(hopp
 
 def test_persistence_answer_is_exact_at_the_reference_time_and_not_later(hopper_refill_tiny_dataset: Path):
     from neuraldem.data.normalization import HopperNormalizer
-    from neuraldem.data.refill_targets import reference_fields_at
+    from neuraldem.scenes.hopper_refill.targets import reference_fields_at
 
     m = Manifest.load(hopper_refill_tiny_dataset)
     rec = m.usable()[0]
