@@ -2,7 +2,7 @@
 # Behaviour check for a refactor: the same seeded training runs, evaluations, a benchmark and the dataset reports
 # with the code of two commits, on the tiny real datasets of the test suite; then every number compared.
 #   bash scripts/compare_commits.sh BEFORE AFTER OUT_DIR [DATASETS_DIR]
-# DATASETS_DIR holds fb_tiny and hopper_tiny (default: $NEURALDEM_TEST_DATA/datasets, which the test suite
+# DATASETS_DIR holds fb_tiny, hopper_tiny and hopper_refill_tiny (default: $NEURALDEM_TEST_DATA/datasets, which the test suite
 # fills). Each commit runs from its own git worktree under OUT_DIR; OUT_DIR/compare.txt says what differs
 # (dates, commands, paths, timings and machine load are left out).
 set -euo pipefail
@@ -18,9 +18,12 @@ for tag in before after; do
   [ -d "$wt" ] || git -C "$ROOT" worktree add -q --detach "$wt" "$rev"
   (
     cd "$wt" && export PYTHONPATH=$wt/src
-    for exp in fb_quick hopper_quickstart; do
+    for exp in fb_quick hopper_quickstart hopper_refill; do
+      extra=()  # the refilling hopper on its tiny dataset: 20 steps (its experiment trains on hopper_refill)
+      [ "$exp" = hopper_refill ] && extra=(data=hopper_refill_tiny trainer=cpu logger=csv trainer.max_steps=20
+        trainer.val_check_interval=10 data.datamodule.n_queries=64 data.datamodule.batch_size=2)
       [ -f "$out/$tag/$exp/evaluation/metrics.json" ] || "$PY" -m neuraldem.train experiment=$exp seed=0 \
-        hydra.run.dir="$out/$tag/$exp" > "$out/$tag-$exp.log" 2>&1
+        "${extra[@]}" hydra.run.dir="$out/$tag/$exp" > "$out/$tag-$exp.log" 2>&1
     done
     ckpt=$(ls "$out/$tag/fb_quick/checkpoints/"*.ckpt | grep -v latest | head -1)
     "$PY" -m neuraldem.bench fb_stability --ckpt "$ckpt" --n-velocities 3 --steps 60 \
