@@ -6,7 +6,6 @@ status non-zero when they fail; the GPU check only informs.
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import importlib.metadata
 import os
@@ -20,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from neuraldem import paths
-from neuraldem.cli import tool_prog
+from neuraldem.cli import doc_parser
 from neuraldem.errors import NeuraldemError
 from neuraldem.sim import liggghts, openfoam
 
@@ -184,8 +183,7 @@ def run_checks(names: list[str] | None = None) -> list[Check]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog=tool_prog("neuraldem.doctor"), description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = doc_parser("neuraldem.doctor", __doc__)
     parser.add_argument("--only", nargs="+", choices=list(CHECKS), help="run only these checks")
     args = parser.parse_args(argv)
     checks = run_checks(args.only)

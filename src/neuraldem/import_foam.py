@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from neuraldem.cli import parse_assignments, report_user_errors, tool_prog
+from neuraldem.cli import doc_parser, parse_assignments, report_user_errors
 from neuraldem.data.fb_store import KIND, FbFile, write_fb_file
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import sha256
@@ -117,8 +117,7 @@ def dump_cloud_reader(dump: Path, dem_dt: float, diameter: float | None):
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.import_foam"), description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser("neuraldem.import_foam", __doc__)
     p.add_argument("--case", type=Path, required=True, help="OpenFOAM case folder (serial or reconstructed)")
     p.add_argument("--dataset", type=Path, required=True, help="dataset dir (created if new)")
     p.add_argument("--sim-id", required=True)

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from neuraldem.cli import parse_assignments, report_user_errors, tool_prog
+from neuraldem.cli import doc_parser, parse_assignments, report_user_errors
 from neuraldem.data.hopper_store import write_hopper_file
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import sha256
@@ -37,8 +37,7 @@ from neuraldem.sim.hopper import HopperGeometry, trajectory_from_files
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.import_liggghts"), description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser("neuraldem.import_liggghts", __doc__)
     p.add_argument("--dump", type=Path, required=True, help="text dump custom file (id x y z vx vy vz)")
     p.add_argument("--exits", type=Path, help="massflow/mesh exit file (id time ...), optional")
     p.add_argument("--dataset", type=Path, required=True, help="dataset dir (created if new)")

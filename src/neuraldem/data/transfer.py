@@ -15,7 +15,6 @@ on the original.
 
 from __future__ import annotations
 
-import argparse
 import json
 import lzma
 import shutil
@@ -25,7 +24,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from neuraldem.cli import report_user_errors, tool_prog
+from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.data.hopper_store import MISSING, HopperFile, write_hopper_file
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest
 from neuraldem.data.schema import atomic_write_json, sha256
@@ -133,8 +132,7 @@ def unpack(parts: list[Path], dataset_dir: Path) -> Manifest:
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.data.transfer"), description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser("neuraldem.data.transfer", __doc__)
     sub = p.add_subparsers(dest="cmd", required=True)
     a = sub.add_parser("pack")
     a.add_argument("dataset", type=Path)

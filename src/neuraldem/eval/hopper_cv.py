@@ -16,7 +16,6 @@ for every method). Folds without a field-model run are scored for the baselines 
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -24,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from neuraldem.cli import report_user_errors, tool_prog
+from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.data.hopper_datamodule import cv_records
 from neuraldem.data.manifest import Manifest, require_dataset
 from neuraldem.data.schema import atomic_write_json
@@ -222,8 +221,7 @@ def build(result: dict[str, Any], seed_floor: dict[str, Any] | None) -> dict[str
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.eval.hopper_cv"), description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser("neuraldem.eval.hopper_cv", __doc__)
     p.add_argument("grids", type=Path, nargs="*", help="folders holding evaluated cross-validation runs")
     p.add_argument("--dataset", type=Path, required=True, help="the hopper dataset dir")
     p.add_argument("--splits", nargs="+", default=["random", "band"], choices=["random", "band"])

@@ -11,13 +11,12 @@ hopper_small; 0.8 follows the material within a few % and is the default, docs/m
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from neuraldem.cli import report_user_errors, tool_prog
+from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.data.hopper_fields import nearest_particle
 from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import require_dataset
@@ -48,8 +47,7 @@ def coverage_rows(dataset: Path, n_runs: int, radii: list[float], times: list[fl
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.eval.occupancy_coverage"), description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser("neuraldem.eval.occupancy_coverage", __doc__)
     p.add_argument("dataset", type=Path)
     p.add_argument("--runs", type=int, default=6, help="the first N usable runs")
     p.add_argument("--radii", type=float, nargs="+", default=[0.6, 0.8, 1.0], help="in particle diameters")

@@ -3,12 +3,11 @@ evaluate=true writes), for the tables that compare runs."""
 
 from __future__ import annotations
 
-import argparse
 import json
 from collections.abc import Callable
 from pathlib import Path
 
-from neuraldem.cli import tool_prog
+from neuraldem.cli import doc_parser
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 
@@ -57,8 +56,7 @@ def table_main(argv: list[str] | None, prog: str, doc: str | None, collect: Call
                render: Callable[[list[dict]], str], summary: Callable[[dict], dict]) -> int:
     """The command line of the collectors: `prog FOLDER... --out FILE.md` writes render(results) to FILE.md and
     summary(result) of every result to FILE.json beside it, and prints the table."""
-    p = argparse.ArgumentParser(prog=tool_prog(prog), description=doc,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = doc_parser(prog, doc)
     p.add_argument("folders", type=Path, nargs="+")
     p.add_argument("--out", type=Path, required=True,
                    help="markdown file (a .json with the same numbers is written beside it)")
