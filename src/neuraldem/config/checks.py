@@ -17,6 +17,13 @@ def _fail(key: str, value: Any, requirement: str) -> ConfigError:
     return ConfigError(f"config value {key}={value!r} is invalid: {requirement} (override it, e.g. {key}=...)")
 
 
+def known_keys(key: str, values: Iterable[Any], known: Iterable[Any]) -> None:
+    """Refuse keys of `values` that are not in `known` (a typo in a config group must not be ignored)."""
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise ConfigError(f"unknown key(s) {unknown} in {key}; known: {sorted(known)}")
+
+
 def positive_int(key: str, value: Any, *, allow_zero: bool = False) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise _fail(key, value, "must be an integer")

@@ -85,9 +85,7 @@ class FbMetricSettings:
 
 def _settings(cls: Any, cfg: Any, key: str) -> Any:
     values = dict(cfg) if cfg is not None else {}
-    unknown = sorted(set(values) - set(cls.__dataclass_fields__))
-    if unknown:
-        raise ConfigError(f"unknown key(s) {unknown} in {key}; known: {sorted(cls.__dataclass_fields__)}")
+    checks.known_keys(key, values, cls.__dataclass_fields__)
     return cls(**{k: (tuple(v) if OmegaConf.is_list(v) or isinstance(v, list) else v) for k, v in values.items()})
 
 

@@ -59,9 +59,7 @@ class HopperMetricSettings:
     @classmethod
     def from_config(cls, cfg: Any, key: str = "data.metrics") -> HopperMetricSettings:
         values = dict(OmegaConf.to_container(cfg) if OmegaConf.is_config(cfg) else dict(cfg or {}))
-        unknown = sorted(set(values) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ConfigError(f"unknown key(s) {unknown} in {key}; known: {sorted(cls.__dataclass_fields__)}")
+        checks.known_keys(key, values, cls.__dataclass_fields__)
         if "outflow_window" in values:
             values["outflow_window"] = tuple(checks.interval(f"{key}.outflow_window",
                                                              list(values["outflow_window"])))

@@ -62,9 +62,7 @@ class PractitionerValidation(L.Callback):
         self.time_stride = checks.positive_int(f"{key}.time_stride", time_stride)
         self.max_sims = None if max_sims is None else checks.positive_int(f"{key}.max_sims", max_sims)
         scales = dict(DEFAULT_SCALES if scales is None else scales)
-        unknown = sorted(set(scales) - set(DEFAULT_SCALES))
-        if unknown:
-            raise ConfigError(f"unknown key(s) {unknown} in {key}.scales; known: {sorted(DEFAULT_SCALES)}")
+        checks.known_keys(f"{key}.scales", scales, DEFAULT_SCALES)
         self.scales = {k: checks.positive(f"{key}.scales.{k}", float(v)) for k, v in scales.items()}
         self.seed = checks.positive_int(f"{key}.seed", seed, allow_zero=True)
         self._truth: dict[str, tuple[np.ndarray, TrajectoryFields, dict[str, float]]] = {}

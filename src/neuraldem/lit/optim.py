@@ -35,9 +35,7 @@ def optimizer_settings(optimizer: DictConfig | dict | None,
     sched = DEFAULT_SCHEDULER | plain(scheduler)
     for key, values, known in (("model.optimizer", opt, DEFAULT_OPTIMIZER), ("model.scheduler", sched,
                                                                             DEFAULT_SCHEDULER)):
-        unknown = sorted(set(values) - set(known))
-        if unknown:
-            raise ConfigError(f"unknown key(s) {unknown} in {key}; known: {sorted(known)}")
+        checks.known_keys(key, values, known)
     checks.one_of("model.optimizer.name", opt["name"], OPTIMIZERS)
     checks.positive("model.optimizer.lr", opt["lr"])
     checks.number("model.optimizer.weight_decay", opt["weight_decay"], lo=0.0)

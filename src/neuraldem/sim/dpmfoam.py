@@ -81,9 +81,7 @@ class FluidizedBedScene:
     @classmethod
     def from_config(cls, cfg: Any, key: str) -> FluidizedBedScene:
         values = dict(cfg)
-        unknown = sorted(set(values) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ConfigError(f"unknown key(s) {unknown} in {key}; known: {sorted(cls.__dataclass_fields__)}")
+        checks.known_keys(key, values, cls.__dataclass_fields__)
         if "cells" in values:
             cells = values["cells"]
             if isinstance(cells, str) or not hasattr(cells, "__len__") or len(cells) != 3:

@@ -50,9 +50,7 @@ class HopperScene:
     def from_config(cls, cfg: Any, key: str) -> HopperScene:
         values = dict(cfg)
         mat = Material.from_config(values.pop("material", {}), f"{key}.material")
-        unknown = sorted(set(values) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ConfigError(f"unknown key(s) {unknown} in {key}; known: {sorted(cls.__dataclass_fields__)}")
+        checks.known_keys(key, values, cls.__dataclass_fields__)
         scene = cls(material=mat, **values)
         scene.validate(key)
         return scene

@@ -63,9 +63,7 @@ class RefillSettings:
     @classmethod
     def from_config(cls, cfg: Any, key: str) -> RefillSettings:
         values = dict(cfg)
-        unknown = sorted(set(values) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ConfigError(f"unknown key(s) {unknown} in {key}; known: {sorted(cls.__dataclass_fields__)}")
+        checks.known_keys(key, values, cls.__dataclass_fields__)
         if "level_band" in values:
             values["level_band"] = checks.interval(f"{key}.level_band", list(values["level_band"]))
         s = cls(**values)
