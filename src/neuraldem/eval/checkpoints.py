@@ -31,6 +31,8 @@ IMPORT_MATCH_KEYS = {
 }
 IMPORT_REPORT_KEYS = {"hopper": ("hopper.material.dt",), "fluidized_bed": ()}
 
+IMPORTED_SPLIT = "imported (every run)"  # what an evaluation on imported runs reports as its split
+
 TRAIN_HINT = {"hopper": "experiment=hopper_micro", "fluidized_bed": "experiment=fb",
               "gns": "experiment=gns_hopper (or gns_fb)"}
 
@@ -56,11 +58,7 @@ class Checkpoint:
 
     @property
     def metadata(self) -> dict[str, Any]:
-        return self.hyper_parameters["metadata"]
-
-    @property
-    def kind(self) -> str:
-        return str(self.raw["hyper_parameters"]["metadata"]["kind"])
+        return copy.deepcopy(self.raw["hyper_parameters"]["metadata"])
 
     @property
     def net_parameters(self) -> int:
@@ -138,6 +136,11 @@ def imported_scene_differences(kind: str, trained: dict[str, Any], imported: dic
     return out
 
 
+def scene_recorded(kind: str, scene: dict[str, Any]) -> bool:
+    """Whether an imported dataset's manifest states its scene (imports from before scenes were recorded do not)."""
+    return any(dotted(scene, k) is not None for k in IMPORT_MATCH_KEYS[kind])
+
+
 def check_import_joins(m: Manifest, scene: dict[str, Any], dataset: Path, label: str) -> None:
     """One imported dataset holds one scene: a run whose stated scene differs from the dataset's (geometry,
     particles, ... beyond IMPORT_SCENE_RTOL) goes into a dataset of its own; a dataset imported before scenes
@@ -145,7 +148,7 @@ def check_import_joins(m: Manifest, scene: dict[str, Any], dataset: Path, label:
     if not m.scene.get("imported"):
         raise ConfigError(f"{dataset} holds generated {m.kind} runs; import your runs into a dataset of their own",
                           fix="pass another --dataset folder")
-    if all(dotted(m.scene, k) is None for k in IMPORT_MATCH_KEYS[m.kind]):
+    if not scene_recorded(m.kind, m.scene):
         return
     diff = imported_scene_differences(m.kind, m.scene, scene)
     if diff:
@@ -161,7 +164,7 @@ def check_scene(meta: dict[str, Any], m: Manifest, ckpt: Path, dataset_dir: Path
         if kind not in IMPORT_MATCH_KEYS:
             raise DataError(f"{dataset_dir} holds imported {m.kind} runs; scoring a {kind} checkpoint on imported "
                             f"runs is supported for {' and '.join(IMPORT_MATCH_KEYS)} models")
-        if not any(dotted(m.scene, k) is not None for k in IMPORT_MATCH_KEYS[kind]):
+        if not scene_recorded(kind, m.scene):
             raise DataError(f"{dataset_dir} was imported without its scene (an import from before scenes were "
                             "recorded)", fix="import the runs again with `neuraldem import liggghts` (or `foam`)")
         diff = imported_scene_differences(kind, meta["scene"], m.scene)

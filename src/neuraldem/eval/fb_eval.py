@@ -33,7 +33,7 @@ from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.eval import fb_metrics as fm
 from neuraldem.eval import fb_plots
-from neuraldem.eval.checkpoints import checkpoint_dataset
+from neuraldem.eval.checkpoints import IMPORTED_SPLIT, checkpoint_dataset
 from neuraldem.eval.fb_report import metric_settings
 from neuraldem.eval.fb_rollout import (
     DEFAULT_INIT_SNAPSHOT,
@@ -56,7 +56,6 @@ from neuraldem.machine import machine_info
 from neuraldem.sim.foam_reader import BoxGrid
 
 DEFAULT_HORIZONS = (1, 3, 10)
-IMPORTED_SPLIT = "imported (every run)"
 STAT_FIELDS = ("solid_fraction_mean", "solid_fraction_std", "fluid_speed_mean", "fluid_speed_std", "mixing_mean",
                "mixing_std")
 

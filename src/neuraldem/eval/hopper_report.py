@@ -16,7 +16,7 @@ from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError, NeuraldemError
 from neuraldem.eval import hopper_plots
-from neuraldem.eval.checkpoints import checkpoint_dataset, read_checkpoint, split_records
+from neuraldem.eval.checkpoints import IMPORTED_SPLIT, checkpoint_dataset, read_checkpoint, split_records
 from neuraldem.eval.hopper_baselines import score_baseline
 from neuraldem.eval.hopper_eval import SimEvaluation, aggregate, dataset_metric_settings, evaluate_sims
 from neuraldem.eval.hopper_metrics import layer_edges
@@ -119,9 +119,6 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     if vtk:
         export_vtk(evals[0], m, dataset_dir, out_dir / "vtk", threshold)
     return result
-
-
-IMPORTED_SPLIT = "imported (every run)"
 
 
 def training_manifest(meta: dict[str, Any], m: Manifest, datasets_dir: Path) -> Manifest:
