@@ -28,8 +28,8 @@ for tag in before after; do
     ckpt=$(ls "$out/$tag/fb_quick/checkpoints/"*.ckpt | grep -v latest | head -1)
     "$PY" -m neuraldem.bench fb_stability --ckpt "$ckpt" --n-velocities 3 --steps 60 \
       --out "$out/$tag/bench/fb_stability.json" > "$out/$tag-bench.log" 2>&1
-    "$PY" -m neuraldem.eval.fb_report "$out/data/datasets/fb_tiny" --out "$out/$tag/fb_report" > /dev/null 2>&1
-    "$PY" -m neuraldem.eval.dataset_report "$out/data/datasets/hopper_tiny" --out "$out/$tag/dataset_report" > /dev/null 2>&1
+    "$PY" -m neuraldem report fb-dataset "$out/data/datasets/fb_tiny" --out "$out/$tag/fb_report" > /dev/null 2>&1
+    "$PY" -m neuraldem report dataset "$out/data/datasets/hopper_tiny" --out "$out/$tag/dataset_report" > /dev/null 2>&1
   )
   echo "$tag ($rev): done"
 done

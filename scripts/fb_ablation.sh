@@ -67,5 +67,5 @@ for v in $VARIANTS; do
 done
 while [ "$running" -gt 0 ]; do wait -n || failed=$((failed + 1)); running=$((running - 1)); done
 [ "$failed" -eq 0 ] || echo "fb_ablation: $failed run(s) failed; see $runs/*.log" >&2
-"$PY" -m neuraldem.eval.collect_fb_table "$runs" --out "$runs/table.md"
+"$PY" -m neuraldem.scenes.fluidized_bed.table "$runs" --out "$runs/table.md"
 exit "$failed"

@@ -10,10 +10,12 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("WANDB_MODE", "offline")
 os.environ.setdefault("WANDB_SILENT", "true")
 
+import shutil
 from pathlib import Path
 
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 torch.set_num_threads(int(os.environ.get("NEURALDEM_TEST_THREADS", "1")))
 
@@ -52,7 +54,7 @@ def hopper_tiny_dataset(data_root: Path) -> Path:
     from omegaconf import open_dict
 
     from neuraldem.datagen.driver import DatagenOptions, generate
-    from neuraldem.datagen.hopper import HopperPipeline
+    from neuraldem.scenes.hopper.datagen import HopperPipeline
     from tests.helpers import compose_cfg
 
     os.environ["NEURALDEM_DATA"] = str(data_root)
@@ -79,9 +81,9 @@ def train_briefly(module, dm, path: Path) -> Path:
 @pytest.fixture(scope="session")
 def tiny_checkpoint(hopper_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A HopperModule trained for 3 steps on the tiny dataset (for evaluation plumbing, not accuracy)."""
-    from neuraldem.data.hopper_datamodule import HopperDataModule
-    from neuraldem.lit.hopper_module import HopperModule
     from neuraldem.models.registry import net_config
+    from neuraldem.scenes.hopper.datamodule import HopperDataModule
+    from neuraldem.scenes.hopper.module import HopperModule
 
     dm = HopperDataModule(str(hopper_tiny_dataset), "hopper_tiny", ["t", "alpha", "mu_s", "mu_r"], n_queries=32)
     return train_briefly(HopperModule(net_config("hopper_tiny"), datamodule=dm), dm,
@@ -105,9 +107,9 @@ def fb_tiny_case(fb_tiny_dataset: Path) -> Path:
 @pytest.fixture(scope="session")
 def fb_tiny_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A FluidizedBedModule trained for 3 steps on fb_tiny (for rollout/evaluation plumbing, not accuracy)."""
-    from neuraldem.data.fb_datamodule import FluidizedBedDataModule
-    from neuraldem.lit.fb_module import FluidizedBedModule
     from neuraldem.models.registry import net_config
+    from neuraldem.scenes.fluidized_bed.datamodule import FluidizedBedDataModule
+    from neuraldem.scenes.fluidized_bed.module import FluidizedBedModule
 
     torch.manual_seed(0)
     dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2)
@@ -119,9 +121,9 @@ def fb_tiny_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathF
 def fb_tiny_flux_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Like fb_tiny_checkpoint, with the issue-20 options: solids-flux channels, mixing advected by the predicted
     flux, volume projection, unroll 1-2 steps, auto noise, and a stochastic net (2 CRPS members)."""
-    from neuraldem.data.fb_datamodule import FluidizedBedDataModule
-    from neuraldem.lit.fb_module import FluidizedBedModule
     from neuraldem.models.registry import net_config
+    from neuraldem.scenes.fluidized_bed.datamodule import FluidizedBedDataModule
+    from neuraldem.scenes.fluidized_bed.module import FluidizedBedModule
 
     torch.manual_seed(0)
     dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2, push_forward_steps=2,
@@ -155,11 +157,36 @@ def hopper_refill_tiny_dataset(data_root: Path) -> Path:
 @pytest.fixture(scope="session")
 def refill_tiny_checkpoint(hopper_refill_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A refill HopperModule trained for 3 steps on hopper_refill_tiny (window 0.25 s; plumbing, not accuracy)."""
-    from neuraldem.lit.hopper_module import HopperModule
     from neuraldem.models.registry import net_config
+    from neuraldem.scenes.hopper.module import HopperModule
     from neuraldem.scenes.hopper_refill.datamodule import RefillDataModule
 
     dm = RefillDataModule(str(hopper_refill_tiny_dataset), "hopper_refill_tiny", ["dt_ref", "alpha", "mu_s", "mu_r"],
                           window=0.25, n_queries=32, batch_size=2)
     return train_briefly(HopperModule(net_config("hopper_tiny"), datamodule=dm), dm,
                          tmp_path_factory.mktemp("ckpt") / "refill.ckpt")
+
+
+# benchmark fixtures: evaluated run folders made from the tiny checkpoint on the real tiny dataset (used by the
+# shared bench tests and the hopper's bench adapters)
+def make_run(root: Path, name: str, ckpt: Path, dataset: Path, n_queries: int = 32) -> Path:
+    """A run folder as `neuraldem.train evaluate=true` leaves it: checkpoints/, evaluation/, .hydra/."""
+    from neuraldem.scenes.hopper.evaluation import evaluate_checkpoint
+
+    run = root / name
+    (run / "checkpoints").mkdir(parents=True)
+    shutil.copy2(ckpt, run / "checkpoints" / "last.ckpt")
+    (run / ".hydra").mkdir()
+    OmegaConf.save({"data": {"datamodule": {"n_queries": n_queries}}}, run / ".hydra" / "config.yaml")
+    evaluate_checkpoint(run / "checkpoints" / "last.ckpt", run / "evaluation", root, dataset_dir=dataset,
+                        vtk=False, progress=False)
+    return run
+
+
+@pytest.fixture(scope="session")
+def evaluated_runs(tiny_checkpoint: Path, hopper_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder with one evaluated run and a copy of it under a sweep sub-folder (`multirun/0`)."""
+    root = tmp_path_factory.mktemp("runs")
+    run = make_run(root, "tiny", tiny_checkpoint, hopper_tiny_dataset)
+    shutil.copytree(run, root / "multirun" / "0")
+    return root

@@ -56,7 +56,7 @@ def generate_fb_tiny(root: Path, n_sims: int = FB_TINY_SIMS) -> Path:
     from omegaconf import open_dict
 
     from neuraldem.datagen.driver import DatagenOptions, generate
-    from neuraldem.datagen.fb import FluidizedBedPipeline
+    from neuraldem.scenes.fluidized_bed.datagen import FluidizedBedPipeline
 
     os.environ["NEURALDEM_DATA"] = str(root)
     cfg = compose_cfg("datagen", ["data=fb_tiny"], output_dir=root / "runs")
@@ -114,8 +114,8 @@ def train_tiny_gns(dataset: Path, name: str, path: Path) -> Path:
     import torch
     from omegaconf import OmegaConf
 
-    from neuraldem.data.gns_datamodule import GnsDataModule
-    from neuraldem.lit.gns_module import GnsModule
+    from neuraldem.gns.datamodule import GnsDataModule
+    from neuraldem.gns.module import GnsModule
 
     torch.manual_seed(0)
     dm = GnsDataModule(str(dataset), name, history=2)

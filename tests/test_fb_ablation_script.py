@@ -37,7 +37,7 @@ def test_each_variant_is_one_training_command(tmp_path: Path):
     assert f"hydra.run.dir={tmp_path / 'runs' / 'fb_base' / 'full'}" in base
     assert "data.datamodule.solids_flux=false" in no_flux and "model.stability.mixing=absolute" in no_flux
     assert "model.stability.ensemble=2" in stochastic and "model.net.noise_dim=8" in stochastic
-    assert calls[-1][:2] == ["-m", "neuraldem.eval.collect_fb_table"]  # then the table of all runs
+    assert calls[-1][:2] == ["-m", "neuraldem.scenes.fluidized_bed.table"]  # then the table of all runs
 
 
 def test_unknown_variant_or_model_runs_nothing(tmp_path: Path):

@@ -1,8 +1,8 @@
 """`neuraldem evaluate ckpt=PATH`: a trained model against its solver on held-out simulations.
 
 The checkpoint says what it is; its scene (`neuraldem.scenes`) scores it. A fluidized-bed model is scored by
-`neuraldem.eval.fb_eval`: one rollout per held-out inlet velocity against CFD-DEM (time statistics, mass
-drift, Lacey curves, stability at 1x, 3x, 10x the training horizon; options under `fluidized_bed:`), into
+`neuraldem.scenes.fluidized_bed.evaluation`: one rollout per held-out inlet velocity against CFD-DEM (time statistics,
+mass drift, Lacey curves, stability at 1x, 3x, 10x the training horizon; options under `fluidized_bed:`), into
 metrics.json, report.md, PNG figures and VTK. A refilling-hopper model is scored by
 `neuraldem.scenes.hopper_refill.evaluation` (transport `refill.horizon` seconds after a reference time, residence-time
 distribution at the outlet over a rollout with periodic reference resets; options under `refill:`). A hopper
@@ -43,8 +43,8 @@ def main(cfg: DictConfig) -> None:
 
 def evaluate_gns(cfg: DictConfig) -> None:
     """A GNS rolled out on one stored run with its stability checks and scored with the scene's metrics
-    (`neuraldem.eval.gns_rollout`): gns_rollout.json and .h5 in the run folder."""
-    from neuraldem.eval.gns_rollout import run_gns_rollout
+    (`neuraldem.gns.rollout`): gns_rollout.json and .h5 in the run folder."""
+    from neuraldem.gns.rollout import run_gns_rollout
 
     g = cfg.gns
     steps = None if g.steps is None else checks.positive_int("gns.steps", g.steps)

@@ -16,9 +16,9 @@ from omegaconf import DictConfig
 
 from neuraldem.cli import hydra_app
 from neuraldem.config import checks
-from neuraldem.eval.fb_rollout import DivergenceLimits, run_rollout
-from neuraldem.eval.hopper_report import resolve_device
-from neuraldem.lit.fb_stability import MIXING_MODES
+from neuraldem.eval.checkpoints import resolve_device
+from neuraldem.scenes.fluidized_bed.rollout import DivergenceLimits, run_rollout
+from neuraldem.scenes.fluidized_bed.stability import MIXING_MODES
 
 
 @hydra_app("rollout")

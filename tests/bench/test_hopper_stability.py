@@ -12,7 +12,7 @@ from neuraldem.bench import hopper_stability
 from neuraldem.bench.__main__ import main as bench_main
 from neuraldem.bench.hopper_stability import field_check
 from neuraldem.errors import ConfigError
-from neuraldem.eval.hopper_predict import TrajectoryFields
+from neuraldem.scenes.hopper.predict import TrajectoryFields
 from tests.helpers import train_tiny_gns
 
 LO, HI = np.array([-1.0, -1.0, 0.0]), np.array([1.0, 1.0, 2.0])

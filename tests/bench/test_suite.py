@@ -8,12 +8,13 @@ from pathlib import Path
 
 import pytest
 
-from neuraldem.bench import hopper_scaling, suite
+from neuraldem.bench import suite
 from neuraldem.bench.__main__ import main as bench_main
 from neuraldem.bench.report import write_results
 from neuraldem.bench.suite import plan
 from neuraldem.errors import ConfigError
-from tests.bench.test_hopper_scaling import HAND_MADE
+from neuraldem.scenes.hopper.bench import scaling as hopper_scaling
+from tests.scenes.hopper.bench.test_scaling import HAND_MADE
 
 
 def test_plan_measures_everything_by_default(tmp_path: Path):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from neuraldem.data.hopper_fields import fields_at, trajectory_fields_at
+from neuraldem.scenes.hopper.fields import fields_at, trajectory_fields_at
 
 
 def test_fields_at_particle_centres_and_far_away():

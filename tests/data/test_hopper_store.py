@@ -11,10 +11,10 @@ import h5py
 import numpy as np
 import pytest
 
-from neuraldem.data.hopper_store import HopperFile, write_hopper_file
 from neuraldem.data.schema import TMP_SUFFIX
 from neuraldem.errors import DataError
-from neuraldem.sim.hopper import HopperGeometry, HopperTrajectory
+from neuraldem.scenes.hopper.solver import HopperGeometry, HopperTrajectory
+from neuraldem.scenes.hopper.store import HopperFile, write_hopper_file
 
 RES = 1e-5
 

@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from neuraldem.data.hopper_datamodule import HopperDataModule
-from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import Manifest
-from neuraldem.data.transfer import decode_positions, encode_positions, pack, unpack
 from neuraldem.errors import DataError
+from neuraldem.scenes.hopper.datamodule import HopperDataModule
+from neuraldem.scenes.hopper.store import HopperFile
+from neuraldem.scenes.hopper.transfer import decode_positions, encode_positions, pack, unpack
 
 
 def test_codec_round_trip_with_exits():

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import Manifest
+from neuraldem.scenes.hopper.store import HopperFile
 from tests.helpers import REPO, run_module
 
 pytestmark = pytest.mark.solver

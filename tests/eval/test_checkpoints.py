@@ -13,8 +13,8 @@ import torch
 from neuraldem.errors import DataError
 from neuraldem.eval import checkpoints
 from neuraldem.eval.checkpoints import checkpoint_metadata, read_checkpoint
-from neuraldem.eval.hopper_report import load_hopper_checkpoint
-from neuraldem.lit.hopper_module import HopperModule
+from neuraldem.scenes.hopper.evaluation import load_hopper_checkpoint
+from neuraldem.scenes.hopper.module import HopperModule
 
 
 @pytest.fixture

@@ -12,9 +12,9 @@ from neuraldem.errors import NeuraldemError
 BENCHMARKS = {
     "model_step": ("neuraldem.bench.model_step",
                    "forward+backward time per training step of model configs, 1 vs 2 torch threads"),
-    "hopper_speed": ("neuraldem.bench.hopper_speed",
+    "hopper_speed": ("neuraldem.scenes.hopper.bench.speed",
                      "LIGGGHTS vs the hopper surrogate on the same questions, side by side (speed-up ratios)"),
-    "hopper_scaling": ("neuraldem.bench.hopper_scaling",
+    "hopper_scaling": ("neuraldem.scenes.hopper.bench.scaling",
                        "LIGGGHTS cost vs particle count; surrogate cost vs query points and latent tokens"),
     "speed_accuracy": ("neuraldem.bench.speed_accuracy",
                        "time to answer vs error: surrogate runs and cheaper LIGGGHTS settings, Pareto front"),
@@ -23,18 +23,18 @@ BENCHMARKS = {
     "hopper_stability": ("neuraldem.bench.hopper_stability",
                          ("hopper stability map over cone angle x sliding friction (beyond the trained range): "
                           "field surrogates, GNS, and the stored runs as the rule's control")),
-    "fb_speed": ("neuraldem.bench.fb_speed",
+    "fb_speed": ("neuraldem.scenes.fluidized_bed.bench.speed",
                  "DPMFoam vs the fluidized-bed rollout per simulated second, side by side (speed-up ratios)"),
-    "fb_speed_accuracy": ("neuraldem.bench.fb_speed_accuracy",
+    "fb_speed_accuracy": ("neuraldem.scenes.fluidized_bed.bench.speed_accuracy",
                           ("fluidized bed: rollout cost vs error of time averages and mixing, surrogates and "
                            "cheaper DPMFoam; Pareto front, right-sizing")),
-    "fb_stability": ("neuraldem.bench.fb_stability",
+    "fb_stability": ("neuraldem.scenes.fluidized_bed.bench.stability",
                      "fluidized-bed stability map: steps to divergence / solid-volume drift across velocities"),
-    "gns_stability": ("neuraldem.bench.gns_stability",
+    "gns_stability": ("neuraldem.gns.bench.stability",
                       "the GNS baseline's stability map on the fluidized bed (fb_stability's JSON and figure)"),
     "all": ("neuraldem.bench.suite:run_all", "the hopper benchmarks above, and the fluidized bed's with --fb-ckpt"),
     "render": ("neuraldem.bench.suite:render", "redraw every figure and table from the results files"),
-    "seed_floor": ("neuraldem.bench.seed_floor",
+    "seed_floor": ("neuraldem.scenes.hopper.bench.seed_floor",
                    "LIGGGHTS rerun with other packing seeds: the noise floor of every hopper quantity"),
 }
 

@@ -16,7 +16,7 @@ An angle outside the trained range would need a packing LIGGGHTS never made, so 
   points' transport (where the material came from) lies outside the hopper's box by over half a diameter.
   The stored run itself goes through the same checks at its own parameters (series "LIGGGHTS (stored run)"):
   the rule must pass the solver's own data, or it measures noise.
-- GNS: the rollout of `eval.gns_rollout` from the run's first H + 1 snapshots with the default checks (NaN,
+- GNS: the rollout of `gns.rollout` from the run's first H + 1 snapshots with the default checks (NaN,
   a particle leaving the box, a changed particle count, an overlapping pair): the first failing step.
 
 Time until failure is reported in seconds of the trajectory (field: snapshot time; GNS: steps x dt).
@@ -32,19 +32,19 @@ from typing import Any
 import numpy as np
 
 from neuraldem.bench import plots
-from neuraldem.bench.fb_stability import default_labels
-from neuraldem.bench.gns_points import load_hopper_gns, require_hopper_gns
-from neuraldem.bench.hopper_surrogate import Question, answer, full_question, load_surrogate, surrogate_dataset
+from neuraldem.bench.choices import default_labels
 from neuraldem.bench.report import command_line, machine_info, resolve_out, write_results
 from neuraldem.cli import tool_prog
 from neuraldem.config import checks
-from neuraldem.data.gns_datamodule import ParticleRun
-from neuraldem.data.hopper_store import HopperFile
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.errors import ConfigError, DataError
-from neuraldem.eval.gns_rollout import Accelerator, model_accelerator, rollout
-from neuraldem.eval.hopper_predict import DemPredictor, TrajectoryFields
+from neuraldem.gns.bench.points import load_hopper_gns, require_hopper_gns
+from neuraldem.gns.datamodule import ParticleRun
+from neuraldem.gns.rollout import Accelerator, model_accelerator, rollout
 from neuraldem.paths import data_dir
+from neuraldem.scenes.hopper.bench.surrogate import Question, answer, full_question, load_surrogate, surrogate_dataset
+from neuraldem.scenes.hopper.predict import DemPredictor, TrajectoryFields
+from neuraldem.scenes.hopper.store import HopperFile
 
 NAME = "hopper_stability"
 DEFAULT_MU_S = (0.05, 0.5, 1.0, 1.5, 2.0)

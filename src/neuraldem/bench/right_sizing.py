@@ -22,12 +22,12 @@ import statistics
 from pathlib import Path
 from typing import Any
 
-from neuraldem.bench.hopper_runs import HOPPER_ERRORS, collect_runs
 from neuraldem.bench.report import command_line, default_path, machine_info, read_results, write_results
 from neuraldem.bench.speed_accuracy import surrogate_points
 from neuraldem.cli import tool_prog
 from neuraldem.config import checks
 from neuraldem.errors import DataError
+from neuraldem.scenes.hopper.bench.runs import HOPPER_ERRORS, collect_runs
 
 NAME = "right_sizing"
 # what may answer a practitioner's question: field models (timed or cross-validated) and the scalar baselines

@@ -148,7 +148,7 @@ def run_all(argv: list[str]) -> int:
 
 def stability_map(out_dir: Path) -> Path | None:
     """The field surrogates' and the GNS's stability maps in one figure (stability_map.png), where both exist."""
-    from neuraldem.bench.fb_stability import merge_maps
+    from neuraldem.scenes.fluidized_bed.bench.stability import merge_maps
 
     fb, gns = out_dir / "fb_stability.json", out_dir / "gns_stability.json"
     if not (fb.is_file() and gns.is_file()):
@@ -158,14 +158,10 @@ def stability_map(out_dir: Path) -> Path | None:
 
 
 def render(argv: list[str]) -> int:
-    from neuraldem.bench import (
-        fb_speed,
-        fb_speed_accuracy,
-        hopper_speed,
-        hopper_stability,
-        right_sizing,
-        speed_accuracy,
-    )
+    from neuraldem.bench import hopper_stability, right_sizing, speed_accuracy
+    from neuraldem.scenes.fluidized_bed.bench import speed as fb_speed
+    from neuraldem.scenes.fluidized_bed.bench import speed_accuracy as fb_speed_accuracy
+    from neuraldem.scenes.hopper.bench import speed as hopper_speed
 
     p = argparse.ArgumentParser(prog=tool_prog("neuraldem.bench render"), description="redraw from results")
     p.add_argument("--out-dir", type=Path, default=None, help="default results/bench")

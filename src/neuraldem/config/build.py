@@ -13,7 +13,7 @@ from neuraldem.config import checks
 from neuraldem.errors import ConfigError
 
 ACCELERATORS = ("auto", "cpu", "gpu", "cuda", "mps")
-ROLLOUT_METRICS = "val/rollout_"  # logged by neuraldem.eval.fb_rollout_validation.RolloutValidation
+ROLLOUT_METRICS = "val/rollout_"  # logged by neuraldem.scenes.fluidized_bed.rollout_validation.RolloutValidation
 
 
 def check_trainer(cfg: DictConfig) -> None:

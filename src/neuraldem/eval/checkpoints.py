@@ -38,10 +38,10 @@ TRAIN_HINT = {"hopper": "experiment=hopper_micro", "fluidized_bed": "experiment=
 
 
 # the LightningModule of each checkpoint kind (imported when a model is built, not when metadata is read)
-MODULES = {"hopper": ("neuraldem.lit.hopper_module", "HopperModule"),
-           "hopper_refill": ("neuraldem.lit.hopper_module", "HopperModule"),
-           "fluidized_bed": ("neuraldem.lit.fb_module", "FluidizedBedModule"),
-           "gns": ("neuraldem.lit.gns_module", "GnsModule")}
+MODULES = {"hopper": ("neuraldem.scenes.hopper.module", "HopperModule"),
+           "hopper_refill": ("neuraldem.scenes.hopper.module", "HopperModule"),
+           "fluidized_bed": ("neuraldem.scenes.fluidized_bed.module", "FluidizedBedModule"),
+           "gns": ("neuraldem.gns.module", "GnsModule")}
 
 
 @dataclass(frozen=True)
@@ -77,6 +77,13 @@ class Checkpoint:
         module.on_load_checkpoint(checkpoint)
         module.load_state_dict(checkpoint["state_dict"], strict=True)
         return module.to(device).eval()
+
+
+def resolve_device(device: str) -> str:
+    """'auto' = the GPU when there is one."""
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    return device
 
 
 @functools.lru_cache(maxsize=4)

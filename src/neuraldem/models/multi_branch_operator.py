@@ -63,7 +63,7 @@ class MultiBranchOperator(nn.Module):
         grid-only model whose main branch is the fluid grid, the "single branch" ablation of right-sizing.
         noise_dim: > 0 makes the net stochastic: a Gaussian noise vector of this size, embedded by an MLP, is
         added to the conditioning vector (so it reaches every block through the DiT modulation); members of an
-        ensemble differ only in their noise (trained with CRPS, `neuraldem.lit.fb_stability`).
+        ensemble differ only in their noise (trained with CRPS, `neuraldem.scenes.fluidized_bed.stability`).
 
     forward(inputs: OperatorInputs, chunk_size=None) -> {branch: (B, Q_branch, channels)} for the branches in
     `inputs.query_pos`.

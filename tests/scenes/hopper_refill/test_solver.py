@@ -7,8 +7,8 @@ import pytest
 from omegaconf import OmegaConf
 
 from neuraldem.errors import ConfigError
+from neuraldem.scenes.hopper.solver import HopperGeometry, HopperScene
 from neuraldem.scenes.hopper_refill.solver import RefillSettings, n_intervals, refill_input, refill_region, settled_top
-from neuraldem.sim.hopper import HopperGeometry, HopperScene
 from neuraldem.sim.seeds import prime_seeds
 from tests.helpers import REPO
 

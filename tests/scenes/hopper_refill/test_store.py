@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from neuraldem.errors import DataError
+from neuraldem.scenes.hopper.solver import HopperGeometry
 from neuraldem.scenes.hopper_refill.solver import RefillTrajectory
 from neuraldem.scenes.hopper_refill.store import RefillFile, write_refill_file
-from neuraldem.sim.hopper import HopperGeometry
 
 RES = 1e-5
 GEOM = HopperGeometry(radius=0.1, outlet_radius=0.04, cone_height=0.0, wall_height=0.4, sink_z=-0.05)

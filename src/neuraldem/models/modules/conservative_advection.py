@@ -16,7 +16,7 @@ sub-step is F = |j_f| dt / dx (cell-volume fraction; j_f = the face average of t
 so c' = beta' / alpha' is a convex combination of the c values around (inside [0, 1] if they are), and sum
 beta' = sum beta to round-off (walls are closed: no flux through the box faces). Where there is (almost) no
 solid, c' tends to the global share p_B through the same prior as the data's mixing field
-(c = (beta + a0 p_B) / (alpha + a0), `neuraldem.data.fb_fields`). Sub-steps keep the Courant number <= 0.5.
+(c = (beta + a0 p_B) / (alpha + a0), `neuraldem.scenes.fluidized_bed.fields`). Sub-steps keep the Courant number <= 0.5.
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ def advect_tagged(solid_fraction: torch.Tensor, concentration: torch.Tensor, flu
     it would leave the range of the neighbours; bounded and conservative as well). `correction` in [0, 1] scales
     the flux correction before limiting: 1 = full FCT, 0 = upwind; in between keeps part of the upwind
     scheme's numerical mixing, which stands in for the sub-cell dispersion of the particles (calibrated on
-    training trajectories: `neuraldem.eval.fb_advection_oracle`).
+    training trajectories: `neuraldem.scenes.fluidized_bed.advection_oracle`).
     Returns (concentration after the step, solid fraction the fluxes carried there). Non-finite fluxes count
     as zero (a diverging model is caught by the rollout's checks, not here)."""
     if scheme not in SCHEMES:

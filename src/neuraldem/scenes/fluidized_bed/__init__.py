@@ -1,5 +1,5 @@
 """The fluidized bed (OpenFOAM DPMFoam, CFD-DEM): scored by time statistics, bubbles, Lacey mixing, solid
-volume and rollout stability against CFD-DEM (`neuraldem.eval.fb_eval`)."""
+volume and rollout stability against CFD-DEM (`neuraldem.scenes.fluidized_bed.evaluation`)."""
 
 from __future__ import annotations
 
@@ -13,15 +13,15 @@ from neuraldem.scenes import Scene
 
 
 def pipeline(data_cfg: DictConfig) -> Any:
-    from neuraldem.datagen.fb import FluidizedBedPipeline
+    from neuraldem.scenes.fluidized_bed.datagen import FluidizedBedPipeline
 
     return FluidizedBedPipeline(data_cfg)
 
 
 def evaluate(cfg: DictConfig) -> None:
-    from neuraldem.eval.fb_eval import evaluate_checkpoint
-    from neuraldem.eval.fb_rollout import DivergenceLimits
-    from neuraldem.lit.fb_stability import MIXING_MODES
+    from neuraldem.scenes.fluidized_bed.evaluation import evaluate_checkpoint
+    from neuraldem.scenes.fluidized_bed.rollout import DivergenceLimits
+    from neuraldem.scenes.fluidized_bed.stability import MIXING_MODES
 
     fb = cfg.fluidized_bed
     conserve = fb.conserve_solid_volume
@@ -46,7 +46,7 @@ def evaluate(cfg: DictConfig) -> None:
 
 
 def evaluate_run(cfg: DictConfig, ckpt: Path) -> dict[str, Any]:
-    from neuraldem.eval.fb_eval import evaluate_checkpoint
+    from neuraldem.scenes.fluidized_bed.evaluation import evaluate_checkpoint
 
     out = Path(cfg.paths.output_dir) / "evaluation"
     result = evaluate_checkpoint(ckpt, out_dir=out, datasets_dir=Path(cfg.paths.datasets_dir),

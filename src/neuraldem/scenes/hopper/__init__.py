@@ -1,5 +1,5 @@
 """The hopper (LIGGGHTS discharge): particles drain through an orifice; scored by drainage time, residual,
-outflow, flow regime, stripes and residence time (`neuraldem.eval.hopper_report`)."""
+outflow, flow regime, stripes and residence time (`neuraldem.scenes.hopper.evaluation`)."""
 
 from __future__ import annotations
 
@@ -12,20 +12,20 @@ from neuraldem.scenes import Scene
 
 
 def pipeline(data_cfg: DictConfig) -> Any:
-    from neuraldem.datagen.hopper import HopperPipeline
+    from neuraldem.scenes.hopper.datagen import HopperPipeline
 
     return HopperPipeline(data_cfg)
 
 
 def print_table(result: dict[str, Any]) -> None:
-    from neuraldem.eval.hopper_report import TABLE_HEADER
+    from neuraldem.scenes.hopper.evaluation import TABLE_HEADER
 
     print(TABLE_HEADER)
     print("\n".join(result["table_rows"]))
 
 
 def evaluate(cfg: DictConfig) -> None:
-    from neuraldem.eval.hopper_report import evaluate_checkpoint
+    from neuraldem.scenes.hopper.evaluation import evaluate_checkpoint
 
     result = evaluate_checkpoint(
         Path(cfg.ckpt), out_dir=Path(cfg.paths.output_dir), datasets_dir=Path(cfg.paths.datasets_dir),
@@ -42,7 +42,7 @@ def evaluate(cfg: DictConfig) -> None:
 
 
 def evaluate_run(cfg: DictConfig, ckpt: Path) -> dict[str, Any]:
-    from neuraldem.eval.hopper_report import evaluate_checkpoint
+    from neuraldem.scenes.hopper.evaluation import evaluate_checkpoint
 
     result = evaluate_checkpoint(ckpt, out_dir=Path(cfg.paths.output_dir) / "evaluation",
                                  datasets_dir=Path(cfg.paths.datasets_dir), dataset_dir=cfg.data.dataset_dir,

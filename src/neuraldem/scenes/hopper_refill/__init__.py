@@ -19,7 +19,7 @@ def pipeline(data_cfg: DictConfig) -> Any:
 
 
 def evaluate(cfg: DictConfig) -> None:
-    from neuraldem.eval.hopper_report import resolve_device
+    from neuraldem.eval.checkpoints import resolve_device
     from neuraldem.scenes.hopper_refill.evaluation import evaluate_refill_checkpoint
 
     r = cfg.refill

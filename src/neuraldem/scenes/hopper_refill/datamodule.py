@@ -19,10 +19,10 @@ import torch
 
 from neuraldem.config import checks
 from neuraldem.data.file_samples import FileSamples
-from neuraldem.data.hopper_datamodule import HopperDataModule, occupancy_samples, query_tensors
 from neuraldem.data.manifest import SimRecord
 from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.errors import ConfigError
+from neuraldem.scenes.hopper.datamodule import HopperDataModule, occupancy_samples, query_tensors
 from neuraldem.scenes.hopper_refill.store import RefillFile
 from neuraldem.scenes.hopper_refill.targets import particle_targets
 

@@ -25,7 +25,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from neuraldem.data.hopper_fields import nearest_particle
 from neuraldem.data.manifest import SimRecord
 from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.data.schema import atomic_write_json
@@ -35,6 +34,7 @@ from neuraldem.eval.checkpoints import (
     read_checkpoint,
     split_records,
 )
+from neuraldem.scenes.hopper.fields import nearest_particle
 from neuraldem.scenes.hopper_refill import metrics as rm
 from neuraldem.scenes.hopper_refill.datamodule import reference_scalars
 from neuraldem.scenes.hopper_refill.store import RefillFile

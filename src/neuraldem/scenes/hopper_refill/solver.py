@@ -30,8 +30,7 @@ import numpy as np
 
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError, DataError
-from neuraldem.sim.dump import read_dump, read_exit_file
-from neuraldem.sim.hopper import (
+from neuraldem.scenes.hopper.solver import (
     STATUS_CLOGGED,
     STATUS_FAILED,
     STATUS_OK,
@@ -46,6 +45,7 @@ from neuraldem.sim.hopper import (
     run_hopper_input,
     settle_steps,
 )
+from neuraldem.sim.dump import read_dump, read_exit_file
 from neuraldem.sim.material import Material
 from neuraldem.sim.seeds import prime_seeds
 

@@ -24,11 +24,11 @@ from typing import Any
 import h5py
 import numpy as np
 
-from neuraldem.data.hopper_store import MISSING, quantise, write_header, write_motion
 from neuraldem.data.schema import ValidatedH5File, atomic_write_h5
 from neuraldem.errors import DataError
+from neuraldem.scenes.hopper.solver import HopperGeometry, TrajectorySize
+from neuraldem.scenes.hopper.store import MISSING, quantise, write_header, write_motion
 from neuraldem.scenes.hopper_refill.solver import RefillTrajectory, consistency_problem
-from neuraldem.sim.hopper import HopperGeometry, TrajectorySize
 
 KIND = "hopper_refill"
 ROW_CHUNK = 65536

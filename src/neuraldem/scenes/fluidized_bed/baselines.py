@@ -1,0 +1,180 @@
+"""`python -m neuraldem.scenes.fluidized_bed.baselines DATASET --out DIR`: the cheapest honest answers for a held-out
+bed.
+
+What a surrogate of the bed must beat, built from the training trajectories alone (CFD-DEM fields, no model)
+and scored with the same functions, the same held-out trajectories and the same start snapshot as
+`neuraldem.evaluate` scores a checkpoint (`scenes.fluidized_bed.evaluation.compare`):
+
+- `nearest`: the CFD-DEM trajectory at the nearest training inlet velocity, replayed as the answer (a lookup
+  table of solver runs; its fluctuations are real ones, at a slightly different velocity);
+- `interpolated`: snapshot by snapshot, the linear interpolation in inlet velocity between the two training
+  trajectories that bracket the held-out velocity (the nearest one outside the range); a scalar regression on
+  the scene parameter, whose averaging of two decorrelated beds damps the bubbles;
+- `constant`: snapshot by snapshot, the mean of all training trajectories (ignores the velocity).
+
+A replayed trajectory is as long as the training runs (e.g. 300 steps), so against a long (30-s) test trajectory
+the statistics cover that many steps only; the column "steps compared" says so. The solver's own seed spread
+(CFD-DEM from another packing) needs two packings per velocity: `python -m neuraldem.bench fb_speed_accuracy`.
+
+Each baseline is written as DIR/<baseline>/evaluation/metrics.json in the layout `neuraldem.evaluate` writes,
+so `python -m neuraldem.scenes.fluidized_bed.table` puts them in one table with the models.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from neuraldem.cli import doc_parser, report_user_errors
+from neuraldem.data.manifest import Manifest, SimRecord
+from neuraldem.data.schema import atomic_write_json
+from neuraldem.errors import DataError
+from neuraldem.machine import machine_info
+from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings, resolve_dataset
+from neuraldem.scenes.fluidized_bed.evaluation import FieldSeries, _jsonable, aggregate, compare, held_out
+from neuraldem.scenes.fluidized_bed.rollout import DEFAULT_INIT_SNAPSHOT
+from neuraldem.scenes.fluidized_bed.store import FbFile
+
+BASELINES = ("nearest", "interpolated", "constant")
+DESCRIPTIONS = {
+    "nearest": "CFD-DEM at the nearest training velocity, replayed",
+    "interpolated": "CFD-DEM, snapshot-wise linear interpolation in velocity between the bracketing training runs",
+    "constant": "CFD-DEM, snapshot-wise mean of all training runs",
+}
+
+
+def velocity(rec: SimRecord) -> float:
+    return float(rec.params["inlet_velocity"])
+
+
+def load_series(path: Path) -> FieldSeries:
+    with FbFile(path) as f:
+        return FieldSeries.from_dataset_file(f)
+
+
+def blend(series: list[FieldSeries], weights: list[float]) -> FieldSeries:
+    """The weighted sum of trajectories snapshot by snapshot, over the snapshots all of them have."""
+    n = min(len(s.times) for s in series)
+    first = series[0]
+
+    def mix(get: Callable[[FieldSeries], np.ndarray]) -> np.ndarray:
+        return sum(w * get(s)[:n].astype(np.float64) for s, w in zip(series, weights, strict=False))
+
+    return FieldSeries(first.times[:n], mix(lambda s: s.solid_fraction), mix(lambda s: s.fluid_velocity),
+                       mix(lambda s: s.mixing), first.grid, first.particle_volume, first.total_particle_volume)
+
+
+def bracket(train: list[tuple[float, FieldSeries]], v: float) -> tuple[list[FieldSeries], list[float]]:
+    """The two training runs around v and their linear weights; the nearest one alone outside the range."""
+    lo = [t for t in train if t[0] <= v]
+    hi = [t for t in train if t[0] >= v]
+    if not lo or not hi:
+        nearest = min(train, key=lambda t: abs(t[0] - v))
+        return [nearest[1]], [1.0]
+    (v0, s0), (v1, s1) = max(lo, key=lambda t: t[0]), min(hi, key=lambda t: t[0])
+    if v1 == v0:
+        return [s0], [1.0]
+    w = (v - v0) / (v1 - v0)
+    return [s0, s1], [1.0 - w, w]
+
+
+def baseline_series(name: str, train: list[tuple[float, FieldSeries]], v: float) -> FieldSeries:
+    if name == "nearest":
+        return min(train, key=lambda t: abs(t[0] - v))[1]
+    if name == "interpolated":
+        return blend(*bracket(train, v))
+    if name == "constant":
+        return blend([s for _, s in train], [1.0 / len(train)] * len(train))
+    raise DataError(f"unknown fluidized-bed baseline {name!r}", fix=f"choose from {', '.join(BASELINES)}")
+
+
+def training_series(m: Manifest, dataset_dir: Path, split: str,
+                    exclude: tuple[str, ...] = ()) -> list[tuple[float, FieldSeries]]:
+    ids = m.split_ids(split, "train")
+    unknown = sorted(set(exclude) - set(ids))
+    if unknown:
+        raise DataError(f"--exclude {' '.join(unknown)}: not training trajectories of split {split!r} of "
+                        f"{dataset_dir}", fix=f"choose from {', '.join(ids)}")
+    records = [r for r in (m.record(i) for i in ids if i not in exclude) if r.usable]
+    if not records:
+        raise DataError(f"no finished training trajectories in split {split!r} of {dataset_dir}",
+                        fix="generate them: python -m neuraldem.datagen data=fb_small")
+    return sorted(((velocity(r), load_series(dataset_dir / str(r.file))) for r in records), key=lambda t: t[0])
+
+
+def evaluate_baselines(dataset_dir: Path, out_dir: Path, split: str = "velocity", part: str = "test",
+                       baselines: tuple[str, ...] = BASELINES, init_snapshot: int = DEFAULT_INIT_SNAPSHOT,
+                       max_sims: int | None = None, exclude: tuple[str, ...] = ()) -> dict[str, dict[str, Any]]:
+    """Score every baseline on the held-out trajectories; write <out>/<baseline>/evaluation/metrics.json."""
+    for b in baselines:
+        if b not in BASELINES:
+            raise DataError(f"unknown fluidized-bed baseline {b!r}", fix=f"choose from {', '.join(BASELINES)}")
+    m = Manifest.load(dataset_dir)
+    settings = metric_settings(m)
+    train = training_series(m, dataset_dir, split, exclude)
+    train = [(v, s.since(init_snapshot)) for v, s in train]
+    records = held_out(m, split, part, max_sims)
+    if not records:
+        raise DataError(f"no finished {part} trajectories in split {split!r} of {dataset_dir}")
+    per_baseline: dict[str, list[dict[str, Any]]] = {b: [] for b in baselines}
+    for rec in records:
+        v = velocity(rec)
+        truth = load_series(dataset_dir / str(rec.file)).since(init_snapshot)
+        for b in baselines:
+            pred = baseline_series(b, train, v)
+            steps = len(pred.times) - 1
+            result = {"sim_id": rec.sim_id, "inlet_velocity": v, "steps_requested": steps,
+                      "extrapolation": not (train[0][0] <= v <= train[-1][0]),
+                      "stability": {"steps_to_divergence": None, "divergence": None, "steps_done": steps,
+                                    "horizons": []},
+                      **compare(pred, truth, settings)}
+            per_baseline[b].append(result)
+    horizon = min(len(s.times) for _, s in train) - 1
+    out: dict[str, dict[str, Any]] = {}
+    for b, results in per_baseline.items():
+        doc = {
+            "baseline": b, "description": DESCRIPTIONS[b], "dataset": str(dataset_dir), "split": split,
+            "part": part, "trained_velocity_range": [train[0][0], train[-1][0]],
+            "training_velocities": [v for v, _ in train], "excluded": list(exclude),
+            "training": {"parameters": 0, "baseline": DESCRIPTIONS[b]},
+            "training_horizon_steps": horizon, "horizons": [], "rollout_steps": horizon,
+            "init_snapshot": init_snapshot, "metric_settings": settings,
+            "aggregate": aggregate(results), "trajectories": results,
+            "machine": machine_info(), "command": " ".join(sys.argv),
+            "date_utc": datetime.now(UTC).isoformat(timespec="seconds"),
+        }
+        folder = Path(out_dir) / f"baseline_{b}" / "evaluation"
+        folder.mkdir(parents=True, exist_ok=True)
+        atomic_write_json(folder / "metrics.json", _jsonable(doc))
+        out[b] = doc
+    return out
+
+
+@report_user_errors
+def main(argv: list[str] | None = None) -> int:
+    p = doc_parser("neuraldem.scenes.fluidized_bed.baselines", __doc__)
+    p.add_argument("dataset", help="dataset folder or name under $NEURALDEM_DATA/datasets (e.g. fb_small)")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--split", default="velocity")
+    p.add_argument("--part", default="test", choices=("train", "val", "test"))
+    p.add_argument("--baselines", nargs="+", default=list(BASELINES), choices=BASELINES)
+    p.add_argument("--init-snapshot", type=int, default=DEFAULT_INIT_SNAPSHOT)
+    p.add_argument("--exclude", nargs="+", default=[], metavar="SIM_ID",
+                   help="training trajectories to leave out (e.g. those a compared model was not trained on)")
+    a = p.parse_args(argv)
+    docs = evaluate_baselines(resolve_dataset(a.dataset), a.out, a.split, a.part, tuple(a.baselines),
+                              a.init_snapshot, exclude=tuple(a.exclude))
+    for b, d in docs.items():
+        g = d["aggregate"]
+        print(f"{b:13s} mean rel L2 {g['solid_fraction_mean_rel_l2']:.3f}  Lacey MAE {g['lacey_mae']:.3f}  "
+              f"({d['description']})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

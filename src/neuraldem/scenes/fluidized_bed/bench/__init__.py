@@ -1,0 +1,1 @@
+"""Scene benchmarks: adapters that feed the shared bench primitives."""

@@ -1,0 +1,222 @@
+"""FluidizedBedModule: trains a MultiBranchOperator to step a CFD-DEM fluidized bed forward by one dt.
+
+Loss: the sum over branches (particles, fluid, mixing; weights in config) of the mean squared error in model
+units (paper sec. 4.3), or of the fair CRPS over `stability.ensemble` >= 2 members of a stochastic net. Each
+training batch unrolls k steps (k drawn from `stability.unroll`) from a data snapshot, exactly as a rollout
+steps (`scenes.fluidized_bed.autoregressive`, with the volume projection and mixing advection when enabled), the
+inputs of each step detached from the previous one's graph, and is scored on every step (or the last,
+`stability.loss_on`) against the data at t + 1 .. t + k (`neuraldem.scenes.fluidized_bed.stability`). `residual=true`:
+the grid branches predict the change over the step in units of its typical size per channel (the loss is then the
+squared error of the change relative to that size, every channel weighted alike); the next state is the input plus the
+change. The net is built here with as many input scalars as the data's conditioning list; checkpoints carry the data's
+metadata (scene, conditioning, normalisation, velocities seen in training) that rollouts and evaluation check
+before using a model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import torch
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from neuraldem.config import checks
+from neuraldem.errors import ConfigError
+from neuraldem.lit.base import SurrogateModule
+from neuraldem.lit.module_setup import loss_weight_settings, net_config_and_metadata
+from neuraldem.lit.optim import optimizer_settings, plain
+from neuraldem.models.modules.patch_embedding import check_patch_size
+from neuraldem.models.multi_branch_operator import BRANCHES, OperatorInputs
+from neuraldem.scenes.fluidized_bed.autoregressive import (
+    apply_stability,
+    decode_grid,
+    grid_cells,
+    grid_step_scales,
+    next_inputs,
+    solid_volume,
+)
+from neuraldem.scenes.fluidized_bed.datamodule import FluidizedBedDataModule
+from neuraldem.scenes.fluidized_bed.normalization import FbNormalizer
+from neuraldem.scenes.fluidized_bed.stability import FbStability
+
+
+class FluidizedBedModule(SurrogateModule):
+    def __init__(self, net: DictConfig | dict, datamodule: FluidizedBedDataModule | None = None,
+                 optimizer: DictConfig | dict | None = None, scheduler: DictConfig | dict | None = None,
+                 loss_weights: DictConfig | dict | None = None, chunk_size: int | None = None,
+                 metadata: dict[str, Any] | None = None, residual: bool = False,
+                 stability: DictConfig | dict | None = None):
+        super().__init__()
+        net_cfg, metadata = net_config_and_metadata("FluidizedBedModule", net, datamodule, metadata)
+        net_cfg.fluid_channels = int(metadata.get("grid_channels", net_cfg.get("fluid_channels", 4)))
+        self.metadata = metadata
+        self.norm = FbNormalizer.from_dict(metadata["normalizer"])
+        check_fits_data(net_cfg, self.norm, metadata.get("particles_per_sample"))
+        opt, sched = optimizer_settings(optimizer, scheduler)
+        weights = loss_weight_settings(loss_weights, BRANCHES)
+        if chunk_size is not None:
+            checks.positive_int("model.chunk_size", chunk_size)
+        self.opt_cfg, self.sched_cfg, self.loss_weights = opt, sched, weights
+        self.chunk_size = chunk_size
+        self.push_forward_steps = int(metadata.get("push_forward_steps", 1))
+        self.stability = FbStability.from_config(plain(stability))
+        self.stability.check_fits(self.push_forward_steps, bool(metadata.get("solids_flux", False)),
+                                  int(net_cfg.get("noise_dim", 0) or 0))
+        self.residual = checks.boolean("model.residual", residual)
+        self.step_scales = grid_step_scales(self.norm) if self.residual else None
+        self.save_hyperparameters({"net": OmegaConf.to_container(net_cfg), "optimizer": opt, "scheduler": sched,
+                                   "loss_weights": weights, "chunk_size": chunk_size, "metadata": metadata,
+                                   "residual": self.residual, "stability": self.stability.to_dict()})
+        self.net = instantiate(net_cfg)
+        # running one-step RMS error per input channel (model units): the noise of input_noise=auto
+        channels = {"particles": self.net.channels["particles"], "fluid": net_cfg.fluid_channels, "mixing": 1}
+        for name, c in channels.items():
+            self.register_buffer(f"step_error_{name}", torch.zeros(c), persistent=True)
+        self.register_buffer("step_error_count", torch.zeros((), dtype=torch.long), persistent=True)
+
+    @staticmethod
+    def inputs(batch: dict[str, torch.Tensor]) -> OperatorInputs:
+        return OperatorInputs(particle_pos=batch["particle_pos"], particle_features=batch["particle_features"],
+                              grid=batch["grid"], mixing_grid=batch["mixing_grid"], scalars=batch["scalars"])
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        """Checkpoints from before the running one-step error existed load with it at zero."""
+        state = checkpoint.get("state_dict", {})
+        for name, buf in self.named_buffers():
+            if name.startswith("step_error_") and name not in state:
+                state[name] = torch.zeros_like(buf)
+
+    # ---- training-time input noise
+    def noise_std(self) -> dict[str, torch.Tensor | float]:
+        if self.stability.input_noise == "auto":
+            return {name: getattr(self, f"step_error_{name}") for name in ("particles", "fluid", "mixing")}
+        return dict.fromkeys(("particles", "fluid", "mixing"), float(self.stability.input_noise))
+
+    def add_input_noise(self, x: OperatorInputs) -> OperatorInputs:
+        std = self.noise_std()
+        if all(not torch.is_tensor(v) and v == 0.0 for v in std.values()):
+            return x
+
+        def noisy(t: torch.Tensor, s: torch.Tensor | float, channel_dim: int) -> torch.Tensor:
+            if torch.is_tensor(s):
+                shape = [1] * t.ndim
+                shape[channel_dim] = -1
+                s = s.to(t.dtype).reshape(shape)
+            return t + s * torch.randn_like(t)
+
+        return replace(x, particle_features=noisy(x.particle_features, std["particles"], -1),
+                       grid=noisy(x.grid, std["fluid"], 1), mixing_grid=noisy(x.mixing_grid, std["mixing"], 1))
+
+    @torch.no_grad()
+    def update_step_error(self, out: dict[str, torch.Tensor], targets: dict[str, torch.Tensor]) -> None:
+        rate = self.stability.noise_ema if int(self.step_error_count) > 0 else 0.0
+        for name in self.net.branches:
+            rms = (out[name] - targets[name]).float().square().mean(dim=tuple(range(out[name].ndim - 1))).sqrt()
+            buf = getattr(self, f"step_error_{name}")
+            buf.mul_(rate).add_((1.0 - rate) * rms.clamp(max=1.0))
+        self.step_error_count += 1
+
+    # ---- losses
+    def draw_unroll(self) -> int:
+        probs = torch.tensor(self.stability.unroll, dtype=torch.float64)
+        return int(torch.multinomial(probs, 1).item()) + 1
+
+    def branch_loss(self, pred: torch.Tensor, target: torch.Tensor, members: int) -> torch.Tensor:
+        """MSE (one member) or the fair CRPS over `members` stacked along the batch (averaged over elements)."""
+        if members == 1:
+            return (pred - target).square().mean()
+        return fair_crps(pred.reshape(members, -1, *pred.shape[1:]), target.reshape(members, -1,
+                                                                                    *target.shape[1:])[0])
+
+    def losses(self, batch: dict[str, torch.Tensor], unroll: int = 1, train: bool = False) -> dict[str, torch.Tensor]:
+        """Per-branch losses (model units), averaged over the scored steps of a `unroll`-step rollout from the
+        batch's snapshot against its targets at t + 1 .. t + unroll."""
+        members = self.stability.ensemble if train else 1
+        x = self.inputs(batch)
+        volume = batch.get("solid_volume")
+        if volume is None:
+            volume = solid_volume(x.grid, self.norm)
+        if train:
+            x = self.add_input_noise(x)
+        if members > 1:
+            x = repeat_members(x, members)
+            volume = volume.repeat(members)
+        n_particles = x.particle_pos.shape[1]
+        totals: dict[str, torch.Tensor] = {}
+        scored = 0
+        for k in range(unroll):
+            targets = {name: batch[f"target_{name}"][:, k] for name in self.net.branches}
+            if members > 1:
+                targets = {name: t.repeat(members, *([1] * (t.ndim - 1))) for name, t in targets.items()}
+            tokens, cond = self.net.latents(x)
+            raw = decode_grid(self.net, tokens, cond, x, self.chunk_size, self.step_scales)
+            fields = apply_stability(raw, x, self.norm, self.stability, volume)
+            # the loss sees the projected solid fraction; the mixing off-branch is trained on its own prediction
+            # even when rollouts advect the concentration instead (the same checkpoint can do either)
+            out = {"fluid": fields["fluid"], "mixing": raw["mixing"]}
+            if self.net.particle_branch:
+                pos = batch["target_pos"][:, k]
+                pos = pos.repeat(members, 1, 1) if members > 1 else pos
+                out["particles"] = self.net.decode(tokens, cond, {"particles": pos}, self.chunk_size)["particles"]
+            if self.residual:  # compare scaled changes
+                for name, grid in (("fluid", x.grid), ("mixing", x.mixing_grid)):
+                    scale = self.step_scales[name].to(grid.device)
+                    out[name] = (out[name] - grid_cells(grid)) / scale
+                    targets[name] = (targets[name] - grid_cells(grid)) / scale
+            if train and k == 0 and not self.residual:
+                self.update_step_error(out, targets)
+            if self.stability.loss_on == "every" or k == unroll - 1:
+                for name in self.net.branches:
+                    totals[name] = totals.get(name, 0.0) + self.branch_loss(out[name], targets[name], members)
+                scored += 1
+            if k < unroll - 1:  # the next step starts from this one's prediction, without its graph
+                with torch.no_grad():
+                    x = next_inputs(self.net, tokens, cond, {n: f.detach() for n, f in fields.items()}, x, self.norm,
+                                    n_particles, chunk_size=self.chunk_size)
+        losses = {name: v / scored for name, v in totals.items()}
+        losses["loss"] = sum(self.loss_weights[k] * losses[k] for k in self.net.branches)
+        return losses
+
+    def stage_losses(self, batch: dict[str, torch.Tensor], stage: str) -> dict[str, torch.Tensor]:
+        """Training draws the unroll length per batch; validation and test score the one-step map."""
+        train = stage == "train"
+        return self.losses(batch, self.draw_unroll() if train else 1, train=train)
+
+
+def fair_crps(members: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean over elements of the fair (unbiased) CRPS of an ensemble (M, ...) against `target` (...):
+    mean_i |x_i - y| - sum_{i != j} |x_i - x_j| / (2 M (M - 1)). Minimised in expectation when the members
+    are draws from the true distribution, so a stochastic model keeps the spread an MSE fit averages away."""
+    m = members.shape[0]
+    skill = (members - target.unsqueeze(0)).abs().mean(dim=0)
+    spread = (members.unsqueeze(0) - members.unsqueeze(1)).abs().sum(dim=(0, 1)) / (2 * m * (m - 1))
+    return (skill - spread).mean()
+
+
+def repeat_members(x: OperatorInputs, members: int) -> OperatorInputs:
+    """The batch stacked `members` times (member-major), each copy drawing its own latent noise."""
+    def rep(t: torch.Tensor) -> torch.Tensor:
+        return t.repeat(members, *([1] * (t.ndim - 1)))
+
+    return replace(x, particle_pos=rep(x.particle_pos), particle_features=rep(x.particle_features), grid=rep(x.grid),
+                   mixing_grid=rep(x.mixing_grid), scalars=rep(x.scalars), noise=None,
+                   supernode_idx=None if x.supernode_idx is None else rep(x.supernode_idx))
+
+
+def check_fits_data(net_cfg: DictConfig, norm: FbNormalizer, particles_per_sample: int | None) -> None:
+    """The patches must tile the data's grid and the supernodes fit in a sample: say so before training."""
+    patch = check_patch_size(list(net_cfg.get("patch_size", [2, 1, 2])))
+    shape = tuple(norm.grid_shape)
+    if len(patch) != len(shape) or any(g % p for g, p in zip(shape, patch, strict=False)):
+        divisors = [[d for d in range(1, g + 1) if g % d == 0] for g in shape]
+        raise ConfigError(f"config value model.net.patch_size={list(patch)} is invalid: the dataset's grid has "
+                          f"{list(shape)} cells, so each patch size must divide its axis (divisors: {divisors}) "
+                          "(override it, e.g. model.net.patch_size=[...])")
+    n = particles_per_sample or norm.n_particles
+    for key in ("n_supernodes", "n_supernodes_eval"):
+        value = net_cfg.get(key)
+        if value is not None and value > n:
+            raise ConfigError(f"config value model.net.{key}={value} is invalid: a sample holds {n} particles "
+                              f"(override it, e.g. model.net.{key}={n})")

@@ -1,0 +1,74 @@
+"""Fluidized-bed baselines from the training trajectories: the interpolation weights, a trajectory scored
+against itself, the layout the run table reads, and the refusals."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from neuraldem.errors import DataError
+from neuraldem.scenes.fluidized_bed import table as collect_fb_table
+from neuraldem.scenes.fluidized_bed.baselines import blend, bracket, evaluate_baselines
+from neuraldem.scenes.fluidized_bed.evaluation import FieldSeries
+from neuraldem.sim.foam_reader import BoxGrid
+
+
+def _series(value: float, n: int = 4) -> FieldSeries:
+    """Synthetic constant fields (unit test of the arithmetic, not solver data)."""
+    grid = BoxGrid(lo=(0.0, 0.0, 0.0), hi=(1.0, 1.0, 1.0), shape=(2, 1, 2))
+    shape = (n, 2, 1, 2)
+    return FieldSeries(np.arange(n, dtype=float), np.full(shape, value), np.full(shape + (3,), value),
+                       np.full(shape, value), grid, 1e-6, 1e-3)
+
+
+def test_bracket_weights_are_linear_in_velocity_and_the_nearest_outside_the_range():
+    train = [(1.0, _series(0.1)), (2.0, _series(0.3)), (3.0, _series(0.5))]
+    runs, weights = bracket(train, 1.25)
+    assert [r.solid_fraction[0, 0, 0, 0] for r in runs] == [0.1, 0.3]
+    assert weights == pytest.approx([0.75, 0.25])
+    assert blend(runs, weights).solid_fraction == pytest.approx(np.full((4, 2, 1, 2), 0.15))
+    runs, weights = bracket(train, 3.7)  # beyond the training range: the nearest run alone
+    assert weights == [1.0] and runs[0].solid_fraction[0, 0, 0, 0] == 0.5
+    runs, weights = bracket(train, 2.0)  # on a training velocity: that run
+    assert weights == [1.0] and runs[0].solid_fraction[0, 0, 0, 0] == 0.3
+
+
+def test_blend_keeps_the_snapshots_all_runs_have():
+    assert len(blend([_series(0.1, 4), _series(0.3, 6)], [0.5, 0.5]).times) == 4
+
+
+@pytest.mark.solver
+def test_a_training_trajectory_scored_against_itself_and_the_table(fb_tiny_dataset: Path, tmp_path: Path):
+    docs = evaluate_baselines(fb_tiny_dataset, tmp_path, part="train")
+    near = docs["nearest"]["trajectories"][0]
+    assert near["sim_id"] == "sim_0000"  # its own nearest training run: every statistic agrees exactly
+    assert all(v == 0.0 for v in near["rel_l2"].values()), near["rel_l2"]
+    assert near["lacey"]["mae"] == 0.0 and not near["extrapolation"]
+    const = docs["constant"]["trajectories"][0]  # the mean of two packings differs from either
+    assert const["rel_l2"]["solid_fraction_std"] > 0.0
+    for b in ("nearest", "interpolated", "constant"):
+        saved = json.loads((tmp_path / f"baseline_{b}" / "evaluation" / "metrics.json").read_text())
+        assert saved["baseline"] == b and saved["training"]["parameters"] == 0
+    table = collect_fb_table.render(collect_fb_table.fb_results([tmp_path]))
+    assert "CFD-DEM at the nearest training velocity" in table and "baseline_constant" in table
+
+
+@pytest.mark.solver
+def test_bad_input_names_the_fix(fb_tiny_dataset: Path, tmp_path: Path):
+    with pytest.raises(DataError, match="unknown fluidized-bed baseline 'gp'"):
+        evaluate_baselines(fb_tiny_dataset, tmp_path, baselines=("gp",))
+    with pytest.raises(DataError, match="no finished val trajectories"):
+        evaluate_baselines(fb_tiny_dataset, tmp_path, part="val")
+    with pytest.raises(DataError, match="--exclude sim_0002: not training trajectories"):
+        evaluate_baselines(fb_tiny_dataset, tmp_path, exclude=("sim_0002",))
+
+
+@pytest.mark.solver
+def test_excluded_runs_are_not_used(fb_tiny_dataset: Path, tmp_path: Path):
+    docs = evaluate_baselines(fb_tiny_dataset, tmp_path, part="train", exclude=("sim_0000",))
+    near = docs["nearest"]["trajectories"][0]  # sim_0000 scored against the other packing, not itself
+    assert near["sim_id"] == "sim_0000" and near["rel_l2"]["solid_fraction_mean"] > 0.0
+    assert docs["nearest"]["excluded"] == ["sim_0000"]

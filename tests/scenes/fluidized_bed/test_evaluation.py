@@ -1,0 +1,95 @@
+"""Fluidized-bed evaluation: ground truth fed through the rollout/evaluation path reproduces its own metrics,
+a model's evaluation writes its report, and the stability report counts steps until divergence."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from neuraldem.data.manifest import Manifest
+from neuraldem.scenes.fluidized_bed import metrics as fm
+from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings
+from neuraldem.scenes.fluidized_bed.evaluation import evaluate_checkpoint, evaluate_trajectory
+from neuraldem.scenes.fluidized_bed.rollout import DataStepper, ModelStepper
+from neuraldem.scenes.fluidized_bed.store import FbFile
+from tests.helpers import run_module
+from tests.scenes.fluidized_bed.test_rollout import Inject, _nan
+
+pytestmark = pytest.mark.solver
+
+
+@pytest.mark.parametrize(("sim", "via_file"), [("sim_0000", True), ("sim_0002", True), ("sim_0002", False)])
+def test_ground_truth_through_the_prediction_path_gives_its_own_metrics(fb_tiny_dataset: Path, tmp_path: Path,
+                                                                        sim: str, via_file: bool):
+    m = Manifest.load(fb_tiny_dataset)
+    rec, settings = m.record(sim), metric_settings(m)
+    path = fb_tiny_dataset / str(rec.file)
+    with FbFile(path) as f:
+        steps, truth_alpha = f.n_snapshots - 1, f.solid_fraction()
+        truth_volume = fm.total_solid_volume(truth_alpha, f.grid.cell_volume)
+        e = evaluate_trajectory(path, sim, rec.params["inlet_velocity"], DataStepper(f), steps, horizon_steps=steps,
+                                horizons=[1, 3], settings=settings,
+                                rollout_path=tmp_path / "gt.h5" if via_file else None, init_snapshot=0)
+    r = e.result
+    assert r["window_steps"] == steps and set(r["rel_l2"]) >= {"solid_fraction_mean", "fluid_speed_std"}
+    assert all(v == 0.0 for v in r["rel_l2"].values()), r["rel_l2"]
+    assert all(v == 0.0 for v in r["rel_l2_full"].values()), r["rel_l2_full"]
+    assert r["lacey"]["mae"] == 0.0
+    assert r["mass"] == r["mass_truth"]
+    assert r["mass"]["drift_pct"] == 100 * (truth_volume[-1] / truth_volume[0] - 1)
+    assert r["mass"]["max_drift_pct"] == 100 * fm.mass_conservation_error(truth_volume)
+    # the scalar metrics equal the ones datagen stored in the manifest for this trajectory
+    for key, value in r["summary_pred"].items():
+        stored = rec.metrics[key]
+        assert (math.isnan(value) and math.isnan(stored)) or value == stored, (key, value, stored)
+    assert r["bed_height"]["mean_pred"] == r["bed_height"]["mean_truth"] == rec.metrics["bed_height_mean"]
+    assert np.array_equal(e.pred.solid_fraction, truth_alpha)
+    assert r["stability"]["steps_to_divergence"] is None
+    assert [h["stable"] for h in r["stability"]["horizons"]] == [True, False]  # 3x is beyond the data
+
+
+def test_evaluation_of_a_model_writes_metrics_report_and_plots(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path,
+                                                               tmp_path: Path):
+    env = {"NEURALDEM_DATA": str(fb_tiny_dataset.parent.parent)}
+    proc = run_module("neuraldem.evaluate", f"ckpt={fb_tiny_checkpoint}", "fluidized_bed.horizons=[1,3]",
+                      f"hydra.run.dir={tmp_path}", env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert "Fluidized-bed surrogate vs CFD-DEM" in proc.stdout and "held-out velocities" in proc.stdout
+    result = json.loads((tmp_path / "metrics.json").read_text())
+    assert result["training_horizon_steps"] == 20 and result["rollout_steps"] == 60
+    (t,) = result["trajectories"]  # fb_tiny holds out one velocity
+    assert t["sim_id"] == "sim_0002" and t["extrapolation"] is True  # 2.04 m/s, trained on 1.23 only
+    assert result["init_snapshot"] == 1 and t["initial_state"].endswith("snapshot 1")
+    assert t["window_steps"] == 19 and t["mass"]["steps"] == 60  # CFD-DEM has 19 steps after snapshot 1
+    assert [(h["multiple"], h["steps"]) for h in t["stability"]["horizons"]] == [(1, 20), (3, 60)]
+    assert 0 < t["rel_l2"]["solid_fraction_mean"] < 10 and math.isfinite(t["mass"]["drift_pct"])
+    assert t["rel_l2_full"]["solid_fraction_mean"] != t["rel_l2"]["solid_fraction_mean"]  # 60 vs 20 steps
+    assert result["aggregate"]["n_trajectories"] == 1 and result["aggregate"]["n_extrapolation"] == 1
+    report = (tmp_path / "report.md").read_text()
+    assert "| 2.042 | yes | 19 |" in report and "## Stability" in report and "3x (60 steps)" in report
+    for name in ("time_averages_sim_0002.png", "curves_sim_0002.png", "solid_volume.png", "rollouts/sim_0002.h5",
+                 "vtk/sim_0002_grid.pvd"):
+        assert (tmp_path / name).is_file(), name
+
+
+def test_stability_report_counts_steps_until_divergence(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path,
+                                                        tmp_path: Path):
+    def stepper(module, velocity):
+        return Inject(ModelStepper(module, velocity), at=30, spoil=_nan)
+
+    with pytest.warns(UserWarning, match="outside the range"):
+        result = evaluate_checkpoint(fb_tiny_checkpoint, tmp_path, fb_tiny_dataset.parent, horizons=[1, 3, 10],
+                                     vtk=False, progress=False, make_stepper=stepper)
+    (t,) = result["trajectories"]
+    s = t["stability"]
+    assert s["steps_to_divergence"] == 30 and s["steps_done"] == 29 and "NaN" in s["divergence"]
+    assert [(h["steps"], h["stable"]) for h in s["horizons"]] == [(20, True), (60, False), (200, False)]
+    assert t["mass"]["steps"] == 29
+    agg = result["aggregate"]
+    assert (agg["stable_at_1x"], agg["stable_at_3x"], agg["stable_at_10x"]) == (1, 0, 0)
+    assert "| 2.042 | 30 (NaN/inf in the predicted fluid velocity (1 values)) | stable | diverged | diverged |" in \
+        (tmp_path / "report.md").read_text()

@@ -1,0 +1,50 @@
+"""The fluidized-bed run table from real evaluations of the tiny model (one of them with a divergence
+injected at step 30), and its clear error when a folder holds no fluidized-bed evaluation."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from neuraldem.scenes.fluidized_bed.evaluation import evaluate_checkpoint
+from neuraldem.scenes.fluidized_bed.rollout import ModelStepper
+from tests.helpers import run_module
+from tests.scenes.fluidized_bed.test_rollout import Inject, _nan
+
+pytestmark = pytest.mark.solver
+
+
+def test_one_row_per_run_and_per_velocity_with_stability(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path,
+                                                         tmp_path: Path):
+    def diverging(module, velocity):
+        return Inject(ModelStepper(module, velocity), at=30, spoil=_nan)
+
+    for name, make in (("steady", None), ("broken", diverging)):
+        with pytest.warns(UserWarning, match="outside the range"):
+            evaluate_checkpoint(fb_tiny_checkpoint, tmp_path / "runs" / name / "evaluation", fb_tiny_dataset.parent,
+                                horizons=[1, 3], vtk=False, progress=False, make_stepper=make)
+    out = tmp_path / "table.md"
+    proc = run_module("neuraldem.scenes.fluidized_bed.table", str(tmp_path / "runs"), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    rows = {line.split(" | ")[0].lstrip("| "): line for line in out.read_text().splitlines()
+            if line.startswith("| steady |")}  # the last one: the per-velocity row
+    summary = [line for line in out.read_text().splitlines() if line.startswith("| broken |")]
+    assert len(summary) == 2  # one summary row, one per-velocity row
+    assert summary[0].endswith("| 1/1 | 0/1 |")  # stable for 1x (20 steps), not 3x
+    assert summary[1].endswith("| 30 |") and "2.042 (extrapolated)" in summary[1]
+    saved = json.loads(out.with_suffix(".json").read_text())
+    steady = next(r for r in saved if r["run"] == "steady")["trajectories"][0]["stability"]["steps_to_divergence"]
+    assert rows["steady"].endswith(f"| {'none' if steady is None else steady} |")
+    assert sorted(r["run"] for r in saved) == ["broken", "steady"]
+    assert all(r["training"]["push_forward_steps"] == 1 and r["training"]["parameters"] > 0 for r in saved)
+
+
+def test_folder_without_fluidized_bed_results_is_one_clear_line(tmp_path: Path):
+    ev = tmp_path / "hopper_run" / "evaluation"
+    ev.mkdir(parents=True)
+    (ev / "metrics.json").write_text(json.dumps({"split": "random", "aggregate": {}}))
+    proc = run_module("neuraldem.scenes.fluidized_bed.table", str(tmp_path), "--out", str(tmp_path / "t.md"))
+    assert proc.returncode == 2 and "no fluidized-bed evaluation" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
