@@ -48,6 +48,13 @@ def test_negative_trainer_value(tmp_path: Path):
     assert "trainer.max_steps=-5 is invalid" in out
 
 
+def test_a_bad_net_value_fails_before_any_data_is_read(tmp_path: Path):
+    """The net's schema is checked when the config is composed: no dataset here, and the net is what is named."""
+    out = _one_clear_error(run_module("neuraldem.train", "experiment=fb_quick", "model.net.num_heads=5",
+                                      env={"NEURALDEM_DATA": str(tmp_path)}))
+    assert "model.net.num_heads=5 is invalid: must divide model.net.dim=" in out and "no dataset" not in out
+
+
 def test_typo_in_key(tmp_path: Path):
     out = _one_clear_error(run_module("neuraldem.train", "trainr.max_steps=5",
                                       env={"NEURALDEM_DATA": str(tmp_path)}))

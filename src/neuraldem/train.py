@@ -22,6 +22,7 @@ from neuraldem.config import checks
 from neuraldem.config.build import build_callbacks, build_loggers, build_trainer, check_trainer
 from neuraldem.data.manifest import require_dataset
 from neuraldem.errors import ConfigError, NeuraldemError
+from neuraldem.models.schemas import validate_net
 from neuraldem.scenes import scene
 
 log = logging.getLogger(__name__)
@@ -35,6 +36,8 @@ def train(cfg: DictConfig) -> dict[str, float]:
         if cfg.get(key) is None:
             raise ConfigError(f"no {key} config selected: pick one with {key}=NAME or experiment=NAME")
     check_trainer(cfg.trainer)
+    if cfg.model.get("net") is not None:  # the net's typed schema, before minutes go into loading data
+        validate_net(cfg.model.net)
     require_dataset(Path(cfg.data.dataset_dir), str(cfg.data.name))
 
     datamodule = instantiate_checked("data.datamodule", cfg.data.datamodule)

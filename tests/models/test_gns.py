@@ -3,6 +3,7 @@ import torch
 
 from neuraldem.errors import ConfigError
 from neuraldem.models.gns import GraphNetworkSimulator, wall_distances
+from neuraldem.models.schemas import GnsNet, build_net
 
 
 def net(**kw):
@@ -58,5 +59,5 @@ def test_wall_distances_are_clipped_at_the_radius():
 
 @pytest.mark.parametrize(("key", "value"), [("radius", 0.0), ("steps", 0), ("history", -1), ("dim", 2.5)])
 def test_bad_values_name_the_key(key, value):
-    with pytest.raises(ConfigError, match=f"model.net.{key}="):
-        net(**{key: value})
+    with pytest.raises(ConfigError, match=f"model.net.{key}={value} is invalid"):
+        build_net({"_target_": GnsNet.target, "n_scalars": 2, key: value})

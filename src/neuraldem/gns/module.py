@@ -12,7 +12,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from neuraldem.errors import ConfigError
@@ -20,6 +19,7 @@ from neuraldem.gns.datamodule import GnsDataModule, GnsNormalizer
 from neuraldem.lit.base import SurrogateModule
 from neuraldem.lit.module_setup import net_config_and_metadata
 from neuraldem.lit.optim import optimizer_settings
+from neuraldem.models.schemas import build_net
 
 SET_FROM_DATA = {"history": "data.datamodule.history", "n_extra_walls": "the dataset's scene"}
 
@@ -41,7 +41,7 @@ class GnsModule(SurrogateModule):
         self.opt_cfg, self.sched_cfg = opt, sched
         self.save_hyperparameters({"net": OmegaConf.to_container(net_cfg), "optimizer": opt, "scheduler": sched,
                                    "metadata": metadata})
-        self.net = instantiate(net_cfg)
+        self.net = build_net(net_cfg)
 
     def forward(self, batch: Any) -> torch.Tensor:
         """Standardised accelerations (N, 3) of a torch_geometric batch (or one graph's dict of inputs)."""

@@ -25,8 +25,6 @@ from torch import nn
 from torch_cluster import radius_graph
 from torch_geometric.nn import MessagePassing
 
-from neuraldem.config import checks
-
 N_BOX_WALLS = 6  # distance to the lower and upper wall of the box along x, y, z
 
 
@@ -87,15 +85,8 @@ class GraphNetworkSimulator(nn.Module):
                  max_neighbours: int = 64, dim: int = 64, hidden: int = 64, mlp_layers: int = 2,
                  steps: int = 5) -> None:
         super().__init__()
-        self.n_scalars = checks.positive_int("model.net.n_scalars", n_scalars, allow_zero=True)
-        self.history = checks.positive_int("model.net.history", history)
-        self.n_extra_walls = checks.positive_int("model.net.n_extra_walls", n_extra_walls, allow_zero=True)
-        self.radius = checks.positive("model.net.radius", radius)
-        self.max_neighbours = checks.positive_int("model.net.max_neighbours", max_neighbours)
-        checks.positive_int("model.net.dim", dim)
-        checks.positive_int("model.net.hidden", hidden)
-        checks.positive_int("model.net.mlp_layers", mlp_layers)
-        self.steps = checks.positive_int("model.net.steps", steps)
+        self.n_scalars, self.history, self.n_extra_walls = n_scalars, history, n_extra_walls
+        self.radius, self.max_neighbours, self.steps = float(radius), max_neighbours, steps
         node_in = 3 * history + N_BOX_WALLS + n_extra_walls + n_scalars
         self.node_encoder = mlp(node_in, hidden, dim, mlp_layers)
         self.edge_encoder = mlp(4, hidden, dim, mlp_layers)  # relative displacement (3) + distance, in radii

@@ -13,7 +13,6 @@ from collections.abc import Mapping, Sequence
 import torch
 from torch import nn
 
-from neuraldem.config import checks
 from neuraldem.models.modules.perceiver_decoder import PerceiverDecoder
 from neuraldem.models.modules.position_embedding import DEFAULT_COORD_SCALE
 from neuraldem.models.modules.scalar_conditioner import ScalarConditioner
@@ -72,13 +71,12 @@ class HopperFieldModel(nn.Module):
                  mlp_ratio: float = 4.0, time_coord_scale: float = DEFAULT_COORD_SCALE,
                  scalar_coord_scale: float = DEFAULT_COORD_SCALE) -> None:
         super().__init__()
-        self.branches = checks.names("model.net.branches", branches, allowed=BRANCH_CHANNELS)
-        self.n_scalars = checks.positive_int("model.net.n_scalars", n_scalars)
-        checks.positive_int("model.net.n_latent_tokens", n_latent_tokens)
-        checks.positive_int("model.net.depth", depth)
-        checks.positive("model.net.mlp_ratio", mlp_ratio)
-        scales = [checks.positive("model.net.time_coord_scale", time_coord_scale)] + [
-            checks.positive("model.net.scalar_coord_scale", scalar_coord_scale)] * (n_scalars - 1)
+        self.branches = [str(b) for b in branches]
+        unknown = sorted(set(self.branches) - set(BRANCH_CHANNELS))
+        if unknown:
+            raise ValueError(f"unknown branches {unknown}; known: {list(BRANCH_CHANNELS)}")
+        self.n_scalars = n_scalars
+        scales = [float(time_coord_scale)] + [float(scalar_coord_scale)] * (n_scalars - 1)
         self.conditioner = ScalarConditioner(n_scalars, dim, cond_dim, scales)
         self.branch_nets = nn.ModuleDict({
             name: HopperBranch(BRANCH_CHANNELS[name], dim, num_heads, cond_dim, n_latent_tokens, depth,

@@ -13,7 +13,6 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
-from neuraldem.config import checks
 from neuraldem.models.modules.mlp import Mlp
 from neuraldem.models.modules.multi_branch_block import MultiBranchTransformerBlock
 from neuraldem.models.modules.patch_embedding import PatchEmbedding, cell_centres
@@ -77,17 +76,13 @@ class MultiBranchOperator(nn.Module):
                  patch_size: Sequence[int] = (2, 1, 2), mlp_ratio: float = 4.0, particle_branch: bool = True,
                  noise_dim: int = 0) -> None:
         super().__init__()
-        self.noise_dim = checks.positive_int("model.net.noise_dim", noise_dim, allow_zero=True)
-        self.n_scalars = checks.positive_int("model.net.n_scalars", n_scalars)
-        self.particle_branch = checks.boolean("model.net.particle_branch", particle_branch)
+        self.noise_dim, self.n_scalars, self.particle_branch = noise_dim, n_scalars, bool(particle_branch)
         self.main_branches = MAIN_BRANCHES if self.particle_branch else ("fluid",)
         self.branches = self.main_branches + OFF_BRANCHES
         self.channels = {
-            "particles": checks.positive_int("model.net.particle_channels", particle_channels),
-            "fluid": checks.positive_int("model.net.fluid_channels", fluid_channels),
-            "mixing": checks.positive_int("model.net.mixing_channels", mixing_channels),
+            "particles": particle_channels, "fluid": fluid_channels, "mixing": mixing_channels,
         }
-        depths = {stage: checks.positive_int(f"model.net.{stage}_depth", depth, allow_zero=True)
+        depths = {stage: depth
                   for stage, depth in (("encoder", encoder_depth), ("approximator", approximator_depth),
                                        ("decoder", decoder_depth))}
         self.conditioner = ScalarConditioner(n_scalars, dim, cond_dim)

@@ -7,12 +7,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from hydra.errors import InstantiationException
-from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from torch import nn
 
-from neuraldem.errors import ConfigError, NeuraldemError
+from neuraldem.errors import ConfigError
+from neuraldem.models import schemas
 from neuraldem.models.gns import GraphNetworkSimulator
 from neuraldem.models.hopper_field import HopperFieldModel
 from neuraldem.models.multi_branch_operator import MultiBranchOperator
@@ -50,12 +49,4 @@ def net_config(name: str, **overrides: Any) -> DictConfig:
 def build_net(name: str, **overrides: Any) -> nn.Module:
     """Instantiate the net of model config `name` (on the current default device, e.g. inside
     `with torch.device("meta"):` to size a model without allocating it)."""
-    try:
-        return instantiate(net_config(name, **overrides))
-    except InstantiationException as err:
-        cause = err.__cause__
-        if isinstance(cause, NeuraldemError):
-            raise cause from None
-        if isinstance(cause, TypeError):  # an unknown or missing constructor argument in the yaml
-            raise ConfigError(f"model config {name!r}: {cause}") from None
-        raise
+    return schemas.build_net(net_config(name, **overrides))

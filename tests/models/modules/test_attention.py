@@ -1,7 +1,6 @@
 import pytest
 import torch
 
-from neuraldem.errors import ConfigError
 from neuraldem.models.modules.attention import attend, check_heads, merge_heads, split_heads
 
 
@@ -24,7 +23,7 @@ def test_split_merge_roundtrip():
 
 def test_heads_must_divide_dim():
     check_heads(12, 3)
-    with pytest.raises(ConfigError, match="model.net.num_heads"):
+    with pytest.raises(ValueError, match="not a positive multiple of 5 heads"):
         check_heads(12, 5)
-    with pytest.raises(ConfigError, match="model.net.dim"):
+    with pytest.raises(ValueError, match="not a positive multiple"):
         check_heads(0, 1)

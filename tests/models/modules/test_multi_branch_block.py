@@ -1,7 +1,6 @@
 import pytest
 import torch
 
-from neuraldem.errors import ConfigError
 from neuraldem.models.modules.multi_branch_block import MultiBranchTransformerBlock
 from tests.models.nets import activate_modulations
 
@@ -73,9 +72,9 @@ def test_off_branch_loss_sends_no_gradient_into_main_branches():
 
 
 def test_branch_names_are_validated():
-    with pytest.raises(ConfigError, match="both main and off"):
+    with pytest.raises(ValueError, match="must be non-empty and distinct"):
         MultiBranchTransformerBlock(16, 2, 8, ["a", "b"], ["b"])
-    with pytest.raises(ConfigError, match="model.net.main_branches"):
+    with pytest.raises(ValueError, match="must be non-empty and distinct"):
         MultiBranchTransformerBlock(16, 2, 8, [], ["b"])
     with pytest.raises(ValueError, match="missing"):
         make_block()({"particles": torch.randn(2, 5, 16)}, torch.randn(2, 8))

@@ -3,7 +3,6 @@ import math
 import pytest
 import torch
 
-from neuraldem.errors import ConfigError
 from neuraldem.models.modules.position_embedding import DEFAULT_COORD_SCALE, ContinuousSincosEmbed
 
 
@@ -35,7 +34,7 @@ def test_nearby_unit_range_coordinates_are_distinguished():
 
 
 def test_rejects_too_small_dim_and_wrong_axes():
-    with pytest.raises(ConfigError, match="model.net.dim"):
+    with pytest.raises(ValueError, match="too narrow: it needs >= 6"):
         ContinuousSincosEmbed(dim=4, ndim=3)
     with pytest.raises(ValueError, match="3 coordinates"):
         ContinuousSincosEmbed(dim=12, ndim=3)(torch.rand(2, 2))

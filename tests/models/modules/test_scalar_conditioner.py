@@ -1,7 +1,6 @@
 import pytest
 import torch
 
-from neuraldem.errors import ConfigError
 from neuraldem.models.modules.scalar_conditioner import ScalarConditioner
 
 
@@ -27,7 +26,7 @@ def test_scalars_are_not_interchangeable():
 
 
 def test_validation():
-    with pytest.raises(ConfigError, match="model.net.n_scalars"):
-        ScalarConditioner(n_scalars=0, dim=16, cond_dim=16)
+    with pytest.raises(ValueError, match="1 coordinate scales for 2 scalars"):
+        ScalarConditioner(n_scalars=2, dim=16, cond_dim=16, coord_scales=[1.0])
     with pytest.raises(ValueError, match=r"\(B, 2\)"):
         ScalarConditioner(n_scalars=2, dim=16, cond_dim=16)(torch.rand(4, 3))

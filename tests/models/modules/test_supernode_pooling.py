@@ -76,9 +76,7 @@ def test_select_supernodes_draws_distinct_particles():
 
 
 def test_validation():
-    with pytest.raises(ConfigError, match="model.net.position_mode"):
+    with pytest.raises(ValueError, match="position_mode 'polar' is not one of"):
         make_pooling(position_mode="polar")
-    with pytest.raises(ConfigError, match="model.net.radius"):
-        make_pooling(radius=0)
     with pytest.raises(ValueError, match="particle features"):
         make_pooling()(*particles()[:1], torch.randn(2, 40, 4))

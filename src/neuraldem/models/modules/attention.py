@@ -9,9 +9,6 @@ from __future__ import annotations
 import torch
 from torch.nn import functional as F
 
-from neuraldem.config import checks
-from neuraldem.errors import ConfigError
-
 
 def split_heads(x: torch.Tensor, num_heads: int) -> torch.Tensor:
     """(B, N, dim) -> (B, heads, N, dim / heads)."""
@@ -33,9 +30,6 @@ def attend(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, num_heads: int) ->
 
 
 def check_heads(dim: int, num_heads: int) -> None:
-    """Validates the width/head pair of an attention block (heads must split the width evenly)."""
-    checks.positive_int("model.net.dim", dim)
-    checks.positive_int("model.net.num_heads", num_heads)
-    if dim % num_heads:
-        raise ConfigError(f"config value model.net.num_heads={num_heads} is invalid: must divide "
-                          f"model.net.dim={dim} (override it, e.g. model.net.num_heads=...)")
+    """Heads must split the width evenly (a user's config is checked before, in `models.schemas`)."""
+    if dim <= 0 or num_heads <= 0 or dim % num_heads:
+        raise ValueError(f"attention width {dim} is not a positive multiple of {num_heads} heads")

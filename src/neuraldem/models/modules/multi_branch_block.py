@@ -16,8 +16,6 @@ from collections.abc import Mapping, Sequence
 import torch
 from torch import nn
 
-from neuraldem.config import checks
-from neuraldem.errors import ConfigError
 from neuraldem.models.modules.attention import attend, check_heads
 from neuraldem.models.modules.dit_modulation import DitModulation, dit_norm, modulate
 from neuraldem.models.modules.mlp import Mlp
@@ -55,11 +53,10 @@ class OffBranchLayers(_BranchLayers):
 
 
 def check_branches(main_branches: Sequence[str], off_branches: Sequence[str]) -> tuple[list[str], list[str]]:
-    main = checks.names("model.net.main_branches", main_branches)
-    off = checks.names("model.net.off_branches", off_branches) if len(off_branches) else []
-    if set(main) & set(off):
-        raise ConfigError(f"branches {sorted(set(main) & set(off))} are both main and off-branches; "
-                          "each branch must be one or the other")
+    main, off = [str(b) for b in main_branches], [str(b) for b in off_branches]
+    if not main or len(set(main + off)) != len(main + off):
+        raise ValueError(f"main branches {main} and off-branches {off} must be non-empty and distinct; "
+                         "each branch must be one or the other")
     return main, off
 
 
@@ -70,7 +67,6 @@ class MultiBranchTransformerBlock(nn.Module):
                  off_branches: Sequence[str] = (), mlp_ratio: float = 4.0) -> None:
         super().__init__()
         check_heads(dim, num_heads)
-        checks.positive("model.net.mlp_ratio", mlp_ratio)
         self.main_branches, self.off_branches = check_branches(main_branches, off_branches)
         self.num_heads = num_heads
         self.main = nn.ModuleDict({name: MainBranchLayers(dim, cond_dim, mlp_ratio)

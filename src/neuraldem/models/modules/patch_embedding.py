@@ -12,7 +12,6 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from neuraldem.config import checks
 from neuraldem.errors import ConfigError
 from neuraldem.models.modules.position_embedding import ContinuousSincosEmbed
 
@@ -23,11 +22,12 @@ def cell_centres(shape: Sequence[int], device: torch.device | str | None = None)
     return torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, len(shape))
 
 
-def check_patch_size(patch_size: Sequence[int], key: str = "model.net.patch_size") -> tuple[int, ...]:
-    if isinstance(patch_size, str) or not isinstance(patch_size, Sequence) or len(patch_size) not in (2, 3):
-        raise ConfigError(f"config value {key}={patch_size!r} is invalid: must be a list of 2 or 3 positive "
-                          f"integers (one per grid axis), e.g. {key}=[4,4,4]")
-    return tuple(checks.positive_int(f"{key}[{i}]", p) for i, p in enumerate(patch_size))
+def as_patch_size(patch_size: Sequence[int]) -> tuple[int, ...]:
+    """2 or 3 positive cell counts (a user's config is checked before, in `models.schemas`)."""
+    size = tuple(int(p) for p in patch_size)
+    if len(size) not in (2, 3) or min(size) <= 0:
+        raise ValueError(f"patch size {tuple(patch_size)} is not 2 or 3 positive cell counts")
+    return size
 
 
 def patch_grid_shape(grid_shape: Sequence[int], patch_size: Sequence[int]) -> tuple[int, ...]:
@@ -47,9 +47,9 @@ class PatchEmbedding(nn.Module):
 
     def __init__(self, in_channels: int, dim: int, patch_size: Sequence[int]) -> None:
         super().__init__()
-        self.patch_size = check_patch_size(patch_size)
+        self.patch_size = as_patch_size(patch_size)
         conv = nn.Conv2d if len(self.patch_size) == 2 else nn.Conv3d
-        self.proj = conv(checks.positive_int("model.net.grid_channels", in_channels), dim,
+        self.proj = conv(in_channels, dim,
                          kernel_size=self.patch_size, stride=self.patch_size)
         self.pos_embed = ContinuousSincosEmbed(dim, ndim=len(self.patch_size))
 
@@ -64,8 +64,8 @@ class PatchUnembedding(nn.Module):
 
     def __init__(self, dim: int, out_channels: int, patch_size: Sequence[int]) -> None:
         super().__init__()
-        self.patch_size = check_patch_size(patch_size)
-        self.out_channels = checks.positive_int("model.net.grid_channels", out_channels)
+        self.patch_size = as_patch_size(patch_size)
+        self.out_channels = out_channels
         self.proj = nn.Linear(dim, out_channels * math.prod(self.patch_size))
 
     def forward(self, tokens: torch.Tensor, grid_shape: Sequence[int]) -> torch.Tensor:

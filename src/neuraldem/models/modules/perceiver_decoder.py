@@ -10,7 +10,6 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from neuraldem.config import checks
 from neuraldem.models.modules.mlp import Mlp
 from neuraldem.models.modules.perceiver_block import DitPerceiverBlock
 from neuraldem.models.modules.position_embedding import ContinuousSincosEmbed
@@ -22,7 +21,7 @@ class PerceiverDecoder(nn.Module):
     def __init__(self, dim: int, out_dim: int, num_heads: int, cond_dim: int, ndim: int = 3,
                  mlp_ratio: float = 4.0) -> None:
         super().__init__()
-        self.out_dim = checks.positive_int("out_dim", out_dim)
+        self.out_dim = out_dim
         self.query_embed = nn.Sequential(ContinuousSincosEmbed(dim, ndim), Mlp(dim, dim))
         self.block = DitPerceiverBlock(dim, num_heads, cond_dim, mlp_ratio)
         self.head = nn.Sequential(nn.LayerNorm(dim, eps=1e-6), Mlp(dim, dim, out_dim))
@@ -31,8 +30,5 @@ class PerceiverDecoder(nn.Module):
                 chunk_size: int | None = None) -> torch.Tensor:
         """`chunk_size` queries at a time (None: all at once); the result does not depend on it."""
         key_value = self.block.key_value(latents)
-        if chunk_size is None:
-            chunks = [query_pos]
-        else:
-            chunks = query_pos.split(checks.positive_int("chunk_size", chunk_size), dim=1)
+        chunks = [query_pos] if chunk_size is None else query_pos.split(chunk_size, dim=1)
         return torch.cat([self.head(self.block(self.query_embed(c), key_value, cond)) for c in chunks], dim=1)

@@ -5,9 +5,6 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from neuraldem.config import checks
-from neuraldem.errors import ConfigError
-
 # Inputs in [0, 1] are multiplied by this, so the highest frequency (period 2*pi in scaled units) resolves
 # ~0.6% of the domain and the lowest (period 2*pi*max_wavelength) stays monotonic over the whole domain.
 DEFAULT_COORD_SCALE = 1000.0
@@ -25,12 +22,11 @@ class ContinuousSincosEmbed(nn.Module):
     def __init__(self, dim: int, ndim: int, *, max_wavelength: float = 10_000.0,
                  coord_scale: float = DEFAULT_COORD_SCALE) -> None:
         super().__init__()
-        self.dim = checks.positive_int("model.net.dim", dim)
-        self.ndim = checks.positive_int("ndim", ndim)
-        if dim < 2 * ndim:
-            raise ConfigError(f"config value model.net.dim={dim} is invalid: must be >= {2 * ndim} to embed "
+        self.dim, self.ndim = dim, ndim
+        if ndim <= 0 or dim < 2 * ndim:
+            raise ValueError(f"an embedding of width {dim} is too narrow: it needs >= {2 * ndim} to embed "
                               f"{ndim} coordinate axes (override it, e.g. model.net.dim=...)")
-        self.coord_scale = checks.positive("coord_scale", coord_scale)
+        self.coord_scale = float(coord_scale)
         n_freq = dim // ndim // 2
         self.n_padding = dim - 2 * n_freq * ndim
         exponent = torch.arange(n_freq, dtype=torch.float32) / n_freq

@@ -10,7 +10,6 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-from neuraldem.config import checks
 from neuraldem.models.modules.mlp import Mlp
 from neuraldem.models.modules.position_embedding import DEFAULT_COORD_SCALE, ContinuousSincosEmbed
 
@@ -26,9 +25,7 @@ class ScalarConditioner(nn.Module):
     def __init__(self, n_scalars: int, dim: int, cond_dim: int,
                  coord_scales: float | Sequence[float] = DEFAULT_COORD_SCALE) -> None:
         super().__init__()
-        self.n_scalars = checks.positive_int("model.net.n_scalars", n_scalars)
-        checks.positive_int("model.net.dim", dim)
-        checks.positive_int("model.net.cond_dim", cond_dim)
+        self.n_scalars = n_scalars
         scales = [coord_scales] * n_scalars if isinstance(coord_scales, (int, float)) else list(coord_scales)
         if len(scales) != n_scalars:
             raise ValueError(f"{len(scales)} coordinate scales for {n_scalars} scalars")

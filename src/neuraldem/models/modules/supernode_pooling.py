@@ -11,7 +11,6 @@ import torch
 from torch import nn
 from torch_cluster import radius as radius_graph
 
-from neuraldem.config import checks
 from neuraldem.errors import ConfigError
 from neuraldem.models.modules.mlp import Mlp
 from neuraldem.models.modules.position_embedding import ContinuousSincosEmbed
@@ -49,13 +48,14 @@ class SupernodePooling(nn.Module):
                  n_supernodes_eval: int | None = None, max_neighbours: int = 32, ndim: int = 3,
                  position_mode: str = "both") -> None:
         super().__init__()
-        self.in_channels = checks.positive_int("model.net.particle_channels", in_channels)
-        self.radius = checks.positive("model.net.radius", radius)
-        self.n_supernodes = checks.positive_int("model.net.n_supernodes", n_supernodes)
-        self.n_supernodes_eval = checks.positive_int(
-            "model.net.n_supernodes_eval", n_supernodes if n_supernodes_eval is None else n_supernodes_eval)
-        self.max_neighbours = checks.positive_int("model.net.max_neighbours", max_neighbours)
-        self.position_mode = checks.one_of("model.net.position_mode", position_mode, POSITION_MODES)
+        if position_mode not in POSITION_MODES:
+            raise ValueError(f"position_mode {position_mode!r} is not one of {POSITION_MODES}")
+        self.in_channels = in_channels
+        self.radius = float(radius)
+        self.n_supernodes = n_supernodes
+        self.n_supernodes_eval = n_supernodes if n_supernodes_eval is None else n_supernodes_eval
+        self.max_neighbours = max_neighbours
+        self.position_mode = position_mode
         self.pos_embed = ContinuousSincosEmbed(dim, ndim)
         n_embeddings = 2 if position_mode == "both" else 1
         self.message = Mlp(in_channels + n_embeddings * dim, dim, dim)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from neuraldem.config import checks
 from neuraldem.models.modules.attention import attend, check_heads
 from neuraldem.models.modules.dit_modulation import DitModulation, dit_norm, modulate
 from neuraldem.models.modules.mlp import Mlp
@@ -22,7 +21,7 @@ class DitTransformerBlock(nn.Module):
         self.qkv = nn.Linear(dim, 3 * dim)
         self.attn_out = nn.Linear(dim, dim)
         self.mlp_norm = dit_norm(dim)
-        self.mlp = Mlp(dim, int(dim * checks.positive("model.net.mlp_ratio", mlp_ratio)))
+        self.mlp = Mlp(dim, int(dim * mlp_ratio))
         self.modulation = DitModulation(dim, cond_dim, n_vectors=6)
 
     def forward(self, x: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:

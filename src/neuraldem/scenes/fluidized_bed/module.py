@@ -19,7 +19,6 @@ from dataclasses import replace
 from typing import Any
 
 import torch
-from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from neuraldem.config import checks
@@ -27,8 +26,8 @@ from neuraldem.errors import ConfigError
 from neuraldem.lit.base import SurrogateModule
 from neuraldem.lit.module_setup import loss_weight_settings, net_config_and_metadata
 from neuraldem.lit.optim import optimizer_settings, plain
-from neuraldem.models.modules.patch_embedding import check_patch_size
 from neuraldem.models.multi_branch_operator import BRANCHES, OperatorInputs
+from neuraldem.models.schemas import build_net, validate_net
 from neuraldem.scenes.fluidized_bed.autoregressive import (
     apply_stability,
     decode_grid,
@@ -69,7 +68,7 @@ class FluidizedBedModule(SurrogateModule):
         self.save_hyperparameters({"net": OmegaConf.to_container(net_cfg), "optimizer": opt, "scheduler": sched,
                                    "loss_weights": weights, "chunk_size": chunk_size, "metadata": metadata,
                                    "residual": self.residual, "stability": self.stability.to_dict()})
-        self.net = instantiate(net_cfg)
+        self.net = build_net(net_cfg)
         # running one-step RMS error per input channel (model units): the noise of input_noise=auto
         channels = {"particles": self.net.channels["particles"], "fluid": net_cfg.fluid_channels, "mixing": 1}
         for name, c in channels.items():
@@ -207,7 +206,7 @@ def repeat_members(x: OperatorInputs, members: int) -> OperatorInputs:
 
 def check_fits_data(net_cfg: DictConfig, norm: FbNormalizer, particles_per_sample: int | None) -> None:
     """The patches must tile the data's grid and the supernodes fit in a sample: say so before training."""
-    patch = check_patch_size(list(net_cfg.get("patch_size", [2, 1, 2])))
+    patch = validate_net(net_cfg).patch_size
     shape = tuple(norm.grid_shape)
     if len(patch) != len(shape) or any(g % p for g, p in zip(shape, patch, strict=False)):
         divisors = [[d for d in range(1, g + 1) if g % d == 0] for g in shape]

@@ -11,12 +11,13 @@ from typing import Any
 
 import torch
 import torch.nn.functional as F
-from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from neuraldem.config import checks
 from neuraldem.lit.base import SurrogateModule
 from neuraldem.lit.module_setup import loss_weight_settings, net_config_and_metadata
 from neuraldem.lit.optim import optimizer_settings
+from neuraldem.models.schemas import build_net
 from neuraldem.scenes.hopper.datamodule import HopperDataModule
 
 LOSSES = ("occupancy", "transport", "residence")
@@ -33,10 +34,10 @@ class HopperModule(SurrogateModule):
         opt, sched = optimizer_settings(optimizer, scheduler)
         weights = loss_weight_settings(loss_weights, LOSSES)
         self.opt_cfg, self.sched_cfg, self.loss_weights = opt, sched, weights
-        self.chunk_size = chunk_size
+        self.chunk_size = None if chunk_size is None else checks.positive_int("model.chunk_size", chunk_size)
         self.save_hyperparameters({"net": OmegaConf.to_container(net_cfg), "optimizer": opt, "scheduler": sched,
                                    "loss_weights": weights, "chunk_size": chunk_size, "metadata": metadata})
-        self.net = instantiate(net_cfg)
+        self.net = build_net(net_cfg)
 
     def forward(self, scalars: torch.Tensor, query_pos: Any) -> dict[str, torch.Tensor]:
         return self.net(scalars, query_pos, chunk_size=self.chunk_size)

@@ -14,13 +14,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, read_checkpoint, require_kind
-from neuraldem.models.registry import build_net
+from neuraldem.models.registry import build_net as build_named_net
+from neuraldem.models.schemas import build_net
 from neuraldem.scenes.hopper.evaluation import load_hopper_checkpoint
 from neuraldem.scenes.hopper.predict import ModelPredictor, TrajectoryFields, time_grid
 from neuraldem.scenes.hopper.store import HopperFile
@@ -106,9 +106,9 @@ def untrained_surrogate(net_cfg: dict | str, conditioning: list[str], **net_over
     n_latent_tokens=64), random weights, a unit-box normaliser; for timing only."""
     torch.manual_seed(0)
     if isinstance(net_cfg, str):
-        net = build_net(net_cfg, n_scalars=len(conditioning), **net_overrides)
+        net = build_named_net(net_cfg, n_scalars=len(conditioning), **net_overrides)
     else:
-        net = instantiate(OmegaConf.create({**net_cfg, "n_scalars": len(conditioning), **net_overrides}))
+        net = build_net(OmegaConf.create({**net_cfg, "n_scalars": len(conditioning), **net_overrides}))
     net.eval()
     scalars = [c for c in conditioning if c != "t"]
     norm = HopperNormalizer(list(UNIT_BOX[0]), list(UNIT_BOX[1]), horizon=1.0,
