@@ -15,6 +15,10 @@ import numpy as np
 from neuraldem.errors import DataError
 
 
+class OutsideBoxError(DataError):
+    """Query points far outside the box a model was trained on: that run cannot be answered (others can)."""
+
+
 class DictStats:
     """`to_dict` / `from_dict` of a dataclass of fitted statistics: the plain dict travels inside every
     checkpoint, and the same dict builds the normalizer again."""
@@ -60,7 +64,7 @@ class HopperNormalizer(DictStats):
         bad = ~np.all((u >= -tol) & (u <= 1 + tol), axis=-1)
         if bad.any():
             worst = np.asarray(x)[bad][0]
-            raise DataError(f"{what}: {int(bad.sum())} query point(s) outside the scene box "
+            raise OutsideBoxError(f"{what}: {int(bad.sum())} query point(s) outside the scene box "
                             f"{np.round(self.box_lo, 4).tolist()} .. {np.round(self.box_hi, 4).tolist()} m "
                             f"the model was trained on (e.g. {np.round(worst, 4).tolist()}); "
                             "drop or clip them before querying")

@@ -3,6 +3,7 @@ or a wrong scene is refused with a clear message."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -116,6 +117,35 @@ def test_outside_the_trained_ranges_is_answered_and_flagged(tiny_checkpoint: Pat
     assert flagged[val_id]["mu_s"][0] == 5.0 and result["aggregate"]["n_extrapolated"] >= 1
     assert np.isfinite(result["aggregate"]["drainage_t95_pct_of_mean"])  # answered all the same
     assert f"{val_id}: extrapolation, outside the trained range: mu_s=5" in capsys.readouterr().err
+
+
+def test_a_run_outside_the_trained_box_is_flagged_and_the_others_evaluated(
+        tiny_checkpoint: Path, hopper_tiny_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]):
+    """Query points far outside the box the model learned cannot be answered: that run is named (metrics.json,
+    a warning) and left out, the other runs are scored; when no run is inside, one clear error."""
+    import shutil
+
+    import h5py
+
+    from neuraldem.scenes.hopper.evaluation import evaluate_checkpoint
+
+    other = tmp_path / "other"
+    shutil.copytree(hopper_tiny_dataset, other)
+    m = Manifest.load(other)
+    meta = torch.load(tiny_checkpoint, map_location="cpu", weights_only=False)["hyper_parameters"]["metadata"]
+    moved, kept = meta["split_ids"]["train"][:2]
+    with h5py.File(other / str(m.record(moved).file), "r+") as f:  # the whole run 1 m higher than any trained
+        f["snapshots/position"].attrs["origin"] = f["snapshots/position"].attrs["origin"] + [0.0, 0.0, 1.0]
+    result = evaluate_checkpoint(tiny_checkpoint, tmp_path / "out", tmp_path, dataset_dir=other, part="train",
+                                 max_sims=2, vtk=False, progress=False)
+    assert [s["sim_id"] for s in result["simulations"]] == [kept] and result["aggregate"]["n_sims"] == 1
+    assert [s["sim_id"] for s in result["skipped"]] == [moved] and "outside the scene box" in result["skipped"][0][
+        "reason"]
+    assert json.loads((tmp_path / "out" / "metrics.json").read_text())["skipped"][0]["sim_id"] == moved
+    assert f"warning: {moved} not evaluated" in capsys.readouterr().err
+    with pytest.raises(DataError, match="none of the 1 runs .* lies inside the box"):
+        evaluate_checkpoint(tiny_checkpoint, tmp_path / "out2", tmp_path, dataset_dir=other, part="train",
+                            max_sims=1, vtk=False, progress=False)
 
 
 def test_dem_fields_on_every_second_time_are_the_full_grid_subsampled(hopper_tiny_dataset: Path):

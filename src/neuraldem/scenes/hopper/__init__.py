@@ -38,6 +38,9 @@ def evaluate(cfg: DictConfig) -> None:
           f"residual MAE {agg['residual_mae_pp']:.2f} pp, "
           f"outflow error {agg['outflow_rel_err_pct']:.1f} %, flow regime accuracy "
           f"{100 * agg['flow_regime_accuracy']:.0f} %")
+    if result["skipped"]:
+        print(f"{len(result['skipped'])} run(s) not evaluated (query points outside the trained box): "
+              f"{', '.join(s['sim_id'] for s in result['skipped'])}")
     print(f"results in {cfg.paths.output_dir}")
 
 

@@ -94,11 +94,19 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     model = ModelPredictor(module.net, norm, list(meta["conditioning"]), device=device)
     truth = DemPredictor(dataset_dir, radius, horizon=norm.horizon)
     box = np.asarray(norm.box_hi) - np.asarray(norm.box_lo)
+    skipped: list[dict[str, str]] = []
     evals = evaluate_sims(records, dataset_dir, truth, model, times, box, norm.horizon, settings,
-                          keep_fields=len(records), progress=progress)
+                          keep_fields=len(records), progress=progress, skipped=skipped)
+    for s in skipped:
+        print(f"warning: {s['sim_id']} not evaluated: {s['reason']}", file=sys.stderr)
+    if not evals:
+        raise DataError(f"none of the {len(records)} runs of {dataset_dir} lies inside the box checkpoint {ckpt} "
+                        f"was trained on (e.g. {skipped[0]['reason']})")
     warn_extrapolation(evals)
     agg = aggregate(evals)
-    baselines = baseline_scores(meta, training_manifest(meta, m, datasets_dir), records)
+    evaluated = {e.sim_id for e in evals}
+    baselines = baseline_scores(meta, training_manifest(meta, m, datasets_dir),
+                                [r for r in records if r.sim_id in evaluated])
     rows = [table_row(meta, agg)] + [table_row(meta, b["aggregate"], kind) for kind, b in baselines.items()
                                      if "aggregate" in b]
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -108,7 +116,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         "metric_settings": settings.as_dict(),
         "conditioning": meta["conditioning"], "aggregate": agg, "table_row": rows[0], "table_rows": rows,
         "baselines": baselines,
-        "simulations": [e.as_dict() for e in evals], "machine": machine_info(),
+        "simulations": [e.as_dict() for e in evals], "skipped": skipped, "machine": machine_info(),
         "command": " ".join(sys.argv), "date_utc": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     atomic_write_json(out_dir / "metrics.json", result)

@@ -17,6 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from neuraldem.data.manifest import Manifest, SimRecord
+from neuraldem.data.normalization import OutsideBoxError
 from neuraldem.scenes.hopper.metrics import (
     SCALARS,
     HopperMetricSettings,
@@ -73,16 +74,25 @@ def summarise(fields: TrajectoryFields, initial_z: np.ndarray,
 def evaluate_sims(records: list[SimRecord], dataset_dir: Path, truth: HopperPredictor,
                   model: HopperPredictor, times: np.ndarray, box_size: np.ndarray, horizon: float,
                   settings: HopperMetricSettings = HopperMetricSettings(),  # noqa: B008 frozen dataclass, immutable
-                  keep_fields: int = 0,
-                  progress: bool = True) -> list[SimEvaluation]:
+                  keep_fields: int = 0, progress: bool = True,
+                  skipped: list[dict[str, str]] | None = None) -> list[SimEvaluation]:
+    """Model and truth on every run. With `skipped` (a list), a run whose query points lie far outside the
+    box the model was trained on is recorded there ({sim_id, reason}) and the others are still evaluated;
+    without it, that run is an error."""
     out = []
     for i, rec in enumerate(tqdm(records, desc="evaluate", unit="sim", disable=not progress)):
         with HopperFile(dataset_dir / str(rec.file)) as f:
             points, exits = f.initial_positions(), f.exit_times
-        ft = truth.fields(rec, times, points)
         t0 = time.perf_counter()
-        fp = model.fields(rec, times, points)
+        try:
+            fp = model.fields(rec, times, points)
+        except OutsideBoxError as err:
+            if skipped is None:
+                raise
+            skipped.append({"sim_id": rec.sim_id, "reason": str(err)})
+            continue
         answer_s = time.perf_counter() - t0
+        ft = truth.fields(rec, times, points)
         st, stripes_t = summarise(ft, points[:, 2], settings)
         st["residual_fraction_particles"] = float(np.mean(~np.isfinite(exits)))
         sp, stripes_p = summarise(fp, points[:, 2], settings)
