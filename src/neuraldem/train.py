@@ -21,7 +21,7 @@ from neuraldem.cli import hydra_app
 from neuraldem.config import checks
 from neuraldem.config.build import build_callbacks, build_loggers, build_trainer, check_trainer
 from neuraldem.data.manifest import require_dataset
-from neuraldem.errors import ConfigError, NeuraldemError
+from neuraldem.errors import ConfigError, DataError, NeuraldemError
 from neuraldem.models.schemas import validate_net
 from neuraldem.scenes import scene
 
@@ -80,8 +80,13 @@ def instantiate_checked(key: str, node: DictConfig, **kwargs: Any) -> Any:
     try:
         return instantiate(node, **kwargs)
     except InstantiationException as err:
-        if isinstance(err.__cause__, NeuraldemError):
-            raise err.__cause__ from None
+        cause = err.__cause__
+        if isinstance(cause, NeuraldemError):
+            raise cause from None
+        if cause is not None and not isinstance(cause, TypeError):  # a reader failed: say what, not Hydra's wrap
+            raise DataError(f"cannot build {key}: {type(cause).__name__}: {cause}".splitlines()[0],
+                            "if it names a dataset file, delete that file and rerun datagen (or re-import it)"
+                            ) from None
         msg = str(err).strip().splitlines()[0]
         raise ConfigError(f"cannot build {key}: {msg}") from None
 

@@ -143,3 +143,38 @@ def test_first_moves_named_simulations_to_the_front_and_keeps_the_rest_in_order(
     assert [r.sim_id for r in put_first(todo, ("sim_0003", "sim_0002"), table)] == \
         ["sim_0003", "sim_0002", "sim_0004", "sim_0000"]
     assert put_first(todo, (), table) == todo
+
+
+def test_killed_at_random_points_equals_an_uninterrupted_run(tmp_path: Path):
+    """SIGKILL at seeded random moments (inside a solver run, while writing, between runs), restart each time:
+    the finished dataset holds the same runs, positions and metrics as one uninterrupted datagen, and no
+    half-written file."""
+    import numpy as np
+
+    ref = datagen(tmp_path / "ref", "n_sims=3")
+    assert ref.returncode == 0, ref.stderr
+    root = tmp_path / "killed"
+    env = dict(os.environ, NEURALDEM_DATA=str(root))
+    rng = np.random.default_rng(22)
+    kills = 0
+    for _ in range(8):
+        proc = subprocess.Popen([sys.executable, "-m", "neuraldem.datagen", *FAST, "n_sims=3"], cwd=REPO, env=env,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        try:
+            proc.wait(timeout=float(rng.uniform(2.0, 12.0)))
+            break  # finished before the kill
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)  # datagen and its LIGGGHTS
+            proc.wait()
+            kills += 1
+    final = datagen(root, "n_sims=3")  # whatever is left, uninterrupted
+    assert final.returncode == 0, final.stderr
+    assert kills >= 2  # the draws above stop at least two datagen processes mid-way
+    a, b = manifest(tmp_path / "ref"), manifest(root)
+    assert [r.status for r in b.simulations] == ["ok"] * 3
+    for ra, rb in zip(a.simulations, b.simulations, strict=True):
+        assert (ra.sim_id, ra.params, ra.metrics) == (rb.sim_id, rb.params, rb.metrics)
+        with HopperFile(tmp_path / "ref/datasets/hopper_tiny" / ra.file) as fa, \
+                HopperFile(root / "datasets/hopper_tiny" / rb.file) as fb:
+            np.testing.assert_array_equal(fa.positions(), fb.positions())
+    assert not list((root / "datasets/hopper_tiny").rglob("*.partial"))

@@ -97,8 +97,8 @@ class Manifest:
         except FileNotFoundError:
             raise DataError(f"no manifest at {path}") from None
         except json.JSONDecodeError as err:
-            raise DataError(f"{path} is not valid JSON ({err}); restore it or delete the dataset dir "
-                            "and rerun datagen") from None
+            raise DataError(f"{path} is not valid JSON ({err})",
+                            "restore it, or delete the dataset dir and rerun datagen") from None
         check_version(raw.get("schema_version"), path)
         try:
             sims = [SimRecord(**r) for r in raw.pop("simulations", [])]
@@ -107,7 +107,8 @@ class Manifest:
             raise DataError(f"{path}: unexpected manifest layout ({err})") from None
         for r in m.simulations:
             if r.status not in STATUSES:
-                raise DataError(f"{path}: simulation {r.sim_id} has unknown status {r.status!r}")
+                raise DataError(f"{path}: simulation {r.sim_id} has unknown status {r.status!r}",
+                                f"set it to one of {list(STATUSES)} (pending reruns it with datagen)")
         return m
 
 

@@ -18,17 +18,18 @@ from neuraldem.errors import DataError
 
 SCHEMA_VERSION = 1
 TMP_SUFFIX = ".partial"
+# what to do about a dataset file a reader refuses
+REWRITE_FIX = ("delete the file and rerun the datagen command of its dataset (finished runs are kept), or import "
+               "it again")
 
 
 def check_version(found: Any, path: Path) -> None:
     if hasattr(found, "item"):  # numpy scalar from an HDF5 attribute
         found = found.item()
     if found != SCHEMA_VERSION:
-        raise DataError(
-            f"{path}: schema version {found!r}, this neuraldem reads version {SCHEMA_VERSION}: regenerate the "
-            "dataset with `python -m neuraldem.datagen` (finished runs are reused) or install the neuraldem "
-            "version that wrote it"
-        )
+        raise DataError(f"{path}: schema version {found!r}, this neuraldem reads version {SCHEMA_VERSION}",
+                        "regenerate the dataset with `python -m neuraldem.datagen` (finished runs are reused) or "
+                        "install the neuraldem version that wrote it")
 
 
 def atomic_write_h5(path: Path, fill: Callable[[h5py.File], None]) -> None:
@@ -86,11 +87,13 @@ class ValidatedH5File:
         self.path = Path(path)
         if not self.path.is_file():
             raise DataError(f"dataset file {self.path} does not exist (regenerate with python -m neuraldem.datagen)")
+        from neuraldem.data.integrity import verify_recorded_checksum  # integrity imports this module
+
+        verify_recorded_checksum(self.path)
         try:
             self.f = h5py.File(self.path, "r")
         except OSError as err:
-            raise DataError(f"{self.path}: not a readable HDF5 file ({err}); delete it and rerun datagen, "
-                            "which regenerates missing simulations") from None
+            raise DataError(f"{self.path}: not a readable HDF5 file ({err})", REWRITE_FIX) from None
         try:
             check_version(self.f.attrs.get("schema_version"), self.path)
             if self.f.attrs.get("kind") != self.KIND:
@@ -98,6 +101,11 @@ class ValidatedH5File:
             self._read_meta()
             if validate:
                 self.validate()
+        except DataError as err:
+            self.f.close()
+            if err.fix:
+                raise
+            raise DataError(err.problem, REWRITE_FIX) from None
         except Exception:
             self.f.close()
             raise

@@ -21,6 +21,7 @@ from typing import Any, Protocol
 
 from tqdm import tqdm
 
+from neuraldem.data.integrity import command_line, dataset_lock
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import TMP_SUFFIX, sha256
 from neuraldem.errors import ConfigError, DataError, NeuraldemError, SolverInterrupted
@@ -139,6 +140,12 @@ def remove_partials(dataset_dir: Path) -> None:
 
 
 def generate(pipe: Pipeline, opts: DatagenOptions) -> Manifest:
+    """Run what the dataset lacks, as the only writer of the dataset (a second datagen is refused)."""
+    with dataset_lock(pipe.dataset_dir, command_line()):
+        return _generate(pipe, opts)
+
+
+def _generate(pipe: Pipeline, opts: DatagenOptions) -> Manifest:
     pipe.dataset_dir.mkdir(parents=True, exist_ok=True)
     remove_partials(pipe.dataset_dir)
     m = open_manifest(pipe)

@@ -13,6 +13,8 @@ import numpy as np
 
 from neuraldem.errors import DataError
 
+TEXT_DUMP = "write it with `dump custom` as text (not binary, not gzipped)"
+
 
 @dataclass
 class DumpFrame:
@@ -48,8 +50,10 @@ def read_dump(path: Path, required: tuple[str, ...] = ("id", "x", "y", "z"),
         except DataError as err:
             if last and drop_truncated_tail:
                 break
-            hint = " (a killed run? pass drop_truncated_tail to keep the complete frames)" if last else ""
-            raise DataError(f"{path}: frame {k}: {err}{hint}") from None
+            fix = err.fix
+            if last and err.problem.startswith("truncated"):
+                fix = "a killed run? pass drop_truncated_tail (--drop-truncated-tail) to keep the complete frames"
+            raise DataError(f"{path}: frame {k}: {err.problem}", fix) from None
     steps = [f.step for f in frames]
     if any(b <= a for a, b in zip(steps, steps[1:], strict=False)):
         raise DataError(f"{path}: timesteps are not increasing ({steps[:5]}...); two runs appended to one file?")
@@ -60,25 +64,28 @@ def _parse_block(block: str, required: tuple[str, ...]) -> DumpFrame:
     lines = block.lstrip("\n").split("\n", 8)
     if len(lines) < 8 or not lines[1].startswith("ITEM: NUMBER OF ATOMS") or not lines[7].startswith(
             "ITEM: ATOMS"):
-        raise DataError("header incomplete (expected TIMESTEP, NUMBER OF ATOMS, BOX BOUNDS, ATOMS)")
+        raise DataError("header incomplete (expected TIMESTEP, NUMBER OF ATOMS, BOX BOUNDS, ATOMS)", TEXT_DUMP)
     try:
         step = int(lines[0])
         n = int(lines[2])
     except ValueError:
-        raise DataError("timestep or atom count is not an integer") from None
+        raise DataError("timestep or atom count is not an integer", TEXT_DUMP) from None
     columns = lines[7].split()[2:]
     missing = [c for c in required if c not in columns]
     if missing:
-        raise DataError(f"columns {missing} missing (has {columns}); add them to the `dump custom` command")
+        raise DataError(f"columns {missing} missing (has {columns})", "add them to the `dump custom` command")
     body = lines[8] if len(lines) > 8 else ""
     try:
         values = np.array(body.split(), dtype=np.float64)
     except ValueError:
-        raise DataError("non-numeric value in the atom lines") from None
+        raise DataError("non-numeric value in the atom lines", f"the file is damaged or not a text dump: {TEXT_DUMP}"
+                        ) from None
     if values.size != n * len(columns):
-        raise DataError(f"truncated: {n} atoms x {len(columns)} columns announced, {values.size} values found")
+        raise DataError(f"truncated: {n} atoms x {len(columns)} columns announced, {values.size} values found",
+                        "the file is damaged: rerun the solver, or cut the dump before this frame")
     if not np.isfinite(values).all():
-        raise DataError("NaN or inf in the atom data (the solver diverged?)")
+        raise DataError("NaN or inf in the atom data",
+                        "the solver diverged: rerun it with a smaller timestep, or cut the dump before this frame")
     return DumpFrame(step=step, columns=columns, data=values.reshape(n, len(columns)))
 
 
@@ -96,7 +103,9 @@ def read_exit_file(path: Path) -> tuple[np.ndarray, np.ndarray]:
         try:
             rows.append((int(float(parts[0])), float(parts[1])))
         except (ValueError, IndexError):
-            raise DataError(f"{path}:{lineno}: expected 'id time ...', got {s[:60]!r}") from None
+            raise DataError(f"{path}:{lineno}: expected 'id time ...', got {s[:60]!r}",
+                            "one 'id time' pair per line, as `fix massflow/mesh ... file F writeTime` writes it"
+                            ) from None
     if not rows:
         return np.zeros(0, dtype=np.int64), np.zeros(0)
     arr = np.array(rows)

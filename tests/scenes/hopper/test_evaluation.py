@@ -16,6 +16,7 @@ from neuraldem.scenes.hopper.evaluation import load_hopper_checkpoint
 from neuraldem.scenes.hopper.predict import DemPredictor, time_grid
 from neuraldem.scenes.hopper.scoring import SCALARS, aggregate, dataset_metric_settings, evaluate_sims
 from neuraldem.scenes.hopper.store import HopperFile
+from tests.helpers import rerecord_checksum
 
 pytestmark = pytest.mark.solver
 
@@ -136,6 +137,7 @@ def test_a_run_outside_the_trained_box_is_flagged_and_the_others_evaluated(
     moved, kept = meta["split_ids"]["train"][:2]
     with h5py.File(other / str(m.record(moved).file), "r+") as f:  # the whole run 1 m higher than any trained
         f["snapshots/position"].attrs["origin"] = f["snapshots/position"].attrs["origin"] + [0.0, 0.0, 1.0]
+    rerecord_checksum(other, other / str(m.record(moved).file))
     result = evaluate_checkpoint(tiny_checkpoint, tmp_path / "out", tmp_path, dataset_dir=other, part="train",
                                  max_sims=2, vtk=False, progress=False)
     assert [s["sim_id"] for s in result["simulations"]] == [kept] and result["aggregate"]["n_sims"] == 1

@@ -25,7 +25,7 @@ class ContinuousSincosEmbed(nn.Module):
         self.dim, self.ndim = dim, ndim
         if ndim <= 0 or dim < 2 * ndim:
             raise ValueError(f"an embedding of width {dim} is too narrow: it needs >= {2 * ndim} to embed "
-                              f"{ndim} coordinate axes (override it, e.g. model.net.dim=...)")
+                             f"{ndim} coordinate axes")
         self.coord_scale = float(coord_scale)
         n_freq = dim // ndim // 2
         self.n_padding = dim - 2 * n_freq * ndim

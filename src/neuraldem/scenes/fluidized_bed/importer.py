@@ -24,6 +24,7 @@ Example:
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -31,8 +32,9 @@ from typing import Any
 import numpy as np
 
 from neuraldem.cli import doc_parser, parse_assignments, report_user_errors
+from neuraldem.data.integrity import command_line, dataset_lock
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
-from neuraldem.data.schema import sha256
+from neuraldem.data.schema import TMP_SUFFIX, sha256
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.checkpoints import check_import_joins
 from neuraldem.scenes.fluidized_bed.datagen import FbMetricSettings, FieldSettings, file_metrics
@@ -180,32 +182,40 @@ def main(argv: list[str] | None = None) -> int:
     density = a.density if a.density is not None else particle_density(a.case, a.cloud)
     traj = read_trajectory(case, grid, t0, dt_ml, a.snapshots, density=density, cloud_reader=reader)
     params = {"inlet_velocity": float(a.inlet_velocity), **parse_assignments(a.param, "--param", "packing=0")}
-    a.dataset.mkdir(parents=True, exist_ok=True)
-    (a.dataset / "sims").mkdir(exist_ok=True)
-    rel = f"sims/{a.sim_id}.h5"
-    write_fb_file(a.dataset / rel, a.sim_id, traj, params, "imported", a.kernel_sigma, a.mixing_sigma)
     metrics = FbMetricSettings(lacey_block=tuple(a.lacey_block))  # type: ignore[arg-type]
-    scene = imported_scene(a.dataset / rel, grid, dt_ml, a.kernel_sigma, a.mixing_sigma)
-    if (a.dataset / MANIFEST_NAME).exists():
-        m = Manifest.load(a.dataset)
-        if m.kind != KIND:
-            raise DataError(f"{a.dataset} holds a {m.kind!r} dataset; import fluidized beds into their own dataset")
-        check_import_joins(m, scene, a.dataset, "bed")
-        m.scene = scene
-        m.simulations = [r for r in m.simulations if r.sim_id != a.sim_id]
-    else:
-        m = Manifest(name=a.dataset.name, kind=KIND, scene=scene,
-                     solver={"name": "OpenFOAM", "version": "imported"},
-                     parameters={"names": sorted(params), "metrics": {
-                         "lacey_block": list(metrics.lacey_block), "lacey_min_count": metrics.lacey_min_count,
-                         "bed_quantile": metrics.bed_quantile, "bubble_threshold": metrics.bubble_threshold}})
-    n_lost = int(np.isfinite(traj.lost_time).sum())
-    rec = SimRecord(sim_id=a.sim_id, index=len(m.simulations), params=params, status="ok", file=rel,
-                    sha256=sha256(a.dataset / rel), metrics=file_metrics(a.dataset / rel, metrics),
-                    diagnostics={"imported_from": str(a.case.resolve()), "t0": t0, "grid_mapping": traj.grid_mapping,
-                                 "n_particles": traj.n_particles, "n_lost": n_lost})
-    m.simulations.append(rec)
-    m.save(a.dataset)
+    with dataset_lock(a.dataset, command_line()):  # the only writer; nothing changes until the checks pass
+        (a.dataset / "sims").mkdir(exist_ok=True)
+        rel = f"sims/{a.sim_id}.h5"
+        staged = a.dataset / (rel + TMP_SUFFIX)  # the scene is read from the written file: checked before it counts
+        try:
+            write_fb_file(staged, a.sim_id, traj, params, "imported", a.kernel_sigma, a.mixing_sigma)
+            scene = imported_scene(staged, grid, dt_ml, a.kernel_sigma, a.mixing_sigma)
+            if (a.dataset / MANIFEST_NAME).exists():
+                m = Manifest.load(a.dataset)
+                if m.kind != KIND:
+                    raise DataError(f"{a.dataset} holds a {m.kind!r} dataset; import fluidized beds into their "
+                                    "own dataset")
+                check_import_joins(m, scene, a.dataset, "bed")
+                m.scene = scene
+                m.simulations = [r for r in m.simulations if r.sim_id != a.sim_id]
+            else:
+                m = Manifest(name=a.dataset.name, kind=KIND, scene=scene,
+                             solver={"name": "OpenFOAM", "version": "imported"},
+                             parameters={"names": sorted(params), "metrics": {
+                                 "lacey_block": list(metrics.lacey_block),
+                                 "lacey_min_count": metrics.lacey_min_count,
+                                 "bed_quantile": metrics.bed_quantile, "bubble_threshold": metrics.bubble_threshold}})
+            os.replace(staged, a.dataset / rel)
+        finally:
+            staged.unlink(missing_ok=True)
+        n_lost = int(np.isfinite(traj.lost_time).sum())
+        rec = SimRecord(sim_id=a.sim_id, index=len(m.simulations), params=params, status="ok", file=rel,
+                        sha256=sha256(a.dataset / rel), metrics=file_metrics(a.dataset / rel, metrics),
+                        diagnostics={"imported_from": str(a.case.resolve()), "t0": t0,
+                                     "grid_mapping": traj.grid_mapping, "n_particles": traj.n_particles,
+                                     "n_lost": n_lost})
+        m.simulations.append(rec)
+        m.save(a.dataset)
     print(f"imported {a.sim_id}: {traj.n_particles} particles ({n_lost} lost), {len(traj.times)} snapshots every "
           f"{dt_ml:g} s on a {'x'.join(map(str, grid.shape))} grid ({traj.grid_mapping}) -> {a.dataset / rel}")
     print("metrics: " + ", ".join(f"{k}={v:.4g}" for k, v in rec.metrics.items()))

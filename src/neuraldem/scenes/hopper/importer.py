@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from neuraldem.cli import doc_parser, parse_assignments, report_user_errors
+from neuraldem.data.integrity import command_line, dataset_lock
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import sha256
 from neuraldem.errors import ConfigError
@@ -79,25 +80,25 @@ def main(argv: list[str] | None = None) -> int:
                                  drop_truncated_tail=a.drop_truncated_tail)
     traj.geometry = HopperGeometry(radius=a.radius, outlet_radius=a.outlet_radius, cone_height=a.cone_height,
                                    wall_height=float(np.nanmax(traj.positions[..., 2])), sink_z=sink_z)
-    a.dataset.mkdir(parents=True, exist_ok=True)
-    rel = f"sims/{a.sim_id}.h5"
-    (a.dataset / "sims").mkdir(exist_ok=True)
-    write_hopper_file(a.dataset / rel, a.sim_id, traj, params, "imported", a.resolution)
-    scene = imported_scene(a)
-    if (a.dataset / MANIFEST_NAME).exists():
-        m = Manifest.load(a.dataset)
-        check_import_joins(m, scene, a.dataset, "scene")
-        m.scene = scene if m.scene.get("imported") else m.scene
-        m.simulations = [r for r in m.simulations if r.sim_id != a.sim_id]
-    else:
-        m = Manifest(name=a.dataset.name, kind="hopper", scene=scene,
-                     solver={"name": "LIGGGHTS", "version": "imported"}, parameters={"names": sorted(params)})
-    rec = SimRecord(sim_id=a.sim_id, index=len(m.simulations), params=params, macro=macro, status="ok",
-                    file=rel, sha256=sha256(a.dataset / rel),
-                    metrics=stored_metrics(a.dataset / rel, a.diameter),
-                    diagnostics={"imported_from": str(a.dump.resolve())})
-    m.simulations.append(rec)
-    m.save(a.dataset)
+    with dataset_lock(a.dataset, command_line()):  # the only writer; the dataset is checked before it changes
+        rel = f"sims/{a.sim_id}.h5"
+        scene = imported_scene(a)
+        if (a.dataset / MANIFEST_NAME).exists():
+            m = Manifest.load(a.dataset)
+            check_import_joins(m, scene, a.dataset, "scene")
+            m.scene = scene if m.scene.get("imported") else m.scene
+            m.simulations = [r for r in m.simulations if r.sim_id != a.sim_id]
+        else:
+            m = Manifest(name=a.dataset.name, kind="hopper", scene=scene,
+                         solver={"name": "LIGGGHTS", "version": "imported"}, parameters={"names": sorted(params)})
+        (a.dataset / "sims").mkdir(exist_ok=True)
+        write_hopper_file(a.dataset / rel, a.sim_id, traj, params, "imported", a.resolution)
+        rec = SimRecord(sim_id=a.sim_id, index=len(m.simulations), params=params, macro=macro, status="ok",
+                        file=rel, sha256=sha256(a.dataset / rel),
+                        metrics=stored_metrics(a.dataset / rel, a.diameter),
+                        diagnostics={"imported_from": str(a.dump.resolve())})
+        m.simulations.append(rec)
+        m.save(a.dataset)
     print(f"imported {a.sim_id}: {traj.n_particles} particles, {len(traj.times)} snapshots -> {a.dataset / rel}")
     print("metrics: " + ", ".join(f"{k}={v:.4g}" for k, v in rec.metrics.items()))
     return 0

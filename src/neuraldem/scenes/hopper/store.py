@@ -122,6 +122,9 @@ class HopperFile(ValidatedH5File, TrajectorySize):
         bad = np.isinf(self.exit_times) | (self.exit_times < 0)
         if bad.any():
             raise DataError(f"{self.path}: /particles/exit_time has {int(bad.sum())} negative or infinite values")
+        if self._pos.dtype != np.int16:
+            raise DataError(f"{self.path}: /snapshots/position has dtype {self._pos.dtype}, expected int16 "
+                            "(quantised positions, docs/data-format.md)")
         if not (np.isfinite(self.origin).all() and self.resolution > 0):
             raise DataError(f"{self.path}: /snapshots/position has a broken origin/resolution attribute")
         q = self._pos[()]

@@ -25,6 +25,7 @@ import h5py
 import numpy as np
 
 from neuraldem.cli import doc_parser, report_user_errors
+from neuraldem.data.integrity import command_line, dataset_lock
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest
 from neuraldem.data.schema import atomic_write_json, sha256
 from neuraldem.errors import DataError
@@ -112,21 +113,22 @@ def unpack(parts: list[Path], dataset_dir: Path) -> Manifest:
     if not parts:
         raise DataError("nothing to unpack: give the part folders written by `pack`")
     m = Manifest.load(parts[0])
-    (dataset_dir / "sims").mkdir(parents=True, exist_ok=True)
-    done = set()
-    for part in parts:
-        for packed in sorted(Path(part).glob("*.npz")):
-            rec = m.record(packed.stem)
-            unpack_file(packed, dataset_dir / str(rec.file))
-            rec.sha256 = sha256(dataset_dir / str(rec.file))
-            rec.diagnostics["compact_copy"] = True
-            done.add(rec.sim_id)
-    for rec in m.usable():
-        if rec.sim_id not in done:  # not shipped: not part of this copy
-            rec.status, rec.reason = "failed", "not included in this compact copy"
-    m.splits = {name: {part: [i for i in ids if i in done] for part, ids in split.items()}
-                for name, split in m.splits.items()}
-    atomic_write_json(dataset_dir / MANIFEST_NAME, m.to_json())
+    with dataset_lock(dataset_dir, command_line()):
+        (dataset_dir / "sims").mkdir(parents=True, exist_ok=True)
+        done = set()
+        for part in parts:
+            for packed in sorted(Path(part).glob("*.npz")):
+                rec = m.record(packed.stem)
+                unpack_file(packed, dataset_dir / str(rec.file))
+                rec.sha256 = sha256(dataset_dir / str(rec.file))
+                rec.diagnostics["compact_copy"] = True
+                done.add(rec.sim_id)
+        for rec in m.usable():
+            if rec.sim_id not in done:  # not shipped: not part of this copy
+                rec.status, rec.reason = "failed", "not included in this compact copy"
+        m.splits = {name: {part: [i for i in ids if i in done] for part, ids in split.items()}
+                    for name, split in m.splits.items()}
+        atomic_write_json(dataset_dir / MANIFEST_NAME, m.to_json())
     return m
 
 
