@@ -43,3 +43,29 @@ def test_checkpoint_on_rollout_metrics_needs_the_rollout_callback(tmp_path):
     with pytest.raises(ConfigError, match="callbacks.checkpoint.monitor=val/rollout_score .*val/loss"):
         build_callbacks(OmegaConf.create({"checkpoint": ckpt, "rollout_validation": None}))
     build_callbacks(OmegaConf.create({"checkpoint": {**ckpt, "monitor": "val/loss"}}))  # one-step loss: fine
+
+
+def test_checkpoints_are_written_whole_or_not_at_all(tmp_path, monkeypatch):
+    """A save that dies half-way leaves the previous checkpoint as it was and no temporary file."""
+    import pytest
+    import torch
+    from lightning.pytorch.plugins.io import TorchCheckpointIO
+
+    from neuraldem.config.build import AtomicCheckpointIO
+
+    trainer = build_trainer(OmegaConf.create({**TRAINER, "default_root_dir": str(tmp_path)}), [], [])
+    io = trainer.strategy.checkpoint_io
+    assert isinstance(io, AtomicCheckpointIO)
+    path = tmp_path / "ckpt" / "latest.ckpt"
+    io.save_checkpoint({"global_step": 4}, path)
+    assert torch.load(path, weights_only=False)["global_step"] == 4
+
+    def dies_half_way(self, checkpoint, p, storage_options=None):
+        p.write_bytes(b"PK\x03\x04 half")  # what a kill mid-write leaves
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(TorchCheckpointIO, "save_checkpoint", dies_half_way)
+    with pytest.raises(KeyboardInterrupt):
+        io.save_checkpoint({"global_step": 6}, path)
+    assert torch.load(path, weights_only=False)["global_step"] == 4
+    assert sorted(q.name for q in path.parent.iterdir()) == ["latest.ckpt"]

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
 from typing import Any
 
 import lightning as L
 from hydra.utils import instantiate
 from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint, ProgressBar, WeightAveraging
+from lightning.pytorch.plugins.io import TorchCheckpointIO
 from omegaconf import DictConfig
 
 from neuraldem.config import checks
@@ -40,6 +43,24 @@ def check_trainer(cfg: DictConfig) -> None:
         checks.positive_int("trainer.devices", devices)
 
 
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Checkpoints written under a temporary name, flushed, then renamed: a run killed while saving leaves the
+    previous checkpoint (what `ckpt_path=<run>/checkpoints/latest.ckpt` resumes from) whole, never a
+    half-written file under its name."""
+
+    def save_checkpoint(self, checkpoint: dict[str, Any], path: str | Path, storage_options: Any = None) -> None:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".partial")
+        try:
+            super().save_checkpoint(checkpoint, tmp, storage_options)
+            with open(tmp, "rb+") as fh:
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
+
+
 def build_trainer(cfg: DictConfig, callbacks: list[Any], loggers: list[Any]) -> L.Trainer:
     check_trainer(cfg)
     # the progress bar is the `callbacks.progress` entry; with it set to null there is none (Lightning would
@@ -48,7 +69,9 @@ def build_trainer(cfg: DictConfig, callbacks: list[Any], loggers: list[Any]) -> 
         callbacks = [cb for cb in callbacks if not isinstance(cb, ProgressBar)]
     has_bar = any(isinstance(cb, ProgressBar) for cb in callbacks)
     try:
-        return instantiate(cfg, callbacks=callbacks, logger=loggers or False, enable_progress_bar=has_bar)
+        plugins = {} if cfg.get("plugins") else {"plugins": [AtomicCheckpointIO()]}  # a user's own plugins win
+        return instantiate(cfg, callbacks=callbacks, logger=loggers or False, enable_progress_bar=has_bar,
+                           **plugins)
     except Exception as err:  # Lightning's own validation (MisconfigurationException, ValueError, ...)
         msg = str(getattr(err, "__cause__", None) or err).strip().splitlines()[0]
         raise ConfigError(f"invalid trainer config: {msg}") from None
