@@ -59,6 +59,9 @@ def test_evaluation_of_a_model_writes_metrics_report_and_plots(fb_tiny_checkpoin
                       f"hydra.run.dir={tmp_path}", env=env)
     assert proc.returncode == 0, proc.stderr
     assert "Fluidized-bed surrogate vs CFD-DEM" in proc.stdout and "held-out velocities" in proc.stdout
+    train = run_module("neuraldem.evaluate", f"ckpt={fb_tiny_checkpoint}", "fluidized_bed.horizons=[1]", "part=train",
+                       "vtk=false", f"hydra.run.dir={tmp_path}/train", env=env)
+    assert train.returncode == 0 and "train trajectories:" in train.stdout, train.stderr  # not called held-out
     result = json.loads((tmp_path / "metrics.json").read_text())
     assert result["training_horizon_steps"] == 20 and result["rollout_steps"] == 60
     (t,) = result["trajectories"]  # fb_tiny holds out one velocity

@@ -39,7 +39,8 @@ def evaluate(cfg: DictConfig) -> None:
             "fluidized_bed.advection_correction", correction, lo=0.0, hi=1.0))
     agg = result["aggregate"]
     print((Path(cfg.paths.output_dir) / "report.md").read_text())
-    print(f"{agg['n_trajectories']} held-out velocities: mean solid-fraction rel. L2 "
+    which = "held-out velocities" if cfg.part == "test" else f"{cfg.part} trajectories"
+    print(f"{agg['n_trajectories']} {which}: mean solid-fraction rel. L2 "
           f"{agg['solid_fraction_mean_rel_l2']:.3f}, max mass drift {agg['mass_max_abs_drift_pct']:.2f} % over "
           f"{result['rollout_steps']} steps, Lacey MAE {agg['lacey_mae']:.3f}")
     print(f"results in {cfg.paths.output_dir}")
