@@ -156,3 +156,10 @@ def rerecord_checksum(dataset: Path, path: Path) -> None:
         if r.get("file") == Path(path).relative_to(dataset).as_posix():
             r["sha256"] = sha256(path)
     (dataset / "manifest.json").write_text(json.dumps(m))
+
+
+def flip_byte(path: Path) -> None:
+    """Flip one byte in the middle of a file (an HDF5 file that may still open: only the checksum knows)."""
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))

@@ -26,7 +26,7 @@ import pytest
 
 from neuraldem.data.manifest import Manifest
 from neuraldem.errors import NeuraldemError
-from tests.helpers import rerecord_checksum
+from tests.helpers import flip_byte, rerecord_checksum
 
 
 @dataclass(frozen=True)
@@ -42,11 +42,8 @@ def _h5(edit: Callable[[h5py.File], None]) -> Callable[[Path, Path], None]:
     def damage(ds: Path, path: Path) -> None:
         with h5py.File(path, "r+") as f:
             edit(f)
-        _rerecord(ds, path)
+        rerecord_checksum(ds, path)
     return damage
-
-
-_rerecord = rerecord_checksum
 
 
 def _replace(name: str, make: Callable[[np.ndarray], np.ndarray]) -> Callable[[h5py.File], None]:
@@ -61,13 +58,11 @@ def _replace(name: str, make: Callable[[np.ndarray], np.ndarray]) -> Callable[[h
 
 def _truncate(ds: Path, path: Path) -> None:
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
-    _rerecord(ds, path)
+    rerecord_checksum(ds, path)
 
 
 def _flip_byte(ds: Path, path: Path) -> None:
-    data = bytearray(path.read_bytes())
-    data[len(data) // 2] ^= 0xFF
-    path.write_bytes(bytes(data))
+    flip_byte(path)
 
 
 def _open_run(ds: Path, path: Path) -> object:

@@ -18,7 +18,7 @@ from neuraldem.data.integrity import dataset_lock, verify_recorded_checksum
 from neuraldem.data.manifest import Manifest
 from neuraldem.errors import DataError
 from neuraldem.scenes.hopper.store import HopperFile
-from tests.helpers import REPO, run_module
+from tests.helpers import REPO, flip_byte, run_module
 
 HOLD = ("import sys, time; from neuraldem.data.integrity import dataset_lock\n"
         "with dataset_lock(sys.argv[1], 'neuraldem datagen data=x'):\n"
@@ -81,19 +81,12 @@ def copied_dataset(hopper_tiny_dataset: Path, tmp_path: Path) -> Path:
     return out
 
 
-def damage(path: Path) -> None:
-    """Flip one byte in the middle of the file (an HDF5 file that may still open: only the checksum knows)."""
-    data = bytearray(path.read_bytes())
-    data[len(data) // 2] ^= 0xFF
-    path.write_bytes(bytes(data))
-
-
 def test_a_changed_file_is_refused_naming_file_manifest_and_fix(copied_dataset: Path):
     rec = Manifest.load(copied_dataset).usable()[0]
     path = copied_dataset / str(rec.file)
     with HopperFile(path):
         pass  # as written: opens
-    damage(path)
+    flip_byte(path)
     with pytest.raises(DataError) as err:
         HopperFile(path)
     msg = str(err.value)
@@ -103,7 +96,7 @@ def test_a_changed_file_is_refused_naming_file_manifest_and_fix(copied_dataset: 
 
 def test_the_writer_of_a_dataset_reads_its_own_files_unchecked(copied_dataset: Path):
     path = copied_dataset / str(Manifest.load(copied_dataset).usable()[0].file)
-    damage(path)
+    flip_byte(path)
     with dataset_lock(copied_dataset, "test"):
         verify_recorded_checksum(path)  # datagen rewriting a run reads it back before the manifest is updated
     with pytest.raises(DataError, match="contents differ"):
@@ -127,7 +120,7 @@ def test_a_file_is_hashed_once_per_process(copied_dataset: Path, monkeypatch: py
 def test_files_outside_a_dataset_or_not_recorded_are_not_checked(copied_dataset: Path, tmp_path: Path):
     loose = tmp_path / "loose.h5"
     shutil.copy(copied_dataset / str(Manifest.load(copied_dataset).usable()[0].file), loose)
-    damage(loose)
+    flip_byte(loose)
     verify_recorded_checksum(loose)
     stray = copied_dataset / "sims" / "not_in_manifest.h5"
     shutil.copy(loose, stray)
@@ -136,7 +129,7 @@ def test_files_outside_a_dataset_or_not_recorded_are_not_checked(copied_dataset:
 
 def test_training_on_a_damaged_file_ends_in_one_line_naming_it(copied_dataset: Path, tmp_path: Path):
     path = copied_dataset / str(Manifest.load(copied_dataset).usable()[0].file)
-    damage(path)
+    flip_byte(path)
     out = run_module("neuraldem.train", "experiment=hopper_quickstart", "logger=none",
                      f"data.dataset_dir={copied_dataset}", f"hydra.run.dir={tmp_path}/run",
                      env={"NEURALDEM_DATA": str(tmp_path)})

@@ -26,12 +26,13 @@ from typing import Any
 
 from filelock import FileLock, Timeout
 
+from neuraldem.cli import tool_prog
+from neuraldem.data.manifest import MANIFEST_NAME, Manifest
 from neuraldem.data.schema import sha256
 from neuraldem.errors import DataError
 
 LOCK_NAME = ".writer.lock"
 HOLDER_NAME = ".writer.json"  # who holds the lock: pid, host, command, since
-MANIFEST = "manifest.json"
 _WRITING: set[Path] = set()  # datasets this process holds the lock of
 
 
@@ -77,15 +78,14 @@ def _digest(path: str, size: int, mtime_ns: int) -> str:
 
 
 @functools.lru_cache(maxsize=64)
-def _recorded(manifest: str, mtime_ns: int) -> tuple[str, bool, dict[str, tuple[str, str]]]:
+def _recorded(dataset_dir: Path, mtime_ns: int) -> tuple[str, bool, dict[str, tuple[str, str]]]:
     """(dataset name, imported?, {relative file: (sim_id, sha256)}) of the usable records of a manifest."""
     try:
-        m = json.loads(Path(manifest).read_text())
-        files = {r["file"]: (r["sim_id"], r["sha256"]) for r in m.get("simulations", [])
-                 if r.get("status") == "ok" and r.get("file") and r.get("sha256")}
-        return str(m.get("name")), bool((m.get("scene") or {}).get("imported")), files
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        return "", False, {}  # a broken manifest is reported by Manifest.load, with its own message
+        m = Manifest.load(dataset_dir)
+    except DataError:
+        return "", False, {}  # a broken manifest is refused where the dataset is loaded, with its own message
+    files = {str(r.file): (r.sim_id, r.sha256) for r in m.usable() if r.sha256}
+    return m.name, bool(m.scene.get("imported")), files
 
 
 def digest(path: Path) -> str:
@@ -99,12 +99,12 @@ def verify_recorded_checksum(path: Path) -> None:
     after it was written). Files outside a dataset, or not (yet) recorded, are not checked."""
     path = Path(path).resolve()
     for dataset_dir in (path.parent, path.parent.parent):
-        manifest = dataset_dir / MANIFEST
+        manifest = dataset_dir / MANIFEST_NAME
         if not manifest.is_file():
             continue
         if dataset_dir in _WRITING:
             return
-        name, imported, files = _recorded(str(manifest), manifest.stat().st_mtime_ns)
+        name, imported, files = _recorded(dataset_dir, manifest.stat().st_mtime_ns)
         entry = files.get(path.relative_to(dataset_dir).as_posix())
         if entry is None or digest(path) == entry[1]:
             return
@@ -115,7 +115,6 @@ def verify_recorded_checksum(path: Path) -> None:
                         "(the file was changed or damaged after it was written)", fix)
 
 
-def command_line() -> str:
-    """The command as typed, for the lock's holder record."""
-    return " ".join(["neuraldem" if sys.argv[0].endswith("__main__.py") else Path(sys.argv[0]).name,
-                     *sys.argv[1:]])
+def command_line(module: str) -> str:
+    """The command as typed (`neuraldem datagen ...` or `python -m <module> ...`), for the lock's holder record."""
+    return " ".join([tool_prog(module), *sys.argv[1:]])

@@ -141,7 +141,7 @@ def remove_partials(dataset_dir: Path) -> None:
 
 def generate(pipe: Pipeline, opts: DatagenOptions) -> Manifest:
     """Run what the dataset lacks, as the only writer of the dataset (a second datagen is refused)."""
-    with dataset_lock(pipe.dataset_dir, command_line()):
+    with dataset_lock(pipe.dataset_dir, command_line("neuraldem.datagen")):
         return _generate(pipe, opts)
 
 

@@ -79,12 +79,7 @@ class MultiBranchOperator(nn.Module):
         self.noise_dim, self.n_scalars, self.particle_branch = noise_dim, n_scalars, bool(particle_branch)
         self.main_branches = MAIN_BRANCHES if self.particle_branch else ("fluid",)
         self.branches = self.main_branches + OFF_BRANCHES
-        self.channels = {
-            "particles": particle_channels, "fluid": fluid_channels, "mixing": mixing_channels,
-        }
-        depths = {stage: depth
-                  for stage, depth in (("encoder", encoder_depth), ("approximator", approximator_depth),
-                                       ("decoder", decoder_depth))}
+        self.channels = {"particles": particle_channels, "fluid": fluid_channels, "mixing": mixing_channels}
         self.conditioner = ScalarConditioner(n_scalars, dim, cond_dim)
         self.noise_embed = Mlp(noise_dim, cond_dim, cond_dim) if noise_dim else None
         self.encoders = nn.ModuleDict()
@@ -100,9 +95,9 @@ class MultiBranchOperator(nn.Module):
                 MultiBranchTransformerBlock(dim, num_heads, cond_dim, self.main_branches, OFF_BRANCHES, mlp_ratio)
                 for _ in range(depth))
 
-        self.encoder_blocks = stage(depths["encoder"])
-        self.approximator_blocks = stage(depths["approximator"])
-        self.decoder_blocks = stage(depths["decoder"])
+        self.encoder_blocks = stage(encoder_depth)
+        self.approximator_blocks = stage(approximator_depth)
+        self.decoder_blocks = stage(decoder_depth)
         self.decoders = nn.ModuleDict({
             name: PerceiverDecoder(dim, self.channels[name], num_heads, cond_dim, ndim=3, mlp_ratio=mlp_ratio)
             for name in self.branches

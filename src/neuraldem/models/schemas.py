@@ -74,52 +74,50 @@ class NetSchema:
     def kwargs(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
-
-def _heads_divide_width(key: str, dim: int, num_heads: int) -> None:
-    if dim % num_heads:
-        raise ConfigError(f"config value {key}.num_heads={num_heads} is invalid: must divide {key}.dim={dim} "
-                          f"(override it, e.g. {key}.num_heads=...)")
-
-
-def _width_embeds_coordinates(key: str, dim: int, ndim: int = 3) -> None:
-    if dim < 2 * ndim:
-        raise ConfigError(f"config value {key}.dim={dim} is invalid: must be >= {2 * ndim} to embed {ndim} "
-                          f"coordinate axes (override it, e.g. {key}.dim=...)")
+    def build(self) -> nn.Module:
+        """The net of this checked config (on the current default device, e.g. `torch.device("meta")`)."""
+        return target_class(self.target)(**self.kwargs())
 
 
 @dataclass(frozen=True)
-class HopperFieldNet(NetSchema):
+class AttentionNet(NetSchema):
+    """What the two transformer nets share: width, heads, conditioning and their rules."""
+
+    n_scalars: int = _check(checks.positive_int)
+    dim: int = _check(checks.positive_int)
+    num_heads: int = _check(checks.positive_int)
+    cond_dim: int = _check(checks.positive_int)
+    mlp_ratio: float = _check(checks.positive)
+
+    def check_together(self, key: str) -> None:
+        if self.dim % self.num_heads:  # heads split the width
+            raise ConfigError(f"config value {key}.num_heads={self.num_heads} is invalid: must divide "
+                              f"{key}.dim={self.dim} (override it, e.g. {key}.num_heads=...)")
+        if self.dim < 2 * 3:  # the sin-cos embedding of 3 coordinate axes
+            raise ConfigError(f"config value {key}.dim={self.dim} is invalid: must be >= 6 to embed 3 "
+                              f"coordinate axes (override it, e.g. {key}.dim=...)")
+
+
+@dataclass(frozen=True)
+class HopperFieldNet(AttentionNet):
     """`models.hopper_field.HopperFieldModel`: the hopper's field model (paper sec. 3, Fig. 3)."""
 
     target: ClassVar[str] = "neuraldem.models.hopper_field.HopperFieldModel"
-    n_scalars: int = _check(checks.positive_int)
     branches: list[str] = _check(checks.names, allowed=list(BRANCH_CHANNELS))
-    dim: int = _check(checks.positive_int)
-    num_heads: int = _check(checks.positive_int)
-    cond_dim: int = _check(checks.positive_int)
     n_latent_tokens: int = _check(checks.positive_int)
     depth: int = _check(checks.positive_int)
-    mlp_ratio: float = _check(checks.positive)
     time_coord_scale: float = _check(checks.positive)
     scalar_coord_scale: float = _check(checks.positive)
 
-    def check_together(self, key: str) -> None:
-        _heads_divide_width(key, self.dim, self.num_heads)
-        _width_embeds_coordinates(key, self.dim)
-
 
 @dataclass(frozen=True)
-class MultiBranchOperatorNet(NetSchema):
+class MultiBranchOperatorNet(AttentionNet):
     """`models.multi_branch_operator.MultiBranchOperator`: the fluidized bed's operator (paper sec. 3-4)."""
 
     target: ClassVar[str] = "neuraldem.models.multi_branch_operator.MultiBranchOperator"
-    n_scalars: int = _check(checks.positive_int)
     particle_channels: int = _check(checks.positive_int)
     fluid_channels: int = _check(checks.positive_int)
     mixing_channels: int = _check(checks.positive_int)
-    dim: int = _check(checks.positive_int)
-    num_heads: int = _check(checks.positive_int)
-    cond_dim: int = _check(checks.positive_int)
     encoder_depth: int = _check(checks.positive_int, allow_zero=True)
     approximator_depth: int = _check(checks.positive_int, allow_zero=True)
     decoder_depth: int = _check(checks.positive_int, allow_zero=True)
@@ -129,13 +127,8 @@ class MultiBranchOperatorNet(NetSchema):
     max_neighbours: int = _check(checks.positive_int)
     position_mode: str = _check(checks.one_of, choices=POSITION_MODES)
     patch_size: list[int] = _check(_patch_size)
-    mlp_ratio: float = _check(checks.positive)
     particle_branch: bool = _check(checks.boolean)
     noise_dim: int = _check(checks.positive_int, allow_zero=True)
-
-    def check_together(self, key: str) -> None:
-        _heads_divide_width(key, self.dim, self.num_heads)
-        _width_embeds_coordinates(key, self.dim)
 
 
 @dataclass(frozen=True)
@@ -180,6 +173,5 @@ def validate_net(node: Mapping[str, Any] | DictConfig, key: str = "model.net") -
 
 
 def build_net(node: Mapping[str, Any] | DictConfig, key: str = "model.net") -> nn.Module:
-    """The net a config describes, checked first (on the current default device, e.g. `torch.device("meta")`)."""
-    schema = validate_net(node, key)
-    return target_class(schema.target)(**schema.kwargs())
+    """The net a config describes, checked first."""
+    return validate_net(node, key).build()

@@ -49,8 +49,7 @@ class PatchEmbedding(nn.Module):
         super().__init__()
         self.patch_size = as_patch_size(patch_size)
         conv = nn.Conv2d if len(self.patch_size) == 2 else nn.Conv3d
-        self.proj = conv(in_channels, dim,
-                         kernel_size=self.patch_size, stride=self.patch_size)
+        self.proj = conv(in_channels, dim, kernel_size=self.patch_size, stride=self.patch_size)
         self.pos_embed = ContinuousSincosEmbed(dim, ndim=len(self.patch_size))
 
     def forward(self, grid: torch.Tensor) -> torch.Tensor:

@@ -183,7 +183,8 @@ def main(argv: list[str] | None = None) -> int:
     traj = read_trajectory(case, grid, t0, dt_ml, a.snapshots, density=density, cloud_reader=reader)
     params = {"inlet_velocity": float(a.inlet_velocity), **parse_assignments(a.param, "--param", "packing=0")}
     metrics = FbMetricSettings(lacey_block=tuple(a.lacey_block))  # type: ignore[arg-type]
-    with dataset_lock(a.dataset, command_line()):  # the only writer; nothing changes until the checks pass
+    # the only writer; nothing changes until the checks pass
+    with dataset_lock(a.dataset, command_line("neuraldem.scenes.fluidized_bed.importer")):
         (a.dataset / "sims").mkdir(exist_ok=True)
         rel = f"sims/{a.sim_id}.h5"
         staged = a.dataset / (rel + TMP_SUFFIX)  # the scene is read from the written file: checked before it counts

@@ -27,7 +27,7 @@ from neuraldem.lit.base import SurrogateModule
 from neuraldem.lit.module_setup import loss_weight_settings, net_config_and_metadata
 from neuraldem.lit.optim import optimizer_settings, plain
 from neuraldem.models.multi_branch_operator import BRANCHES, OperatorInputs
-from neuraldem.models.schemas import build_net, validate_net
+from neuraldem.models.schemas import MultiBranchOperatorNet, validate_net
 from neuraldem.scenes.fluidized_bed.autoregressive import (
     apply_stability,
     decode_grid,
@@ -52,7 +52,11 @@ class FluidizedBedModule(SurrogateModule):
         net_cfg.fluid_channels = int(metadata.get("grid_channels", net_cfg.get("fluid_channels", 4)))
         self.metadata = metadata
         self.norm = FbNormalizer.from_dict(metadata["normalizer"])
-        check_fits_data(net_cfg, self.norm, metadata.get("particles_per_sample"))
+        net_schema = validate_net(net_cfg)  # checked once: the fit to the data below, then the build
+        if not isinstance(net_schema, MultiBranchOperatorNet):
+            raise ConfigError(f"config value model.net._target_={net_schema.target!r} is invalid: the fluidized "
+                              f"bed's model is {MultiBranchOperatorNet.target}")
+        check_fits_data(net_schema, self.norm, metadata.get("particles_per_sample"))
         opt, sched = optimizer_settings(optimizer, scheduler)
         weights = loss_weight_settings(loss_weights, BRANCHES)
         if chunk_size is not None:
@@ -68,7 +72,7 @@ class FluidizedBedModule(SurrogateModule):
         self.save_hyperparameters({"net": OmegaConf.to_container(net_cfg), "optimizer": opt, "scheduler": sched,
                                    "loss_weights": weights, "chunk_size": chunk_size, "metadata": metadata,
                                    "residual": self.residual, "stability": self.stability.to_dict()})
-        self.net = build_net(net_cfg)
+        self.net = net_schema.build()
         # running one-step RMS error per input channel (model units): the noise of input_noise=auto
         channels = {"particles": self.net.channels["particles"], "fluid": net_cfg.fluid_channels, "mixing": 1}
         for name, c in channels.items():
@@ -204,9 +208,9 @@ def repeat_members(x: OperatorInputs, members: int) -> OperatorInputs:
                    supernode_idx=None if x.supernode_idx is None else rep(x.supernode_idx))
 
 
-def check_fits_data(net_cfg: DictConfig, norm: FbNormalizer, particles_per_sample: int | None) -> None:
+def check_fits_data(net: MultiBranchOperatorNet, norm: FbNormalizer, particles_per_sample: int | None) -> None:
     """The patches must tile the data's grid and the supernodes fit in a sample: say so before training."""
-    patch = validate_net(net_cfg).patch_size
+    patch = net.patch_size
     shape = tuple(norm.grid_shape)
     if len(patch) != len(shape) or any(g % p for g, p in zip(shape, patch, strict=False)):
         divisors = [[d for d in range(1, g + 1) if g % d == 0] for g in shape]
@@ -215,7 +219,7 @@ def check_fits_data(net_cfg: DictConfig, norm: FbNormalizer, particles_per_sampl
                           "(override it, e.g. model.net.patch_size=[...])")
     n = particles_per_sample or norm.n_particles
     for key in ("n_supernodes", "n_supernodes_eval"):
-        value = net_cfg.get(key)
+        value = getattr(net, key)
         if value is not None and value > n:
             raise ConfigError(f"config value model.net.{key}={value} is invalid: a sample holds {n} particles "
                               f"(override it, e.g. model.net.{key}={n})")

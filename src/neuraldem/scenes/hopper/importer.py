@@ -80,7 +80,8 @@ def main(argv: list[str] | None = None) -> int:
                                  drop_truncated_tail=a.drop_truncated_tail)
     traj.geometry = HopperGeometry(radius=a.radius, outlet_radius=a.outlet_radius, cone_height=a.cone_height,
                                    wall_height=float(np.nanmax(traj.positions[..., 2])), sink_z=sink_z)
-    with dataset_lock(a.dataset, command_line()):  # the only writer; the dataset is checked before it changes
+    # the only writer; the dataset is checked before it changes
+    with dataset_lock(a.dataset, command_line("neuraldem.scenes.hopper.importer")):
         rel = f"sims/{a.sim_id}.h5"
         scene = imported_scene(a)
         if (a.dataset / MANIFEST_NAME).exists():

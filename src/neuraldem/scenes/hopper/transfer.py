@@ -113,7 +113,7 @@ def unpack(parts: list[Path], dataset_dir: Path) -> Manifest:
     if not parts:
         raise DataError("nothing to unpack: give the part folders written by `pack`")
     m = Manifest.load(parts[0])
-    with dataset_lock(dataset_dir, command_line()):
+    with dataset_lock(dataset_dir, command_line("neuraldem.scenes.hopper.transfer")):
         (dataset_dir / "sims").mkdir(parents=True, exist_ok=True)
         done = set()
         for part in parts:
