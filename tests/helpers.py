@@ -163,3 +163,20 @@ def flip_byte(path: Path) -> None:
     data = bytearray(path.read_bytes())
     data[len(data) // 2] ^= 0xFF
     path.write_bytes(bytes(data))
+
+
+class KillAtStep:
+    """A Lightning callback (test double, added with `+callbacks.kill._target_=tests.helpers.KillAtStep`) that
+    SIGKILLs its own process when training reaches `step`, unless NEURALDEM_TEST_NO_KILL is set."""
+
+    def __new__(cls, step: int):  # a Callback subclass made lazily: importing helpers needs no Lightning
+        import signal
+
+        import lightning as L
+
+        class _Kill(L.Callback):
+            def on_train_batch_start(self, trainer, pl_module, batch, batch_idx) -> None:  # noqa: ANN001
+                if trainer.global_step == step and not os.environ.get("NEURALDEM_TEST_NO_KILL"):
+                    os.kill(os.getpid(), signal.SIGKILL)
+
+        return _Kill()

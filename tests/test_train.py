@@ -104,3 +104,21 @@ def test_latest_checkpoint_is_the_newest_state_last_is_the_kept_one(hopper_tiny_
     assert step["latest.ckpt"] == 4, step
     kept = [name for name in step if name.startswith("step")]
     assert len(kept) == 1 and step["last.ckpt"] == step[kept[0]], step
+
+
+@pytest.mark.parametrize("damage", ["missing", "truncated"])
+def test_a_bad_resume_checkpoint_is_one_line_before_any_data_is_read(damage: str, tmp_path: Path):
+    ckpt = tmp_path / "latest.ckpt"
+    if damage == "truncated":
+        ckpt.write_bytes(b"PK\x03\x04" + bytes(100))  # the start of a zip archive, cut off
+    out = _one_clear_error(run_module("neuraldem.train", "experiment=hopper_quickstart", f"ckpt_path={ckpt}",
+                                      env={"NEURALDEM_DATA": str(tmp_path)}))
+    assert f"config value ckpt_path={ckpt} is invalid" in out
+    assert ("does not exist" if damage == "missing" else "not a readable checkpoint") in out
+    assert "checkpoints/latest.ckpt" in out and "no dataset" not in out
+
+
+def test_resuming_with_another_net_names_the_differing_keys(tiny_checkpoint: Path, tmp_path: Path):
+    out = _one_clear_error(run_module("neuraldem.train", "experiment=hopper_quickstart", "model.net.dim=64",
+                                      f"ckpt_path={tiny_checkpoint}", env={"NEURALDEM_DATA": str(tmp_path)}))
+    assert "its net differs from model.net in dim" in out

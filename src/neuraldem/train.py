@@ -22,6 +22,7 @@ from neuraldem.config import checks
 from neuraldem.config.build import build_callbacks, build_loggers, build_trainer, check_trainer
 from neuraldem.data.manifest import require_dataset
 from neuraldem.errors import ConfigError, DataError, NeuraldemError
+from neuraldem.eval.checkpoints import differing_keys, read_checkpoint
 from neuraldem.models.schemas import validate_net
 from neuraldem.scenes import scene
 
@@ -38,6 +39,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
     check_trainer(cfg.trainer)
     if cfg.model.get("net") is not None:  # the net's typed schema, before minutes go into loading data
         validate_net(cfg.model.net)
+    check_resume_checkpoint(cfg)
     require_dataset(Path(cfg.data.dataset_dir), str(cfg.data.name))
 
     datamodule = instantiate_checked("data.datamodule", cfg.data.datamodule)
@@ -72,6 +74,28 @@ def evaluate_after_training(cfg: DictConfig, trainer: L.Trainer) -> dict[str, fl
     result = scene(cfg.data.get("kind")).evaluate_run(cfg, Path(ckpt))
     log.info("evaluation of %s written to %s", ckpt, out)
     return {f"test/{k}": float(v) for k, v in result["aggregate"].items()}
+
+
+RESUME_FIX = "resume with the killed run's <run>/checkpoints/latest.ckpt, or leave ckpt_path out to start afresh"
+
+
+def check_resume_checkpoint(cfg: DictConfig) -> None:
+    """A checkpoint to resume from that is missing, damaged or of another net fails here, in one line and
+    before any data is read (Lightning would fail later, with a traceback)."""
+    path = cfg.get("ckpt_path")
+    if not path:
+        return
+    try:
+        ckpt = read_checkpoint(Path(path))
+    except DataError as err:
+        raise ConfigError(f"config value ckpt_path={path} is invalid: {err.problem}", RESUME_FIX) from None
+    net = cfg.model.get("net")
+    trained = ckpt.hyper_parameters.get("net")
+    if net is not None and trained is not None:
+        diff = differing_keys(trained, OmegaConf.to_container(net, resolve=True))  # type: ignore[arg-type]
+        if diff:
+            raise ConfigError(f"config value ckpt_path={path} is invalid: its net differs from model.net in "
+                              f"{', '.join(diff[:5])}", "resume with the model overrides the run was started with, or leave ckpt_path out to start afresh")
 
 
 def instantiate_checked(key: str, node: DictConfig, **kwargs: Any) -> Any:

@@ -237,7 +237,7 @@ class GnsSamples(FileSamples):
     def _open_file(self, s: int) -> ParticleRun:
         return ParticleRun(self.dir / str(self.records[s].file), self.kind, self.scene, validate=False)
 
-    def __getitem__(self, i: int) -> Data:
+    def sample(self, i: int, rng: np.random.Generator) -> Data:
         s, t = self.items[i]
         run, norm = self._open(s), self.norm
         h, dt = norm.history, norm.dt
@@ -248,7 +248,7 @@ class GnsSamples(FileSamples):
         accel = np.zeros((len(nodes), 3))
         accel[mask] = (nxt[mask] - 2 * hist[-1, mask] + hist[-2, mask]) / dt**2
         if self.noise_std > 0:
-            noise = random_walk_noise(self._rng(i), len(nodes), h, self.noise_std) * np.asarray(norm.velocity_std)
+            noise = random_walk_noise(rng, len(nodes), h, self.noise_std) * np.asarray(norm.velocity_std)
             v = np.moveaxis((hist[1:] - hist[:-1]) / dt, 0, 1) + noise  # (n, H, 3) noisy velocities
             hist = hist[0][None] + dt * np.concatenate([np.zeros((1, len(nodes), 3)),
                                                         np.cumsum(np.moveaxis(v, 1, 0), axis=0)])

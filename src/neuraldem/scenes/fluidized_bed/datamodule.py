@@ -100,10 +100,10 @@ class FbSamples(FileSamples):
         flux = f.solids_flux()[t] if self.solids_flux else None
         return grid_input(self.norm, f.fluid_velocity(t), f.solid_fraction(t), flux)
 
-    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+    def sample(self, i: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
         s, t = self.items[i]
         f = self._open(s)
-        norm, rng = self.norm, self._rng(i)
+        norm = self.norm
         pos = f.positions(t)
         disp_in = f.displacement(t - 1) if t > 0 else np.zeros_like(pos)
         ok_in = np.isfinite(pos).all(axis=1) & np.isfinite(disp_in).all(axis=1)

@@ -20,16 +20,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import lightning as L
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
-from torch.utils.data import DataLoader, WeightedRandomSampler
 
 from neuraldem.config import checks
 from neuraldem.data.file_samples import FileSamples
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
 from neuraldem.data.normalization import HopperNormalizer
+from neuraldem.data.part_loaders import PartLoaders
 from neuraldem.data.splits import cv_split
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.scenes.hopper.fields import capped_exit_times
@@ -73,13 +72,12 @@ class HopperSnapshots(FileSamples):
             n_stored.append(self._open(s)[0].n_snapshots)
         return np.array([k < n_stored[s] for s, k in self.items])
 
-    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+    def sample(self, i: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
         s, k = self.items[i]
         f, initial, exits = self._open(s)
         t = k * self.dt
         pos = f.positions(min(k, f.n_snapshots - 1))
         present = np.flatnonzero(np.isfinite(pos[:, 0]))
-        rng = self._rng(i)
         q = self.n_queries
 
         lo, hi = np.asarray(self.norm.box_lo), np.asarray(self.norm.box_hi)
@@ -175,7 +173,7 @@ def tail_weights(active: np.ndarray, tail_share: float) -> np.ndarray:
     return np.where(active, (1 - tail_share) / n_active, tail_share / n_tail)
 
 
-class HopperDataModule(L.LightningDataModule):
+class HopperDataModule(PartLoaders):
     """Train/val/test loaders over a hopper dataset dir, for one conditioning list and one split."""
 
     KIND = "hopper"  # the dataset kind it reads
@@ -315,25 +313,10 @@ class HopperDataModule(L.LightningDataModule):
                 self.occupancy_radius_d * self.particle_diameter, random_queries=part == "train", seed=self.seed,
                 time_stride=1 if part == "train" else self.eval_time_stride)
 
-    def _loader(self, part: str, shuffle: bool) -> DataLoader:
-        return DataLoader(self.datasets[part], batch_size=self.batch_size, shuffle=shuffle,
-                          num_workers=self.num_workers, persistent_workers=self.num_workers > 0,
-                          drop_last=shuffle)
-
-    def train_dataloader(self) -> DataLoader:
+    def train_weights(self) -> np.ndarray | None:
+        """Runs stop at different times; `tail_share` of the samples come from the held tail after the stop."""
         ds = self.datasets["train"]
-        if not isinstance(ds, HopperSnapshots):
-            return self._loader("train", shuffle=True)
-        weights = torch.from_numpy(tail_weights(ds.active_mask(), self.tail_share))
-        sampler = WeightedRandomSampler(weights, num_samples=len(ds), replacement=True)
-        return DataLoader(ds, batch_size=self.batch_size, sampler=sampler, num_workers=self.num_workers,
-                          persistent_workers=self.num_workers > 0, drop_last=True)
-
-    def val_dataloader(self) -> DataLoader:
-        return self._loader("val", shuffle=False)
-
-    def test_dataloader(self) -> DataLoader:
-        return self._loader("test", shuffle=False)
+        return tail_weights(ds.active_mask(), self.tail_share) if isinstance(ds, HopperSnapshots) else None
 
     def checkpoint_metadata(self) -> dict[str, Any]:
         """What evaluation needs to use a trained model correctly (stored in every checkpoint)."""

@@ -67,10 +67,9 @@ class RefillSamples(FileSamples):
         first = max(0, k - self.window_steps)
         return int(rng.integers(first, k + 1)) if self.random_reference else first
 
-    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+    def sample(self, i: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
         s, k = self.items[i]
         f = self._open(s)
-        rng = self._rng(i)
         k_ref = self.reference_index(i, rng)
         t, t_ref = float(f.times[k]), float(f.times[k_ref])
         rows, pos = f.frame(k)
