@@ -95,7 +95,9 @@ def check_resume_checkpoint(cfg: DictConfig) -> None:
         diff = differing_keys(trained, OmegaConf.to_container(net, resolve=True))  # type: ignore[arg-type]
         if diff:
             raise ConfigError(f"config value ckpt_path={path} is invalid: its net differs from model.net in "
-                              f"{', '.join(diff[:5])}", "resume with the model overrides the run was started with, or leave ckpt_path out to start afresh")
+                              f"{', '.join(diff[:5])}",
+                              "resume with the model overrides the run was started with, or leave ckpt_path out "
+                              "to start afresh")
 
 
 def instantiate_checked(key: str, node: DictConfig, **kwargs: Any) -> Any:
