@@ -190,3 +190,15 @@ def evaluated_runs(tiny_checkpoint: Path, hopper_tiny_dataset: Path, tmp_path_fa
     run = make_run(root, "tiny", tiny_checkpoint, hopper_tiny_dataset)
     shutil.copytree(run, root / "multirun" / "0")
     return root
+
+
+@pytest.fixture(scope="session")
+def tiny_pretrained(tiny_checkpoint: Path, hopper_tiny_dataset: Path,
+                    tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A shipped-model folder built from the tiny checkpoint (`hopper_tiny_test`, plumbing only): what
+    `predict --verify` and `scan --verify` run against with LIGGGHTS at the tiny scene."""
+    from neuraldem.pretrained.build import build_hopper
+
+    out = tmp_path_factory.mktemp("pretrained")
+    build_hopper(tiny_checkpoint, "hopper_tiny_test", out, hopper_tiny_dataset)
+    return out

@@ -31,7 +31,8 @@ LAYERS = [
     ("scenes", ["neuraldem.scenes"]),
     ("gns", ["neuraldem.gns"]),
     ("composition", ["neuraldem.bench", "neuraldem.datagen", "neuraldem.train", "neuraldem.evaluate",
-                     "neuraldem.rollout", "neuraldem.doctor", "neuraldem.__main__"]),
+                     "neuraldem.rollout", "neuraldem.doctor", "neuraldem.__main__",
+                     "neuraldem.pretrained", "neuraldem.predict", "neuraldem.scan"]),
 ]
 
 

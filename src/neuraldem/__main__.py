@@ -18,6 +18,8 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
     "datagen": ("neuraldem.datagen.__main__", "run the real solvers for a dataset (data=hopper_small n_sims=200)"),
     "train": ("neuraldem.train", "train a surrogate (experiment=hopper_macro; -m for sweeps)"),
     "evaluate": ("neuraldem.evaluate", "score a checkpoint against its solver (ckpt=PATH)"),
+    "predict": ("neuraldem.predict", "a what-if answer from a shipped model (hopper alpha=40 mu_s=0.3 mu_r=0.1)"),
+    "scan": ("neuraldem.scan", "a design chart over two parameters (hopper alpha=0:60:31 mu_s=0.05:1:20 mu_r=0.1)"),
     "rollout": ("neuraldem.rollout", "roll a fluidized-bed model out (ckpt=PATH velocity=1.6 steps=3000)"),
     "import": {
         "liggghts": ("neuraldem.scenes.hopper.importer", "LIGGGHTS dump files of your own hopper runs as a dataset"),

@@ -26,7 +26,7 @@ from neuraldem.scenes.hopper import plots as hopper_plots
 from neuraldem.scenes.hopper.baselines import score_baseline
 from neuraldem.scenes.hopper.metrics import layer_edges
 from neuraldem.scenes.hopper.module import HopperModule
-from neuraldem.scenes.hopper.predict import DemPredictor, ModelPredictor, time_grid
+from neuraldem.scenes.hopper.predict import DemPredictor, ModelPredictor, TrajectoryFields, time_grid
 from neuraldem.scenes.hopper.scoring import SimEvaluation, aggregate, dataset_metric_settings, evaluate_sims
 from neuraldem.scenes.hopper.store import HopperFile
 
@@ -199,7 +199,13 @@ def export_vtk(e: SimEvaluation, m: Manifest, dataset_dir: Path, folder: Path, t
     assert e.fields_predicted is not None
     with HopperFile(dataset_dir / str(m.record(e.sim_id).file)) as f:
         points = f.initial_positions()
-    fp = e.fields_predicted
+    return predicted_point_series(points, e.fields_predicted, folder, f"{e.sim_id}_predicted", threshold, n_layers)
+
+
+def predicted_point_series(points: np.ndarray, fp: TrajectoryFields, folder: Path, name: str, threshold: float,
+                           n_layers: int = 8) -> Path:
+    """The query points occupied at each time (occupancy >= threshold), with the predicted transport layer,
+    residence time, occupancy and transport as point data: `<name>.pvd` for ParaView."""
     edges = layer_edges(points[:, 2], n_layers)
     pts, data = [], []
     for k in range(len(fp.times)):
@@ -208,4 +214,4 @@ def export_vtk(e: SimEvaluation, m: Manifest, dataset_dir: Path, folder: Path, t
         pts.append(points[occ])
         data.append({"transport_layer": layer.astype(np.int32), "residence_time": fp.residence[k, occ],
                      "occupancy": fp.occupancy[k, occ], "transport": fp.transport[k, occ]})
-    return write_point_series(folder, f"{e.sim_id}_predicted", fp.times, pts, data)
+    return write_point_series(folder, name, fp.times, pts, data)

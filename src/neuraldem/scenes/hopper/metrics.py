@@ -30,7 +30,6 @@ from typing import Any
 
 import numpy as np
 from omegaconf import OmegaConf
-from scipy.stats import spearmanr
 
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError
@@ -176,6 +175,8 @@ def mass_flow_index(times: np.ndarray, stripes: np.ndarray) -> float:
     half_times = np.where(np.isnan(half_times), np.inf, half_times)
     if np.all(half_times == half_times[0]):
         return float("nan")
+    from scipy.stats import spearmanr  # on first use: importing scipy.stats takes a second
+
     return float(spearmanr(np.arange(len(half_times)), half_times).statistic)
 
 

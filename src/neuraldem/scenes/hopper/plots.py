@@ -33,14 +33,22 @@ def scatter_predicted_vs_dem(evals: list[SimEvaluation], path: Path) -> None:
 
 def stripes_over_time(cases: dict[str, SimEvaluation], times: np.ndarray, path: Path) -> None:
     """Volume of each initial height layer over time, DEM vs prediction, one row per case."""
-    fig, axes = plt.subplots(len(cases), 2, figsize=(10, 3.2 * len(cases)), squeeze=False)
-    for row, (title, e) in zip(axes, cases.items(), strict=False):
-        for ax, (who, stripes) in zip(row, (("DEM", e.stripes_truth), ("NeuralDEM", e.stripes_predicted)),
-                                      strict=False):
+    stripe_panels([[(f"{title} ({e.sim_id}): DEM", times, e.stripes_truth),
+                    (f"{title} ({e.sim_id}): NeuralDEM", times, e.stripes_predicted)] for title, e in cases.items()],
+                  path)
+
+
+def stripe_panels(rows: list[list[tuple[str, np.ndarray, np.ndarray]]], path: Path) -> None:
+    """Rows of (title, times, stripes) panels: each layer's share of the initial material over time."""
+    n_cols = max(len(r) for r in rows)
+    fig, axes = plt.subplots(len(rows), n_cols, figsize=(5 * n_cols, 3.2 * len(rows)), squeeze=False)
+    for row_axes, row in zip(axes, rows, strict=False):
+        for ax, (title, times, stripes) in zip(row_axes, row, strict=False):
             n0 = max(stripes[0].sum(), 1.0)
             ax.stackplot(times, (stripes / n0).T, colors=plt.cm.viridis(np.linspace(0, 1, stripes.shape[1])))
-            ax.set(title=f"{title} ({e.sim_id}): {who}", xlabel="t [s]", ylabel="fraction of initial material",
-                   ylim=(0, 1.05))
+            ax.set(title=title, xlabel="t [s]", ylabel="fraction of initial material", ylim=(0, 1.05))
+        for ax in row_axes[len(row):]:
+            ax.axis("off")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

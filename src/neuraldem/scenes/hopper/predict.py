@@ -83,6 +83,7 @@ class ModelPredictor:
     chunk_size: int = 16384
     device: str = "cpu"
 
+    times_per_call: int = 1  # times answered per forward call: more is faster, needs (times x Q x dim) memory
     box_tolerance: float = 0.05  # query points this far (share of the box) outside it are clipped and flagged
     outside_box: dict[str, list[float]] = field(default_factory=dict)
 
@@ -117,10 +118,12 @@ class ModelPredictor:
         q = torch.from_numpy(self._query_points(rec, points)).float().to(self.device)
         s = torch.from_numpy(scalars).to(self.device)
         occ, transport, residence = [], [], []
-        for k in range(len(times)):  # one time per call keeps memory at (Q x dim)
-            out = self.net(s[k:k + 1], q[None], chunk_size=self.chunk_size)
-            occ.append(torch.sigmoid(out["occupancy"][0, :, 0]).cpu().numpy())
-            transport.append(out["transport"][0].cpu().numpy())
-            residence.append(out["residence"][0, :, 0].cpu().numpy())
+        n = self.times_per_call
+        for k in range(0, len(times), n):  # one time per call (the default) keeps memory at (Q x dim)
+            batch = s[k:k + n]
+            out = self.net(batch, q[None].expand(len(batch), -1, -1), chunk_size=self.chunk_size)
+            occ += list(torch.sigmoid(out["occupancy"][..., 0]).cpu().numpy())
+            transport += list(out["transport"].cpu().numpy())
+            residence += list(out["residence"][..., 0].cpu().numpy())
         return TrajectoryFields(times, np.stack(occ), self.norm.positions_back(np.stack(transport)),
                                 self.norm.time_back(np.stack(residence)))

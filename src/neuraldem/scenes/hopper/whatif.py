@@ -1,0 +1,150 @@
+"""What-if answers for a hopper nobody has simulated: the numbers from the scalar GP, the fields from the field
+model, and (to check either) LIGGGHTS itself on the same parameters.
+
+- GP: drainage t95, the 1 % drainage time, residual, outflow and the mass-flow index with 95 % intervals, in
+  milliseconds (one `predict` call on the scene parameters).
+- Field model: occupancy, transport and residence over the whole discharge at query points that fill the
+  hopper. Without a solver run there is no initial packing, so the points are a lattice at the packing's
+  particle spacing inside the hopper of this cone angle, kept where the model says material is at t = 0; the
+  numbers are then read off the fields with the same functions as for DEM (`metrics.hopper_summary`).
+- LIGGGHTS: `run_hopper` + `datagen.trajectory_metrics`, the path every dataset run takes.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from neuraldem.errors import DataError
+from neuraldem.models.scalar_baselines import ScalarBaseline
+from neuraldem.scenes.hopper.metrics import HopperMetricSettings, flow_regime
+from neuraldem.scenes.hopper.solver import HopperGeometry, HopperScene
+
+if TYPE_CHECKING:
+    from neuraldem.scenes.hopper.predict import TrajectoryFields
+
+PACKING_FRACTION = 0.6  # random close packing of the settled fill: sets the lattice spacing
+QUANTITIES = {  # answer key -> (label, unit, scale to the unit)
+    "drainage_t95": ("drainage t95", "s", 1.0),
+    "drainage_time": ("drainage time (1 % rule)", "s", 1.0),
+    "residual_fraction": ("residual", "%", 100.0),
+    "outflow_rate": ("outflow", "%/s", 100.0),
+    "mass_flow_index": ("mass-flow index", "", 1.0),
+}
+
+
+def lattice_points(scene: HopperScene, alpha: float, box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:
+    """A cubic lattice at the packing's particle spacing: centres a radius inside the cylinder wall, above the
+    cone of angle `alpha` and the closed outlet, below the top of the box the model knows."""
+    d = scene.material.diameter
+    geom = HopperGeometry.for_angle(scene, alpha)
+    spacing = d * (math.pi / 6 / PACKING_FRACTION) ** (1 / 3)
+    r_max = geom.radius - d / 2
+    xy = np.arange(-r_max, r_max + 1e-12, spacing)
+    z = np.arange(d / 2, min(geom.wall_height, float(box_hi[2])) - d / 2 + 1e-12, spacing)
+    x, y, zz = (a.ravel() for a in np.meshgrid(xy, xy, z, indexing="ij"))
+    r = np.hypot(x, y)
+    cone = np.maximum(r - geom.outlet_radius, 0.0) * math.tan(math.radians(alpha))
+    keep = (r <= r_max) & (zz >= cone + d / 2)
+    points = np.stack([x[keep], y[keep], zz[keep]], axis=1)
+    inside = np.all((points >= box_lo) & (points <= box_hi), axis=1)
+    return points[inside]
+
+
+@dataclass
+class FieldAnswer:
+    points: np.ndarray  # (Q, 3) query points occupied at t = 0
+    fields: TrajectoryFields
+    summary: dict[str, float]
+    stripes: np.ndarray  # (T, layers)
+    seconds: float
+    extrapolation: dict[str, list[float]]
+
+
+def field_answer(net: Any, meta: dict[str, Any], params: dict[str, float], settings: HopperMetricSettings,
+                 threshold: float = 0.5, time_stride: int = 1) -> FieldAnswer:
+    """The field model's answer for scene parameters `params` (those of its conditioning besides t)."""
+    from neuraldem.data.manifest import SimRecord
+    from neuraldem.data.normalization import HopperNormalizer
+    from neuraldem.scenes.hopper.predict import ModelPredictor, time_grid  # torch: only for fields
+    from neuraldem.scenes.hopper.scoring import summarise
+
+    t0 = time.perf_counter()
+    norm = HopperNormalizer.from_dict(meta["normalizer"])
+    hop = meta["scene"]["hopper"]
+    scene = HopperScene.from_config(hop, "model scene")
+    predictor = ModelPredictor(net, norm, list(meta["conditioning"]), times_per_call=16)
+    rec = SimRecord("what-if", 0, dict(params))
+    lattice = lattice_points(scene, float(params["alpha"]), np.asarray(norm.box_lo), np.asarray(norm.box_hi))
+    start = predictor.fields(rec, np.array([0.0]), lattice).occupancy[0]
+    points = lattice[start >= threshold]
+    if len(points) == 0:
+        raise DataError(f"the field model sees no material at t = 0 for {params}",
+                        "ask within the trained ranges, or use the GP answer")
+    times = time_grid(norm.horizon, float(hop["snapshot_interval"]))[::time_stride]
+    fields = predictor.fields(rec, times, points)
+    summary, stripes = summarise(fields, points[:, 2], settings)
+    return FieldAnswer(points, fields, summary, stripes, time.perf_counter() - t0, predictor.extrapolation(rec))
+
+
+@dataclass
+class ScalarWhatIf:
+    mean: dict[str, float]
+    low: dict[str, float]
+    high: dict[str, float]
+    extrapolation: dict[str, list[float]]
+    seconds: float
+
+
+def gp_answers(gp: ScalarBaseline, rows: list[dict[str, float]]) -> list[ScalarWhatIf]:
+    """The GP's answers for many parameter sets at once (a scan), each with its 95 % interval."""
+    t0 = time.perf_counter()
+    x = np.array([[row[name] for name in gp.inputs] for row in rows], dtype=np.float64)
+    answers = gp.predict(x)
+    per = (time.perf_counter() - t0) / max(len(rows), 1)
+    return [ScalarWhatIf(a.mean, a.low, a.high, a.extrapolation, per) for a in answers]
+
+
+@dataclass
+class SolverAnswer:
+    status: str
+    reason: str
+    metrics: dict[str, float]
+    seconds: float
+    stripes: np.ndarray | None
+    times: np.ndarray | None
+
+
+def liggghts_answer(scene: HopperScene, params: dict[str, float], workdir: Path,
+                    settings: HopperMetricSettings) -> SolverAnswer:
+    """LIGGGHTS on the same parameters, scored like every dataset run (fields at the initial positions)."""
+    from neuraldem.scenes.hopper.datagen import trajectory_metrics
+    from neuraldem.scenes.hopper.fields import trajectory_fields_at
+    from neuraldem.scenes.hopper.metrics import layer_edges, layer_stripes, metric_times
+    from neuraldem.scenes.hopper.predict import hold_final_state
+    from neuraldem.scenes.hopper.solver import run_hopper
+
+    t0 = time.perf_counter()
+    result = run_hopper(scene, params["alpha"], params["mu_s"], params["mu_r"], workdir, index=0)
+    seconds = time.perf_counter() - t0
+    traj = result.trajectory
+    if traj is None:
+        return SolverAnswer(result.status, result.reason, {}, seconds, None, None)
+    metrics = trajectory_metrics(traj, scene.material.diameter, settings, scene.max_time)
+    times = metric_times(scene.max_time, scene.snapshot_interval)
+    positions = hold_final_state(traj.positions, len(times))
+    exits = np.where(np.isfinite(traj.exit_times), traj.exit_times, scene.max_time)
+    points = traj.positions[0]
+    occ, transport, _ = trajectory_fields_at(points, times, positions, exits,
+                                             settings.occupancy_radius_d * scene.material.diameter)
+    stripes = layer_stripes(occ.astype(np.float64), transport[..., 2], layer_edges(points[:, 2], settings.n_layers))
+    return SolverAnswer(result.status, result.reason, metrics, seconds, stripes, times)
+
+
+def regime(index: float, settings: HopperMetricSettings) -> str:
+    return flow_regime(index, settings.mass_flow_threshold) if np.isfinite(index) else "-"
