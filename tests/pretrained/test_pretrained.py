@@ -91,3 +91,30 @@ def test_the_tiny_build_records_what_it_was_built_from(tiny_pretrained: Path):
     assert meta["training_data"]["dataset"] == "hopper_tiny" and meta["kind"] == "hopper"
     assert np.isfinite(meta["test_errors"]["field model"]["drainage_t95_pct_of_mean"])
     assert os.path.getsize(tiny_pretrained / "hopper_tiny_test" / "field.pt") < 2e6
+
+
+@pytest.mark.slow
+def test_the_stored_test_errors_are_reproduced_on_the_training_dataset(tmp_path: Path):
+    """With hopper_small at hand (NEURALDEM_SHIPPED_DATASETS, default the user's data dir: the tests' own data dir
+    never holds it), scoring the shipped field model on its test runs again gives the errors meta.json states.
+    Skipped where the dataset is absent (CI)."""
+    from neuraldem.data.integrity import digest
+    from neuraldem.scenes.hopper.evaluation import evaluate_checkpoint
+
+    model = pretrained.load("hopper_small")
+    datasets = Path(os.environ.get("NEURALDEM_SHIPPED_DATASETS", Path.home() / ".local/share/neuraldem/datasets"))
+    dataset = datasets / model.meta["training_data"]["dataset"]
+    if not (dataset / "manifest.json").is_file():
+        pytest.skip(f"no {dataset}")
+    if digest(dataset / "manifest.json") != model.meta["training_data"]["manifest_sha256"]:
+        pytest.skip(f"{dataset} is not the dataset the model was built from (its manifest changed)")
+    result = evaluate_checkpoint(model.file("field"), tmp_path, dataset.parent, dataset, vtk=False, progress=False)
+    stored = model.meta["test_errors"]
+
+    def errors(agg: dict) -> dict:  # the answer time is not an error and varies with the machine
+        return {k: v for k, v in agg.items() if k not in ("answer_s", "fit_s")}
+
+    assert errors(result["aggregate"]) == pytest.approx(errors(stored["field model"]), rel=1e-6, abs=1e-9,
+                                                        nan_ok=True)
+    assert errors(result["baselines"]["gp"]["aggregate"]) == pytest.approx(errors(stored["gp"]), rel=1e-6,
+                                                                           nan_ok=True)
