@@ -14,6 +14,7 @@ Outputs go to --out (default <data dir>/predict/<scene>/<parameters>/): answer.j
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import time
@@ -32,29 +33,43 @@ SCENES = {"hopper": "hopper"}  # command-line scene name -> scene kind of its sh
 PHYSICAL_LIMITS = {"alpha": (0.0, 75.0), "mu_s": (0.0, 2.0), "mu_r": (0.0, 1.0)}  # what LIGGGHTS can run at all
 
 
-def parse_point(items: list[str], names: list[str], scene: str) -> dict[str, float]:
-    """`NAME=VALUE` arguments as {name: value}: every name of the model's inputs, no other."""
-    out: dict[str, float] = {}
+def named_values(items: list[str], names: list[str], scene: str, form: str) -> dict[str, str]:
+    """`NAME=...` arguments as {name: text}: names of the model's inputs only, and every one of them."""
+    out: dict[str, str] = {}
     for item in items:
         key, sep, value = item.partition("=")
         if not sep:
-            raise ConfigError(f"argument {item!r}: expected NAME=VALUE, e.g. {names[0]}=30")
+            raise ConfigError(f"argument {item!r}: expected {form}, e.g. {names[0]}=30")
         if key not in names:
             raise ConfigError(f"unknown {scene} parameter {key!r}", f"the parameters are {', '.join(names)}")
+        out[key] = value
+    missing = [n for n in names if n not in out]
+    if missing:
+        raise ConfigError(f"missing {scene} parameter(s) {', '.join(missing)}",
+                          f"give all of {' '.join(f'{n}=VALUE' for n in names)}")
+    return out
+
+
+def check_solver_limits(key: str, values: list[float]) -> None:
+    """Values LIGGGHTS cannot run at all are refused (values it can run but the model never saw are warned)."""
+    lo, hi = PHYSICAL_LIMITS.get(key, (-np.inf, np.inf))
+    if min(values) < lo or max(values) > hi:
+        shown = f"={values[0]:g}" if len(values) == 1 else f" spans {min(values):g} .. {max(values):g},"
+        raise ConfigError(f"parameter {key}{shown} is outside what the solver can run ({lo:g} .. {hi:g})")
+
+
+def parse_point(items: list[str], names: list[str], scene: str) -> dict[str, float]:
+    """`NAME=VALUE` arguments as {name: value}: every name of the model's inputs, no other."""
+    out: dict[str, float] = {}
+    for key, value in named_values(items, names, scene, "NAME=VALUE").items():
         try:
             out[key] = float(value)
         except ValueError:
             raise ConfigError(f"parameter {key}={value!r} is not a number") from None
         if not np.isfinite(out[key]):
             raise ConfigError(f"parameter {key}={value} is not a finite number")
-    missing = [n for n in names if n not in out]
-    if missing:
-        raise ConfigError(f"missing {scene} parameter(s) {', '.join(missing)}",
-                          f"give all of {' '.join(f'{n}=VALUE' for n in names)}")
-    for key, (lo, hi) in PHYSICAL_LIMITS.items():
-        if key in out and not lo <= out[key] <= hi:
-            raise ConfigError(f"parameter {key}={out[key]:g} is outside what the solver can run ({lo:g} .. {hi:g})")
-    return out
+        check_solver_limits(key, [out[key]])
+    return {n: out[n] for n in names}
 
 
 def range_warnings(extrapolation: dict[str, list[float]], who: str) -> list[str]:
@@ -198,13 +213,26 @@ def hopper_verify(scene_record: dict[str, Any], point: dict[str, float], setting
     return answer, panel
 
 
+def what_if_parser(module: str, doc: str | None, parameters_help: str) -> argparse.ArgumentParser:
+    """The arguments `predict` and `scan` share: the scene, its parameters, the shipped model, the output folder."""
+    p = doc_parser(module, doc)
+    p.add_argument("scene", help=f"one of: {', '.join(SCENES)}")
+    p.add_argument("parameters", nargs="*", help=parameters_help)
+    p.add_argument("--model", default=None,
+                   help=f"shipped model name (default: the scene's; shipped: {', '.join(pretrained.names())})")
+    p.add_argument("--out", type=Path, default=None, help="output folder")
+    return p
+
+
+def scene_kind(scene: str) -> str:
+    if scene not in SCENES:
+        raise ConfigError(f"unknown scene {scene!r}", f"choose one of: {', '.join(SCENES)}")
+    return SCENES[scene]
+
+
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = doc_parser("neuraldem.predict", __doc__)
-    p.add_argument("scene", help=f"one of: {', '.join(SCENES)}")
-    p.add_argument("parameters", nargs="*", help="NAME=VALUE, e.g. alpha=40 mu_s=0.3 mu_r=0.1")
-    p.add_argument("--model", default=None, help="shipped model name (default: the scene's; see --list)")
-    p.add_argument("--out", type=Path, default=None, help="output folder")
+    p = what_if_parser("neuraldem.predict", __doc__, "NAME=VALUE, e.g. alpha=40 mu_s=0.3 mu_r=0.1")
     p.add_argument("--verify", action="store_true", help="also run the solver and show both answers")
     p.add_argument("--no-fields", dest="fields", action="store_false", help="the GP's numbers only")
     p.add_argument("--time-stride", type=int, default=2,
@@ -212,11 +240,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true", help="print answer.json instead of the table")
     args = p.parse_args(argv)
     t0 = time.perf_counter()
-    if args.scene not in SCENES:
-        raise ConfigError(f"unknown scene {args.scene!r}", f"choose one of: {', '.join(SCENES)}")
+    kind = scene_kind(args.scene)
     if args.time_stride < 1:
         raise ConfigError(f"--time-stride {args.time_stride} is invalid: must be >= 1")
-    kind = SCENES[args.scene]
     name = args.model or pretrained.default_for(kind)
     inputs = pretrained.load(name, kind).meta["inputs"]
     point = parse_point(args.parameters, list(inputs), args.scene)

@@ -23,11 +23,11 @@ from typing import Any
 import numpy as np
 
 from neuraldem import pretrained
-from neuraldem.cli import doc_parser, report_user_errors
+from neuraldem.cli import report_user_errors
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError
 from neuraldem.paths import data_dir
-from neuraldem.predict import PHYSICAL_LIMITS, SCENES, hopper_gp
+from neuraldem.predict import check_solver_limits, hopper_gp, named_values, scene_kind, what_if_parser
 
 MAX_POINTS = 250_000  # a grid larger than this is refused (the GP answers ~10k points per second)
 
@@ -36,12 +36,7 @@ def parse_axes(items: list[str], names: list[str], scene: str) -> tuple[dict[str
     """(the two scanned axes {name: values}, the fixed values {name: value}) from NAME=LO:HI:N / NAME=VALUE."""
     axes: dict[str, np.ndarray] = {}
     fixed: dict[str, float] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise ConfigError(f"argument {item!r}: expected NAME=LO:HI:N or NAME=VALUE, e.g. {names[0]}=0:60:31")
-        if key not in names:
-            raise ConfigError(f"unknown {scene} parameter {key!r}", f"the parameters are {', '.join(names)}")
+    for key, value in named_values(items, names, scene, "NAME=LO:HI:N or NAME=VALUE").items():
         parts = value.split(":")
         try:
             numbers = [float(p) for p in parts]
@@ -54,21 +49,13 @@ def parse_axes(items: list[str], names: list[str], scene: str) -> tuple[dict[str
         else:
             raise ConfigError(f"parameter {key}={value!r} is invalid: a range is LO:HI:N with HI > LO and N >= 2 "
                               "points, e.g. 0:60:31")
-    missing = [n for n in names if n not in axes and n not in fixed]
-    if missing:
-        raise ConfigError(f"missing {scene} parameter(s) {', '.join(missing)}",
-                          "give every parameter, two of them as ranges LO:HI:N")
+        check_solver_limits(key, list(axes[key]) if key in axes else [fixed[key]])
     if len(axes) != 2:
         raise ConfigError(f"a scan needs exactly two ranges (LO:HI:N), got {len(axes)}",
                           f"e.g. {names[0]}=0:60:31 {names[1]}=0.05:1:20 and the rest as single values")
     if np.prod([len(v) for v in axes.values()]) > MAX_POINTS:
         raise ConfigError(f"the grid has {int(np.prod([len(v) for v in axes.values()]))} points, more than "
                           f"{MAX_POINTS}", "use fewer points per range")
-    for key, (lo, hi) in PHYSICAL_LIMITS.items():
-        values = list(axes[key]) if key in axes else [fixed[key]] if key in fixed else []
-        if values and (min(values) < lo or max(values) > hi):
-            raise ConfigError(f"parameter {key} spans {min(values):g} .. {max(values):g}, outside what the solver "
-                              f"can run ({lo:g} .. {hi:g})")
     return axes, fixed
 
 
@@ -169,23 +156,18 @@ def scan_table(checks: list[dict[str, Any]], answers_at: list[Any], regime_thres
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = doc_parser("neuraldem.scan", __doc__)
-    p.add_argument("scene", help=f"one of: {', '.join(SCENES)}")
-    p.add_argument("parameters", nargs="*", help="NAME=LO:HI:N (two of them) and NAME=VALUE")
-    p.add_argument("--model", default=None, help="shipped model name (default: the scene's)")
-    p.add_argument("--out", type=Path, default=None, help="output folder")
+    p = what_if_parser("neuraldem.scan", __doc__, "NAME=LO:HI:N (two of them) and NAME=VALUE")
     p.add_argument("--verify", type=int, default=0, metavar="K", help="run LIGGGHTS at K grid points")
     p.add_argument("--seed", type=int, default=0, help="which grid points --verify picks")
     args = p.parse_args(argv)
     t0 = time.perf_counter()
-    if args.scene not in SCENES:
-        raise ConfigError(f"unknown scene {args.scene!r}", f"choose one of: {', '.join(SCENES)}")
+    kind = scene_kind(args.scene)
     if args.verify < 0:
         raise ConfigError(f"--verify {args.verify} is invalid: the number of LIGGGHTS checks must be >= 0")
     from neuraldem.scenes.hopper.metrics import HopperMetricSettings
     from neuraldem.scenes.hopper.whatif import QUANTITIES, gp_answers
 
-    model = pretrained.load(args.model or pretrained.default_for(SCENES[args.scene]), SCENES[args.scene])
+    model = pretrained.load(args.model or pretrained.default_for(kind), kind)
     axes, fixed = parse_axes(args.parameters, list(model.meta["inputs"]), args.scene)
     settings = HopperMetricSettings.from_config(model.meta.get("metric_settings", {}), f"{model.name} metric_settings")
     rows, shape = grid_rows(axes, fixed)
