@@ -36,12 +36,12 @@ def test_answers_with_intervals_fields_stripes_and_vtk(tmp_path: Path):
 
 def test_the_gp_answer_equals_the_shipped_gp(tmp_path: Path):
     from neuraldem import pretrained
-    from neuraldem.models.scalar_baselines import GaussianProcessBaseline
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess
 
     proc = predict("hopper", "alpha=25", "mu_s=0.6", "mu_r=0.3", "--no-fields", "--json", "--out", str(tmp_path))
     assert proc.returncode == 0, proc.stderr
     printed = json.loads(proc.stdout)
-    gp = GaussianProcessBaseline.load(pretrained.load("hopper_small").file("gp"))
+    gp = ArrayGaussianProcess.load_npz(pretrained.load("hopper_small").file("gp"))
     expected = gp.predict([[25.0, 0.6, 0.3]])[0]
     assert printed["gp"]["mean"] == pytest.approx(expected.mean) and "field" not in printed
 

@@ -134,3 +134,34 @@ def test_predict_before_fit_or_with_wrong_columns_names_the_inputs(data):
     const = ConstantBaseline(INPUTS).fit(data["x"], data["y"])
     with pytest.raises(DataError, match=r"\['alpha', 'mu_s', 'mu_r'\]"):
         const.predict(data["x"][:, :2])
+
+
+def test_the_array_gp_answers_as_the_fitted_one_without_scikit_learn(gp, data, tmp_path: Path):
+    """The shipped form of the GP (arrays, numpy only) gives scikit-learn's means and intervals, NaN targets and
+    extrapolation flags included, and survives its file round trip. (Synthetic targets: a unit test.)"""
+    import subprocess
+    import sys
+
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess
+
+    x = np.vstack([data["x_test"], [[1.3, 0.5, 0.5]]])  # one point outside the trained range
+    path = ArrayGaussianProcess.from_fitted(gp).save_npz(tmp_path / "gp.npz")
+    arrays = ArrayGaussianProcess.load_npz(path)
+    for a, b in zip(gp.predict(x), arrays.predict(x), strict=True):
+        for part in ("mean", "low", "high"):
+            for t in TARGETS:
+                assert getattr(b, part)[t] == pytest.approx(getattr(a, part)[t], rel=1e-9, abs=1e-12)
+        assert a.extrapolation == b.extrapolation
+    code = ("import sys; from neuraldem.models.scalar_baselines import ArrayGaussianProcess as G; "
+            f"G.load_npz({str(path)!r}).predict([[0.5, 0.5, 0.5]]); print('sklearn' in sys.modules)")
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() \
+        == "False"
+
+
+def test_a_damaged_array_gp_file_is_a_data_error(gp, tmp_path: Path):
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess
+
+    path = tmp_path / "gp.npz"
+    path.write_bytes(b"not a zip")
+    with pytest.raises(DataError, match="gp.npz is damaged"):
+        ArrayGaussianProcess.load_npz(path)

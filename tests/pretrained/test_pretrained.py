@@ -40,13 +40,13 @@ def test_the_hopper_model_is_shipped_small_and_documented():
 
 
 def test_shipped_files_reproduce_their_stored_probe_answers():
-    from neuraldem.models.scalar_baselines import GaussianProcessBaseline
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess
     from neuraldem.predict import hopper_module
     from neuraldem.scenes.hopper.metrics import HopperMetricSettings
     from neuraldem.scenes.hopper.whatif import field_answer, gp_answers
 
     model = pretrained.load("hopper_small")
-    gp = GaussianProcessBaseline.load(model.file("gp"))
+    gp = ArrayGaussianProcess.load_npz(model.file("gp"))
     module = hopper_module(model)
     settings = HopperMetricSettings.from_config(model.meta["metric_settings"], "meta")
     for probe in model.meta["probes"]:
@@ -68,7 +68,7 @@ def test_unknown_model_lists_the_shipped_ones():
 def test_a_missing_or_damaged_file_names_itself_and_the_rebuild(own_copy: Path, damage: str):
     from tests.helpers import flip_byte
 
-    path = own_copy / "hopper_small" / "gp.pkl"
+    path = own_copy / "hopper_small" / "gp.npz"
     if damage == "missing":
         path.unlink()
     else:

@@ -3,10 +3,11 @@
     python -m neuraldem.pretrained.build --ckpt RUN/checkpoints/last.ckpt --name hopper_small
 
 Writes `<out>/<name>/` (default: the package's pretrained folder): `field.pt` (the checkpoint without optimizer
-state), `gp.pkl` (the scalar Gaussian process fitted on the runs the field model trained and validated on) and
-`meta.json`: the training data (dataset, SHA-256 of its manifest, the run ids of each part), the config, the
-test errors of the field model, the GP and the constant on the checkpoint's held-out test runs (scored by the
-same function as every hopper table), the trained ranges, answers at probe points, and the rebuild commands.
+state), `gp.npz` (the scalar Gaussian process fitted on the runs the field model trained and validated on, as
+arrays that numpy answers with) and `meta.json`: the training data (dataset, SHA-256 of its manifest, the run
+ids of each part), the config, the test errors of the field model, the GP and the constant on the checkpoint's
+held-out test runs (scored by the same function as every hopper table), the trained ranges, answers at probe
+points, and the rebuild commands.
 """
 
 from __future__ import annotations
@@ -67,6 +68,7 @@ def probe_answers(gp: Any, module: Any, settings: Any) -> list[dict[str, Any]]:
 
 def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) -> Path:
     from neuraldem.eval.checkpoints import read_checkpoint
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess
     from neuraldem.scenes.hopper.baselines import baseline_inputs, fit_baseline
     from neuraldem.scenes.hopper.evaluation import evaluate_checkpoint
     from neuraldem.scenes.hopper.scoring import dataset_metric_settings
@@ -85,7 +87,8 @@ def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) ->
     strip_checkpoint(ckpt, folder / "field.pt")
     inputs = baseline_inputs(list(meta["conditioning"]))
     gp = fit_baseline("gp", fit_runs, inputs)
-    gp.save(folder / "gp.pkl")
+    ArrayGaussianProcess.from_fitted(gp).save_npz(folder / "gp.npz")  # answered with numpy alone
+    (folder / "gp.pkl").unlink(missing_ok=True)  # written by earlier versions
 
     with tempfile.TemporaryDirectory() as tmp:  # scored on the checkpoint's own test runs
         result = evaluate_checkpoint(ckpt, Path(tmp), dataset.parent, dataset, vtk=False, progress=True)
@@ -94,7 +97,7 @@ def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) ->
     test_errors = {"field model": result["aggregate"],
                    **{k: v["aggregate"] for k, v in result["baselines"].items() if "aggregate" in v}}
     files = {role: {"file": f, "sha256": digest(folder / f), "bytes": (folder / f).stat().st_size}
-             for role, f in (("field", "field.pt"), ("gp", "gp.pkl"))}
+             for role, f in (("field", "field.pt"), ("gp", "gp.npz"))}
     hp = checkpoint.hyper_parameters
     overrides = run_overrides(Path(ckpt))
     info = {
@@ -113,7 +116,7 @@ def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) ->
         "metric_settings": settings.as_dict(), "scene": meta["scene"],
         "test_errors": {"n_test_runs": len(result["simulations"]), "runs": [s["sim_id"] for s in result["simulations"]],
                         **test_errors},
-        "probes": probe_answers(gp, module, settings),
+        "probes": probe_answers(gp, module, settings),  # scikit-learn's answers: the shipped arrays must match
         "rebuild": [f"neuraldem train {' '.join(overrides)}",
                     f"python -m neuraldem.pretrained.build --ckpt <that run>/checkpoints/{Path(ckpt).name} "
                     f"--name {name}"],
