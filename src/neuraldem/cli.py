@@ -8,14 +8,13 @@ import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import hydra
-from omegaconf import DictConfig
-
-import neuraldem.config  # noqa: F401  (registers resolvers before Hydra composes)
 from neuraldem.errors import ConfigError, NeuraldemError
 from neuraldem.paths import config_dir
+
+if TYPE_CHECKING:
+    from omegaconf import DictConfig
 
 
 def quiet_environment() -> None:
@@ -90,6 +89,12 @@ def hydra_app(config_name: str) -> Callable[[Callable[[DictConfig], Any]], Calla
     """Decorator for `main(cfg)` functions: our config tree, our error reporting, offline defaults."""
 
     def decorate(task: Callable[[DictConfig], Any]) -> Callable[[], Any]:
+        # Hydra and the config resolvers are imported here, not with this module: the tools that only take
+        # flags (predict, scan, report, ...) start about 0.4 s faster without them
+        import hydra
+
+        import neuraldem.config  # noqa: F401  (registers resolvers before Hydra composes)
+
         quiet_environment()
         wrapped = report_user_errors(task)
         return hydra.main(version_base="1.3", config_path=str(config_dir()), config_name=config_name)(wrapped)
