@@ -24,6 +24,7 @@ def test_answers_with_intervals_fields_stripes_and_vtk(tmp_path: Path):
     proc = predict("hopper", "alpha=40", "mu_s=0.3", "mu_r=0.1", "--time-stride", "6", "--out", str(tmp_path))
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "| drainage t95 [s] |" in proc.stdout and "| flow regime |" in proc.stdout
+    assert "held-out LIGGGHTS runs (meta.json): GP t95" in proc.stdout  # how far to trust it, beside it
     answer = json.loads((tmp_path / "answer.json").read_text())
     gp = answer["gp"]
     for key in ("drainage_t95", "residual_fraction", "outflow_rate", "mass_flow_index"):

@@ -125,6 +125,12 @@ def hopper_table(answer: dict[str, Any]) -> str:
         ([f"{answer['field']['seconds']:.3g} s"] if "field" in answer else []) + \
         ([f"{answer['liggghts']['seconds']:.3g} s"] if "liggghts" in answer else [])
     lines.append(f"| answer time | {' | '.join(times)} |")
+    stored = answer.get("stored_test_errors") or {}
+    if stored.get("n_test_runs"):
+        lines += ["", f"measured on {stored['n_test_runs']} held-out LIGGGHTS runs (meta.json): " + "; ".join(
+            f"{who} t95 {e['drainage_t95_pct_of_mean']:.1f} %, residual {e['residual_mae_pp']:.2f} pp, outflow "
+            f"{e['outflow_rel_err_pct']:.1f} %, regime {100 * e['flow_regime_accuracy']:.0f} % right"
+            for who, e in (("GP", stored.get("gp")), ("field model", stored.get("field model"))) if e)]
     truth = (answer.get("liggghts") or {}).get("metrics")
     if truth:
         lines.append("")
