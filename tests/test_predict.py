@@ -92,3 +92,7 @@ def test_verify_runs_liggghts_beside_the_surrogate(tiny_pretrained: Path, tmp_pa
     ligg = answer["liggghts"]
     assert ligg["status"] == "ok" and ligg["seconds"] > 0 and 0 < ligg["metrics"]["drainage_t95"] < 5
     assert answer["gp"]["seconds"] < ligg["seconds"]
+    again = predict("hopper", "alpha=45", "mu_s=0.3", "mu_r=0.1", "--verify", "--no-fields", "--model",
+                    "hopper_tiny_test", "--out", str(tmp_path), env={"NEURALDEM_PRETRAINED_DIR": str(tiny_pretrained)})
+    assert again.returncode == 0 and "read back from" in again.stderr and "running LIGGGHTS" not in again.stderr
+    assert json.loads((tmp_path / "answer.json").read_text())["liggghts"]["metrics"] == ligg["metrics"]
