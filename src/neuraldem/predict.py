@@ -28,9 +28,9 @@ from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError
 from neuraldem.paths import data_dir
+from neuraldem.scenes.hopper.solver import PARAMETER_LIMITS  # what LIGGGHTS can run at all
 
 SCENES = {"hopper": "hopper"}  # command-line scene name -> scene kind of its shipped models
-PHYSICAL_LIMITS = {"alpha": (0.0, 75.0), "mu_s": (0.0, 2.0), "mu_r": (0.0, 1.0)}  # what LIGGGHTS can run at all
 
 
 def named_values(items: list[str], names: list[str], scene: str, form: str) -> dict[str, str]:
@@ -52,7 +52,7 @@ def named_values(items: list[str], names: list[str], scene: str, form: str) -> d
 
 def check_solver_limits(key: str, values: list[float]) -> None:
     """Values LIGGGHTS cannot run at all are refused (values it can run but the model never saw are warned)."""
-    lo, hi = PHYSICAL_LIMITS.get(key, (-np.inf, np.inf))
+    lo, hi = PARAMETER_LIMITS.get(key, (-np.inf, np.inf))
     if min(values) < lo or max(values) > hi:
         shown = f"={values[0]:g}" if len(values) == 1 else f" spans {min(values):g} .. {max(values):g},"
         raise ConfigError(f"parameter {key}{shown} is outside what the solver can run ({lo:g} .. {hi:g})")

@@ -20,13 +20,16 @@ from neuraldem.errors import ConfigError, SolverError
 from neuraldem.scenes.hopper.fields import trajectory_fields_at
 from neuraldem.scenes.hopper.metrics import HopperMetricSettings, hopper_summary, metric_times
 from neuraldem.scenes.hopper.predict import hold_final_state
-from neuraldem.scenes.hopper.solver import STATUS_FAILED, HopperScene, HopperTrajectory, run_hopper
+from neuraldem.scenes.hopper.solver import (
+    PARAMETER_LIMITS,
+    STATUS_FAILED,
+    HopperScene,
+    HopperTrajectory,
+    run_hopper,
+)
 from neuraldem.scenes.hopper.store import HopperFile, write_hopper_file
 from neuraldem.sim import liggghts
 from neuraldem.sim.material import Material
-
-# what a user may sample, and the physically sensible limits of each range
-PARAMETER_LIMITS = {"alpha": (0.0, 75.0), "mu_s": (0.0, 2.0), "mu_r": (0.0, 1.0)}
 
 
 def trajectory_metrics(traj: HopperTrajectory, diameter: float,
