@@ -202,3 +202,31 @@ def tiny_pretrained(tiny_checkpoint: Path, hopper_tiny_dataset: Path,
     out = tmp_path_factory.mktemp("pretrained")
     build_hopper(tiny_checkpoint, "hopper_tiny_test", out, hopper_tiny_dataset)
     return out
+
+
+@pytest.fixture(scope="session")
+def fb_tiny_pretrained(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A shipped-model folder (`fb_tiny_test`) built from a 3-step model of fb_tiny. Plumbing only: fb_tiny has
+    3 real DPMFoam runs and the scalar GP needs 3 to fit, so this copy of the dataset trains on all three and
+    "holds out" one of them again; its test errors mean nothing, they only exercise the path."""
+    import json
+
+    from neuraldem.models.registry import net_config
+    from neuraldem.pretrained.build_fb import build_fluidized_bed
+    from neuraldem.scenes.fluidized_bed.datamodule import FluidizedBedDataModule
+    from neuraldem.scenes.fluidized_bed.module import FluidizedBedModule
+    from tests.helpers import copy_dataset
+
+    data = copy_dataset(fb_tiny_dataset, tmp_path_factory.mktemp("fb_whatif") / "fb_tiny")
+    m = json.loads((data / "manifest.json").read_text())
+    ids = [s["sim_id"] for s in m["simulations"] if s["status"] == "ok"]
+    m["splits"]["velocity"] = {"train": ids, "val": [], "test": ids[-1:]}
+    (data / "manifest.json").write_text(json.dumps(m))
+    torch.manual_seed(0)
+    dm = FluidizedBedDataModule(str(data), "fb_tiny", batch_size=2, push_forward_steps=2, solids_flux=True)
+    stability = {"unroll": [0.5, 0.5], "conserve_volume": True, "mixing": "advect"}
+    ckpt = train_briefly(FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, stability=stability), dm,
+                         tmp_path_factory.mktemp("ckpt") / "fb_whatif.ckpt")
+    out = tmp_path_factory.mktemp("pretrained_fb")
+    build_fluidized_bed(ckpt, "fb_tiny_test", out, data, lacey_time=0.1, progress=False)
+    return out

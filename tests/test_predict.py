@@ -55,7 +55,7 @@ def test_outside_the_trained_range_answers_with_a_warning(tmp_path: Path):
 
 
 @pytest.mark.parametrize(("args", "expected"), [
-    (("drum", "x=1"), "unknown scene 'drum': choose one of: hopper"),
+    (("drum", "x=1"), "unknown scene 'drum': choose one of: hopper, fb"),
     (("hopper", "alpha=40", "mu_s=0.3", "phi=2"), "unknown hopper parameter 'phi': the parameters are alpha, mu_s"),
     (("hopper", "alpha=40", "mu_s=0.3"), "missing hopper parameter(s) mu_r"),
     (("hopper", "alpha=90", "mu_s=0.3", "mu_r=0.1"), "alpha=90 is outside what the solver can run (0 .. 75)"),

@@ -66,3 +66,12 @@ def test_verify_marks_liggghts_points_and_reuses_them(tiny_pretrained: Path, tmp
     assert "| t95 GP [95 %] [s] | t95 LIGGGHTS [s] |" in (tmp_path / "scan.md").read_text()
     again = run_module("neuraldem", *args, env=env)  # the finished solver run is read back, not rerun
     assert again.returncode == 0 and "LIGGGHTS 1/1" not in again.stderr
+
+
+def test_a_scan_of_the_one_parameter_bed_is_refused_with_the_command_that_answers_it(capsys):
+    from neuraldem.scan import main
+
+    with pytest.raises(SystemExit) as done:
+        main(["fb", "inlet_velocity=1.2:2.2:11"])
+    err = capsys.readouterr().err
+    assert done.value.code == 2 and "the fb scene has one" in err and "neuraldem predict fb" in err

@@ -3,13 +3,17 @@
     neuraldem predict hopper alpha=40 mu_s=0.3 mu_r=0.1            # numbers, stripes plot, ParaView files
     neuraldem predict hopper alpha=40 mu_s=0.3 mu_r=0.1 --verify   # ... and LIGGGHTS on the same parameters
     neuraldem predict hopper alpha=40 mu_s=0.3 mu_r=0.1 --no-fields  # the GP's numbers alone (fastest)
+    neuraldem predict fb inlet_velocity=1.8 [--verify]             # a fluidized bed (DPMFoam for --verify)
 
 Hopper: drainage time (t95 and the 1 % rule), residual, outflow and the flow regime, each from the scalar
 Gaussian process with its 95 % interval and from the field model (read off its predicted fields, the way DEM
 runs are scored); the stripes plot of the initial height layers over time and the predicted particles as a
 ParaView time series. `--verify` runs LIGGGHTS at the model's scene and prints both answers and both times
 side by side. Values outside the trained ranges are answered with a warning that names the range.
-Outputs go to --out (default <data dir>/predict/<scene>/<parameters>/): answer.json, stripes.png, vtk/.
+Fluidized bed (`fb`): mean bed height, mean bubble fraction and the Lacey index after 1 s, from the GP and from
+a rollout of the field model (curves.png, animation.gif, vtk/), with their stored held-out errors beside
+CFD-DEM's own spread (`neuraldem/predict_fb.py`). `--verify` runs DPMFoam (minutes).
+Outputs go to --out (default <data dir>/predict/<scene>/<parameters>/): answer.json, plots, vtk/.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ from neuraldem.errors import ConfigError
 from neuraldem.paths import data_dir
 from neuraldem.scenes.hopper.solver import PARAMETER_LIMITS  # what LIGGGHTS can run at all
 
-SCENES = {"hopper": "hopper"}  # command-line scene name -> scene kind of its shipped models
+SCENES = {"hopper": "hopper", "fb": "fluidized_bed"}  # command-line scene name -> scene kind of its models
 
 
 def named_values(items: list[str], names: list[str], scene: str, form: str) -> dict[str, str]:
@@ -50,9 +54,18 @@ def named_values(items: list[str], names: list[str], scene: str, form: str) -> d
     return out
 
 
+def solver_limits(key: str) -> tuple[float, float]:
+    """What the solvers can run at all for one parameter (LIGGGHTS hopper, DPMFoam bed)."""
+    if key == "inlet_velocity":  # imported only for the bed: the hopper's answer stays fast
+        from neuraldem.scenes.fluidized_bed.limits import VELOCITY_LIMITS
+
+        return VELOCITY_LIMITS
+    return PARAMETER_LIMITS.get(key, (-np.inf, np.inf))
+
+
 def check_solver_limits(key: str, values: list[float]) -> None:
-    """Values LIGGGHTS cannot run at all are refused (values it can run but the model never saw are warned)."""
-    lo, hi = PARAMETER_LIMITS.get(key, (-np.inf, np.inf))
+    """Values the solver cannot run at all are refused (values it can run but the model never saw are warned)."""
+    lo, hi = solver_limits(key)
     if min(values) < lo or max(values) > hi:
         shown = f"={values[0]:g}" if len(values) == 1 else f" spans {min(values):g} .. {max(values):g},"
         raise ConfigError(f"parameter {key}{shown} is outside what the solver can run ({lo:g} .. {hi:g})")
@@ -154,8 +167,9 @@ def errors_vs(values: dict[str, float], truth: dict[str, float], threshold: floa
 
 def predict_hopper(point: dict[str, float], model_name: str, out: Path, fields: bool, verify: bool,
                    time_stride: int = 1) -> dict[str, Any]:
+    from neuraldem.models.scalar_baselines import gp_answers
     from neuraldem.scenes.hopper.metrics import HopperMetricSettings
-    from neuraldem.scenes.hopper.whatif import gp_answers, regime
+    from neuraldem.scenes.hopper.whatif import regime
 
     model = pretrained.load(model_name, "hopper")
     gp = hopper_gp(model)
@@ -252,7 +266,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--verify", action="store_true", help="also run the solver and show both answers")
     p.add_argument("--no-fields", dest="fields", action="store_false", help="the GP's numbers only")
     p.add_argument("--time-stride", type=int, default=2,
-                   help="field model: every Nth time of the 0.05 s grid (default 2: every 0.1 s)")
+                   help="hopper field model: every Nth time of the 0.05 s grid (default 2: every 0.1 s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="fb: seed of the field model's rollout (and of DPMFoam's packing with --verify)")
     p.add_argument("--json", action="store_true", help="print answer.json instead of the table")
     args = p.parse_args(argv)
     t0 = time.perf_counter()
@@ -263,14 +279,21 @@ def main(argv: list[str] | None = None) -> int:
     inputs = pretrained.load(name, kind).meta["inputs"]
     point = parse_point(args.parameters, list(inputs), args.scene)
     out = args.out or default_out(args.scene, point)
-    answer = predict_hopper(point, name, out, args.fields, args.verify, args.time_stride)
+    if kind == "fluidized_bed":
+        from neuraldem.predict_fb import fb_table, predict_fb
+
+        answer = predict_fb(point, name, out, args.fields, args.verify, args.seed)
+        table = fb_table
+    else:
+        answer = predict_hopper(point, name, out, args.fields, args.verify, args.time_stride)
+        table = hopper_table
     for w in answer["warnings"]:
         print(w, file=sys.stderr)
     if args.json:
         print(json.dumps(answer, indent=1, default=float))
     else:
-        print(f"hopper what-if {' '.join(f'{k}={v:g}' for k, v in point.items())} (model {name}):")
-        print(hopper_table(answer))
+        print(f"{args.scene} what-if {' '.join(f'{k}={v:g}' for k, v in point.items())} (model {name}):")
+        print(table(answer))
         print(f"outputs in {out} ({time.perf_counter() - t0:.2f} s in this command)")
     return 0
 

@@ -162,10 +162,14 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     t0 = time.perf_counter()
     kind = scene_kind(args.scene)
+    if kind != "hopper":  # a bed has one parameter: `predict fb` at a few velocities is its scan
+        raise ConfigError(f"scan draws a design chart over two parameters; the {args.scene} scene has one",
+                          f"use neuraldem predict {args.scene} ... at the values you want")
     if args.verify < 0:
         raise ConfigError(f"--verify {args.verify} is invalid: the number of LIGGGHTS checks must be >= 0")
+    from neuraldem.models.scalar_baselines import gp_answers
     from neuraldem.scenes.hopper.metrics import HopperMetricSettings
-    from neuraldem.scenes.hopper.whatif import QUANTITIES, gp_answers
+    from neuraldem.scenes.hopper.whatif import QUANTITIES
 
     model = pretrained.load(args.model or pretrained.default_for(kind), kind)
     axes, fixed = parse_axes(args.parameters, list(model.meta["inputs"]), args.scene)

@@ -165,3 +165,23 @@ def test_a_damaged_array_gp_file_is_a_data_error(gp, tmp_path: Path):
     path.write_bytes(b"not a zip")
     with pytest.raises(DataError, match="gp.npz is damaged"):
         ArrayGaussianProcess.load_npz(path)
+
+
+def test_a_scene_of_its_own_targets_fits_clips_and_survives_the_array_form(tmp_path):
+    """The bed's answers are other targets than the hopper's: the GP and its numpy form answer them,
+    clipped to their own physical ranges."""
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess
+
+    rng = np.random.default_rng(0)
+    x = rng.uniform(1.2, 2.2, size=(12, 1))
+    y = {"height": 0.02 + 0.01 * x[:, 0], "share": np.clip(0.3 * (x[:, 0] - 1.2), 0, 1)}
+    ranges = {"height": (0.0, np.inf), "share": (0.0, 1.0)}
+    gp = GaussianProcessBaseline(["v"], n_restarts=0, targets=("height", "share"), target_range=ranges).fit(x, y)
+    arrays = ArrayGaussianProcess.from_fitted(gp)
+    back = ArrayGaussianProcess.load_npz(arrays.save_npz(tmp_path / "gp.npz"))
+    assert back.targets == ("height", "share") and back.target_range == ranges
+    a, b = gp.predict([[1.7], [5.0]]), back.predict([[1.7], [5.0]])
+    assert a[0].mean == pytest.approx(b[0].mean, rel=1e-9) and set(a[0].mean) == {"height", "share"}
+    assert 0.0 <= b[1].high["share"] <= 1.0 and b[1].extrapolation == {"v": [5.0, gp.lo[0], gp.hi[0]]}
+    with pytest.raises(DataError, match=r"training targets \['share'\] are missing"):
+        GaussianProcessBaseline(["v"], targets=("height", "share")).fit(x, {"height": y["height"]})

@@ -40,10 +40,10 @@ def test_the_hopper_model_is_shipped_small_and_documented():
 
 
 def test_shipped_files_reproduce_their_stored_probe_answers():
-    from neuraldem.models.scalar_baselines import ArrayGaussianProcess
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess, gp_answers
     from neuraldem.predict import hopper_module
     from neuraldem.scenes.hopper.metrics import HopperMetricSettings
-    from neuraldem.scenes.hopper.whatif import field_answer, gp_answers
+    from neuraldem.scenes.hopper.whatif import field_answer
 
     model = pretrained.load("hopper_small")
     gp = ArrayGaussianProcess.load_npz(model.file("gp"))

@@ -39,7 +39,8 @@ def random_points(ranges: dict[str, list[float]], n: int, seed: int) -> list[dic
 
 
 def answer_times(model: pretrained.Pretrained, repeats: int, settings: Any) -> dict[str, Any]:
-    from neuraldem.scenes.hopper.whatif import field_answer, gp_answers
+    from neuraldem.models.scalar_baselines import gp_answers
+    from neuraldem.scenes.hopper.whatif import field_answer
 
     gp, module = hopper_gp(model), hopper_module(model)
     gp_t, _ = time_call(lambda: gp_answers(gp, [DEFAULT_POINT]), repeats)
@@ -58,7 +59,8 @@ def answer_times(model: pretrained.Pretrained, repeats: int, settings: Any) -> d
 
 
 def point_rows(model: pretrained.Pretrained, points: list[dict[str, float]], settings: Any) -> list[dict[str, Any]]:
-    from neuraldem.scenes.hopper.whatif import field_answer, gp_answers
+    from neuraldem.models.scalar_baselines import gp_answers
+    from neuraldem.scenes.hopper.whatif import field_answer
 
     gp, module = hopper_gp(model), hopper_module(model)
     checks = verify_hopper(model, points, data_dir() / "bench" / "whatif" / model.name, settings)

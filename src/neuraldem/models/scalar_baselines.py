@@ -1,10 +1,11 @@
-"""Scalar baselines for the hopper answers: the cheapest honest alternatives to the field model.
+"""Scalar baselines for a scene's answers: the cheapest honest alternatives to a field model.
 
-A practitioner asks a few numbers per hopper run (drainage time, residual, outflow, flow regime) as a function
-of the scene scalars. Before a neural field model earns its cost it has to beat (1) the training mean and
-(2) a Gaussian process regression on the scene scalars, one per answer. Both work on plain arrays: `x` is
-(runs, inputs) in the order of `inputs`, `y` maps each name of `TARGETS` to one value per run. NaN targets
-(an outflow rate that could not be computed) are left out for that target only.
+A practitioner asks a few numbers per run (a hopper's drainage time, residual, outflow, flow regime; a bed's
+height, bubble fraction, Lacey index) as a function of the scene scalars. Before a neural field model earns its
+cost it has to beat (1) the training mean and (2) a Gaussian process regression on the scene scalars, one per
+answer. Both work on plain arrays: `x` is (runs, inputs) in the order of `inputs`, `y` maps each target name
+(default: the hopper's `TARGETS`) to one value per run. NaN targets (an outflow rate that could not be
+computed) are left out for that target only.
 
 Both answer a mean and a 95 % predictive interval per target, and flag inputs outside the trained range
 (an answer there is an extrapolation). `save`/`load` use pickle: load only files you wrote yourself.
@@ -15,6 +16,7 @@ from __future__ import annotations
 import math
 import os
 import pickle
+import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,10 +59,20 @@ class ScalarBaseline:
 
     name = "scalar baseline"
 
-    def __init__(self, inputs: list[str]):
+    def __init__(self, inputs: list[str], targets: tuple[str, ...] = TARGETS,
+                 target_range: dict[str, tuple[float, float]] | None = None):
         self.inputs = checks.names("data.conditioning", list(inputs))
+        self.targets = tuple(targets)
+        # physical range of each answer (means and interval ends are clipped to it); the hopper's by default
+        self.target_range = dict(TARGET_RANGE if target_range is None else target_range)
         self.lo: np.ndarray | None = None  # trained range of each input
         self.hi: np.ndarray | None = None
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        # baselines pickled before targets were a parameter answered the hopper's
+        state.setdefault("targets", TARGETS)
+        state.setdefault("target_range", dict(TARGET_RANGE))
+        self.__dict__.update(state)
 
     # ---- subclass hooks
     def _fit(self, x: np.ndarray, y: dict[str, np.ndarray]) -> None:
@@ -88,11 +100,12 @@ class ScalarBaseline:
     def predict(self, x: np.ndarray) -> list[ScalarAnswer]:
         x = self._check_inputs(x, "prediction")
         out = self._predict(x)
-        for target, (lo, hi) in TARGET_RANGE.items():
-            out[target] = tuple(np.clip(a, lo, hi) for a in out[target])
-        return [ScalarAnswer(mean={t: float(out[t][0][i]) for t in TARGETS},
-                             low={t: float(out[t][1][i]) for t in TARGETS},
-                             high={t: float(out[t][2][i]) for t in TARGETS},
+        for target, (lo, hi) in self.target_range.items():
+            if target in out:
+                out[target] = tuple(np.clip(a, lo, hi) for a in out[target])
+        return [ScalarAnswer(mean={t: float(out[t][0][i]) for t in self.targets},
+                             low={t: float(out[t][1][i]) for t in self.targets},
+                             high={t: float(out[t][2][i]) for t in self.targets},
                              extrapolation=self.outside_range(row))
                 for i, row in enumerate(x)]
 
@@ -162,11 +175,11 @@ class ScalarBaseline:
         if n < MIN_RUNS:
             raise DataError(f"the {self.name} baseline got {n} training run(s), it needs at least {MIN_RUNS}",
                             "generate more runs or use a larger training split")
-        missing = [t for t in TARGETS if t not in y]
+        missing = [t for t in self.targets if t not in y]
         if missing:
-            raise DataError(f"training targets {missing} are missing (need {list(TARGETS)})")
+            raise DataError(f"training targets {missing} are missing (need {list(self.targets)})")
         out = {}
-        for t in TARGETS:
+        for t in self.targets:
             v = np.asarray(y[t], dtype=np.float64)
             if v.shape != (n,):
                 raise DataError(f"training target {t} has shape {v.shape}, expected ({n},) (one value per run)")
@@ -184,8 +197,9 @@ class ConstantBaseline(ScalarBaseline):
 
     name = "constant"
 
-    def __init__(self, inputs: list[str]):
-        super().__init__(inputs)
+    def __init__(self, inputs: list[str], targets: tuple[str, ...] = TARGETS,
+                 target_range: dict[str, tuple[float, float]] | None = None):
+        super().__init__(inputs, targets, target_range)
         self.stats: dict[str, tuple[float, float, float]] = {}  # target -> (mean, p2.5, p97.5)
 
     def _fit(self, x: np.ndarray, y: dict[str, np.ndarray]) -> None:
@@ -193,7 +207,7 @@ class ConstantBaseline(ScalarBaseline):
                       for t, v in y.items()}
 
     def _predict(self, x: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        return {t: tuple(np.full(len(x), s) for s in self.stats[t]) for t in TARGETS}
+        return {t: tuple(np.full(len(x), s) for s in self.stats[t]) for t in self.targets}
 
     @property
     def n_parameters(self) -> int:
@@ -207,8 +221,9 @@ class GaussianProcessBaseline(ScalarBaseline):
 
     name = "gaussian process"
 
-    def __init__(self, inputs: list[str], n_restarts: int = 3, random_state: int = 0):
-        super().__init__(inputs)
+    def __init__(self, inputs: list[str], n_restarts: int = 3, random_state: int = 0,
+                 targets: tuple[str, ...] = TARGETS, target_range: dict[str, tuple[float, float]] | None = None):
+        super().__init__(inputs, targets, target_range)
         self.n_restarts = checks.positive_int("n_restarts", n_restarts, allow_zero=True)
         self.random_state = random_state
         self.gps: dict[str, Any] = {}
@@ -246,7 +261,7 @@ class GaussianProcessBaseline(ScalarBaseline):
     def _predict(self, x: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         xs = self._scale(x)
         out = {}
-        for t in TARGETS:
+        for t in self.targets:
             mean, std = self.gps[t].predict(xs, return_std=True)
             out[t] = (mean, mean - Z95 * std, mean + Z95 * std)
         return out
@@ -262,6 +277,27 @@ class GaussianProcessBaseline(ScalarBaseline):
     def kernels(self) -> dict[str, str]:
         """The fitted kernel of each target (length scales say which inputs matter)."""
         return {t: str(gp.kernel_) for t, gp in self.gps.items()}
+
+
+@dataclass
+class ScalarWhatIf:
+    """One what-if answer of a scalar model: mean and 95 % interval per target, inputs outside the trained
+    range, and the answer time per row."""
+
+    mean: dict[str, float]
+    low: dict[str, float]
+    high: dict[str, float]
+    extrapolation: dict[str, list[float]]
+    seconds: float
+
+
+def gp_answers(gp: ScalarBaseline, rows: list[dict[str, float]]) -> list[ScalarWhatIf]:
+    """A scalar model's answers for many parameter sets at once (a scan), each with its 95 % interval."""
+    t0 = time.perf_counter()
+    x = np.array([[row[name] for name in gp.inputs] for row in rows], dtype=np.float64)
+    answers = gp.predict(x)
+    per = (time.perf_counter() - t0) / max(len(rows), 1)
+    return [ScalarWhatIf(a.mean, a.low, a.high, a.extrapolation, per) for a in answers]
 
 
 def matern25(a: np.ndarray, b: np.ndarray, length_scale: np.ndarray) -> np.ndarray:
@@ -281,13 +317,20 @@ class ArrayGaussianProcess(ScalarBaseline):
     name = "gaussian process"
 
     def __init__(self, inputs: list[str], arrays: dict[str, np.ndarray]):
-        super().__init__(inputs)
+        # the targets are the arrays' own ("<target>.x"), in their stored order; the clip range travels with them
+        targets = tuple(str(t) for t in arrays.get("targets", np.array(TARGETS)))
+        rng = arrays.get("target_range")
+        target_range = None if rng is None else {t: (float(lo), float(hi)) for t, (lo, hi) in zip(targets, rng,
+                                                                                                   strict=True)}
+        super().__init__(inputs, targets, target_range)
         self.arrays = arrays
         self.lo, self.hi = arrays["lo"], arrays["hi"]
 
     @classmethod
     def from_fitted(cls, gp: GaussianProcessBaseline) -> ArrayGaussianProcess:
-        arrays: dict[str, np.ndarray] = {"lo": np.asarray(gp.lo), "hi": np.asarray(gp.hi)}
+        arrays: dict[str, np.ndarray] = {
+            "lo": np.asarray(gp.lo), "hi": np.asarray(gp.hi), "targets": np.array(gp.targets),
+            "target_range": np.array([gp.target_range.get(t, (-math.inf, math.inf)) for t in gp.targets])}
         for t, g in gp.gps.items():
             k = g.kernel_  # ConstantKernel * Matern(nu=2.5) + WhiteKernel, as GaussianProcessBaseline builds it
             arrays |= {f"{t}.x": g.X_train_, f"{t}.alpha": g.alpha_, f"{t}.L": g.L_,
@@ -304,7 +347,7 @@ class ArrayGaussianProcess(ScalarBaseline):
     def _predict(self, x: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         xs = self._scale(x)
         out = {}
-        for t in TARGETS:
+        for t in self.targets:
             a = self.arrays
             constant, noise, y_mean, y_std = a[f"{t}.kernel"]
             k_trans = constant * matern25(xs, a[f"{t}.x"], a[f"{t}.length_scale"])
@@ -318,7 +361,7 @@ class ArrayGaussianProcess(ScalarBaseline):
     @property
     def n_parameters(self) -> int:
         return int(sum(len(self.arrays[f"{t}.alpha"]) + len(self.arrays[f"{t}.length_scale"]) + 3
-                       for t in TARGETS) + 2 * len(self.inputs))
+                       for t in self.targets) + 2 * len(self.inputs))
 
     def save_npz(self, path: str | Path) -> Path:
         path = Path(path)
@@ -345,4 +388,4 @@ class ArrayGaussianProcess(ScalarBaseline):
 
 
 __all__ = ["MIN_RUNS", "TARGETS", "ArrayGaussianProcess", "ConstantBaseline", "GaussianProcessBaseline", "ScalarAnswer",
-           "ScalarBaseline"]
+           "ScalarBaseline", "ScalarWhatIf", "gp_answers"]

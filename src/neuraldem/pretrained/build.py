@@ -1,13 +1,15 @@
-"""Build a shipped pretrained hopper model from a trained checkpoint (what `neuraldem predict` loads).
+"""Build a shipped pretrained model from a trained checkpoint (what `neuraldem predict` loads).
 
     python -m neuraldem.pretrained.build --ckpt RUN/checkpoints/last.ckpt --name hopper_small
+    python -m neuraldem.pretrained.build --ckpt FB_RUN/checkpoints/best.ckpt --name fb_small
 
 Writes `<out>/<name>/` (default: the package's pretrained folder): `field.pt` (the checkpoint without optimizer
 state), `gp.npz` (the scalar Gaussian process fitted on the runs the field model trained and validated on, as
-arrays that numpy answers with) and `meta.json`: the training data (dataset, SHA-256 of its manifest, the run
-ids of each part), the config, the test errors of the field model, the GP and the constant on the checkpoint's
-held-out test runs (scored by the same function as every hopper table), the trained ranges, answers at probe
-points, and the rebuild commands.
+arrays that numpy answers with), for a fluidized bed `states.npz` (the first states of its rollouts,
+`build_fb.py`), and `meta.json`: the training data (dataset, SHA-256 of its manifest, the run ids of each
+part), the config, the test errors of the field model, the GP and the constant on the checkpoint's held-out
+test runs (hopper: scored by the same function as every hopper table; bed: along the path `predict` takes,
+beside CFD-DEM's own spread), the trained ranges, answers at probe points, and the rebuild commands.
 """
 
 from __future__ import annotations
@@ -56,7 +58,8 @@ def commit() -> str:
 
 
 def probe_answers(gp: Any, module: Any, settings: Any) -> list[dict[str, Any]]:
-    from neuraldem.scenes.hopper.whatif import field_answer, gp_answers
+    from neuraldem.models.scalar_baselines import gp_answers
+    from neuraldem.scenes.hopper.whatif import field_answer
 
     out = []
     for point, a in zip(PROBES, gp_answers(gp, PROBES), strict=True):
@@ -64,6 +67,30 @@ def probe_answers(gp: Any, module: Any, settings: Any) -> list[dict[str, Any]]:
         out.append({"parameters": point, "gp_mean": a.mean, "field_summary": f.summary,
                     "field_time_stride": PROBE_TIME_STRIDE})
     return out
+
+
+def build_record(ckpt: Path, name: str, kind: str, folder: Path, files: dict[str, str], description: str,
+                 inputs: list[str], trained_range: dict[str, list[float]], training_data: dict[str, Any],
+                 extra: dict[str, Any], build_flags: str = "") -> dict[str, Any]:
+    """meta.json of a shipped model: what its files are (with checksums), what it was trained on and with,
+    what it scored, and how to rebuild it."""
+    checkpoint = torch.load(ckpt, map_location="cpu", weights_only=False)
+    hp = checkpoint.get("hyper_parameters", {})
+    overrides = run_overrides(Path(ckpt))
+    return {
+        "name": name, "kind": kind, "description": description, "inputs": inputs, "trained_range": trained_range,
+        "files": {role: {"file": f, "sha256": digest(folder / f), "bytes": (folder / f).stat().st_size}
+                  for role, f in files.items()},
+        "training_data": training_data,
+        "config": {"net": hp.get("net"), "optimizer": hp.get("optimizer"), "scheduler": hp.get("scheduler"),
+                   "global_step": int(checkpoint.get("global_step", -1)), "train_overrides": overrides},
+        **extra,
+        "rebuild": [f"neuraldem train {' '.join(overrides)}",
+                    f"python -m neuraldem.pretrained.build --ckpt <that run>/checkpoints/{Path(ckpt).name} "
+                    f"--name {name}{' ' + build_flags if build_flags else ''}"],
+        "built_from": {"checkpoint": str(Path(ckpt).resolve()), "commit": commit(),
+                       "date_utc": datetime.now(UTC).isoformat(timespec="seconds")},
+    }
 
 
 def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) -> Path:
@@ -96,33 +123,19 @@ def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) ->
     module = read_checkpoint(folder / "field.pt").module("hopper", "cpu", "build")
     test_errors = {"field model": result["aggregate"],
                    **{k: v["aggregate"] for k, v in result["baselines"].items() if "aggregate" in v}}
-    files = {role: {"file": f, "sha256": digest(folder / f), "bytes": (folder / f).stat().st_size}
-             for role, f in (("field", "field.pt"), ("gp", "gp.npz"))}
-    hp = checkpoint.hyper_parameters
-    overrides = run_overrides(Path(ckpt))
-    info = {
-        "name": name, "kind": "hopper",
-        "description": f"hopper field model ({sum(v.numel() for v in module.net.parameters()) / 1e6:.2f}M "
-                       f"parameters) and scalar GP, trained on {len(ids.get('train', []))} {meta['data_name']} "
-                       f"LIGGGHTS runs ({len(ids.get('val', []))} for validation)",
-        "inputs": inputs, "conditioning": meta["conditioning"],
-        "trained_range": {n: [float(lo), float(hi)] for n, lo, hi in zip(inputs, gp.lo, gp.hi, strict=True)},
-        "files": files,
-        "training_data": {"dataset": meta["data_name"], "manifest_sha256": digest(dataset / MANIFEST_NAME),
-                          "split": meta["split"], "run_ids": ids},
-        "config": {"net": hp.get("net"), "optimizer": hp.get("optimizer"), "scheduler": hp.get("scheduler"),
-                   "global_step": int(torch.load(ckpt, map_location="cpu", weights_only=False)["global_step"]),
-                   "train_overrides": overrides},
-        "metric_settings": settings.as_dict(), "scene": meta["scene"],
-        "test_errors": {"n_test_runs": len(result["simulations"]), "runs": [s["sim_id"] for s in result["simulations"]],
-                        **test_errors},
-        "probes": probe_answers(gp, module, settings),  # scikit-learn's answers: the shipped arrays must match
-        "rebuild": [f"neuraldem train {' '.join(overrides)}",
-                    f"python -m neuraldem.pretrained.build --ckpt <that run>/checkpoints/{Path(ckpt).name} "
-                    f"--name {name}"],
-        "built_from": {"checkpoint": str(Path(ckpt).resolve()), "commit": commit(),
-                       "date_utc": datetime.now(UTC).isoformat(timespec="seconds")},
-    }
+    info = build_record(
+        ckpt, name, "hopper", folder, {"field": "field.pt", "gp": "gp.npz"},
+        description=f"hopper field model ({sum(v.numel() for v in module.net.parameters()) / 1e6:.2f}M "
+                    f"parameters) and scalar GP, trained on {len(ids.get('train', []))} {meta['data_name']} "
+                    f"LIGGGHTS runs ({len(ids.get('val', []))} for validation)",
+        inputs=inputs,
+        trained_range={n: [float(lo), float(hi)] for n, lo, hi in zip(inputs, gp.lo, gp.hi, strict=True)},
+        training_data={"dataset": meta["data_name"], "manifest_sha256": digest(dataset / MANIFEST_NAME),
+                       "split": meta["split"], "run_ids": ids},
+        extra={"conditioning": meta["conditioning"], "metric_settings": settings.as_dict(), "scene": meta["scene"],
+               "test_errors": {"n_test_runs": len(result["simulations"]),
+                               "runs": [s["sim_id"] for s in result["simulations"]], **test_errors},
+               "probes": probe_answers(gp, module, settings)})  # scikit-learn's answers: the arrays must match
     atomic_write_json(folder / "meta.json", info)
     return folder
 
@@ -130,12 +143,23 @@ def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) ->
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
     p: argparse.ArgumentParser = doc_parser("neuraldem.pretrained.build", __doc__)
-    p.add_argument("--ckpt", type=Path, required=True, help="a hopper checkpoint written by neuraldem train")
+    p.add_argument("--ckpt", type=Path, required=True,
+                   help="a hopper or fluidized-bed checkpoint written by neuraldem train")
     p.add_argument("--name", required=True, help="the model's name (its folder)")
     p.add_argument("--out", type=Path, default=Path(__file__).parent, help="folder of shipped models")
     p.add_argument("--dataset", type=Path, default=None, help="dataset dir (default: the checkpoint's)")
+    p.add_argument("--lacey-time", type=float, default=1.0,
+                   help="fluidized bed: the time [s] of the Lacey-index answer (default 1)")
     args = p.parse_args(argv)
-    folder = build_hopper(args.ckpt, args.name, args.out, args.dataset)
+    from neuraldem.eval.checkpoints import read_checkpoint
+
+    kind = read_checkpoint(args.ckpt).metadata.get("kind")
+    if kind == "fluidized_bed":
+        from neuraldem.pretrained.build_fb import build_fluidized_bed
+
+        folder = build_fluidized_bed(args.ckpt, args.name, args.out, args.dataset, args.lacey_time)
+    else:
+        folder = build_hopper(args.ckpt, args.name, args.out, args.dataset)
     sizes = ", ".join(f"{f.name} {f.stat().st_size / 1e6:.2f} MB" for f in sorted(folder.iterdir()))
     print(f"wrote {folder} ({sizes})")
     return 0

@@ -33,6 +33,7 @@ from neuraldem.data.splits import random_split
 from neuraldem.datagen.driver import DataConfigPipeline
 from neuraldem.datagen.sampling import latin_hypercube
 from neuraldem.errors import ConfigError
+from neuraldem.scenes.fluidized_bed.limits import VELOCITY_LIMITS
 from neuraldem.scenes.fluidized_bed.metrics import bed_height_particles, fb_summary, lacey_from_particles
 from neuraldem.scenes.fluidized_bed.solver import (
     STATUS_FAILED,
@@ -44,7 +45,6 @@ from neuraldem.scenes.fluidized_bed.solver import (
 from neuraldem.scenes.fluidized_bed.store import FbFile, write_fb_file
 from neuraldem.sim import openfoam
 
-VELOCITY_LIMITS = (0.0, 20.0)  # [m/s] superficial inlet velocity a user may ask for
 FAILED_MARKER = "FAILED"
 
 

@@ -232,6 +232,8 @@ class FluidizedBedDataModule(PartLoaders):
         return {"kind": KIND, "data_name": self.name, "scene": self.scene, "conditioning": self.conditioning,
                 "split": self.split, "normalizer": self.norm.to_dict(),
                 "train_velocities": sorted({float(r.params["inlet_velocity"]) for r in self.records("train")}),
+                # the runs of each part when it trained: the dataset may grow later (what a shipped model records)
+                "split_ids": {p: [r.sim_id for r in self.records(p)] for p in ("train", "val", "test")},
                 "push_forward_steps": self.push_forward_steps, "input_noise": self.input_noise,
                 "solids_flux": self.solids_flux, "grid_channels": 7 if self.solids_flux else 4,
                 "particles_per_sample": self.particles_per_sample}

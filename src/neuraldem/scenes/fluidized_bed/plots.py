@@ -82,3 +82,43 @@ def plot_solid_volume(series: Mapping[str, Mapping[str, Any]], path: Path, title
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def animate_fields(times: np.ndarray, solid_fraction: np.ndarray, mixing: np.ndarray,
+                   extent: tuple[float, float, float, float], path: Path, title: str, every: int = 5,
+                   fps: int = 20, cell_px: int = 10) -> Path:
+    """An animated GIF of the solid fraction (viridis, 0 .. 0.65) and the mixing concentration (coolwarm,
+    0 = all started left .. 1 = all started right; white where there is no solid) on the central y slice,
+    every `every`-th snapshot. Frames are coloured arrays written by Pillow, not matplotlib figures: 60
+    frames take well under a second instead of about a minute. `extent` (x0, x1, z0, z1) [m] labels the size."""
+    from PIL import Image, ImageDraw
+
+    idx = list(range(0, len(times), every))
+    mid = solid_fraction.shape[2] // 2
+    sf = solid_fraction[:, :, mid, :]
+    mix = mixing[:, :, mid, :]
+
+    def picture(a: np.ndarray, cmap: str, vmax: float, blank: np.ndarray | None = None) -> np.ndarray:
+        rgba = plt.get_cmap(cmap)(np.clip(a / vmax, 0.0, 1.0))
+        if blank is not None:
+            rgba[blank] = 1.0
+        img = (255 * rgba[..., :3]).astype(np.uint8).transpose(1, 0, 2)[::-1]  # (z, x), z up
+        return np.kron(img, np.ones((cell_px, cell_px, 1), dtype=np.uint8))
+
+    header, gap = 34, 8
+    frames = []
+    for k in idx:
+        left, right = picture(sf[k], "viridis", 0.65), picture(mix[k], "coolwarm", 1.0, blank=sf[k] <= 0.02)
+        h, w = left.shape[:2]
+        canvas = np.full((h + header, 2 * w + gap, 3), 255, dtype=np.uint8)
+        canvas[header:, :w], canvas[header:, w + gap:] = left, right
+        im = Image.fromarray(canvas)
+        draw = ImageDraw.Draw(im)
+        draw.text((2, 1), f"{title}  t = {times[k]:.2f} s", fill=(0, 0, 0))
+        draw.text((2, 17), "solid fraction 0-0.65", fill=(0, 0, 0))
+        draw.text((w + gap + 2, 17), "mixing: left 0 - right 1", fill=(0, 0, 0))
+        frames.append(im)
+    size = f"{1000 * (extent[1] - extent[0]):.0f} x {1000 * (extent[3] - extent[2]):.0f} mm"
+    frames[0].save(path, save_all=True, append_images=frames[1:], duration=int(1000 / fps), loop=0,
+                   comment=f"{title}; x-z slice {size}".encode())
+    return path

@@ -21,7 +21,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from neuraldem.errors import DataError
-from neuraldem.models.scalar_baselines import ScalarBaseline
 from neuraldem.scenes.hopper.metrics import HopperMetricSettings, flow_regime
 from neuraldem.scenes.hopper.solver import HopperGeometry, HopperScene
 
@@ -90,24 +89,6 @@ def field_answer(net: Any, meta: dict[str, Any], params: dict[str, float], setti
     fields = predictor.fields(rec, times, points)
     summary, stripes = summarise(fields, points[:, 2], settings)
     return FieldAnswer(points, fields, summary, stripes, time.perf_counter() - t0, predictor.extrapolation(rec))
-
-
-@dataclass
-class ScalarWhatIf:
-    mean: dict[str, float]
-    low: dict[str, float]
-    high: dict[str, float]
-    extrapolation: dict[str, list[float]]
-    seconds: float
-
-
-def gp_answers(gp: ScalarBaseline, rows: list[dict[str, float]]) -> list[ScalarWhatIf]:
-    """The GP's answers for many parameter sets at once (a scan), each with its 95 % interval."""
-    t0 = time.perf_counter()
-    x = np.array([[row[name] for name in gp.inputs] for row in rows], dtype=np.float64)
-    answers = gp.predict(x)
-    per = (time.perf_counter() - t0) / max(len(rows), 1)
-    return [ScalarWhatIf(a.mean, a.low, a.high, a.extrapolation, per) for a in answers]
 
 
 @dataclass

@@ -1,0 +1,156 @@
+"""Build a shipped pretrained fluidized-bed model from a trained checkpoint (`neuraldem predict fb` loads it).
+
+Files: `field.pt` (the checkpoint without optimizer state), `gp.npz` (a GP on the inlet velocity per answer,
+fitted on the training and validation runs), `states.npz` (snapshot 1 of one training trajectory per training
+velocity: where a what-if rollout starts) and `meta.json`. The test errors in meta.json are measured along the
+path `predict` takes: for each held-out CFD-DEM run, a rollout from the shipped state nearest in velocity,
+scored with `whatif.bed_answers`, beside the GP, the training mean and the solver's own spread (CFD-DEM at the
+same velocity from another packing).
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from itertools import permutations
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from neuraldem.data.manifest import Manifest, SimRecord
+from neuraldem.errors import DataError
+
+ERROR_UNITS = {"bed_height": ("bed_height_mae_mm", 1000.0), "bubble_fraction": ("bubble_fraction_mae_pp", 100.0),
+               "lacey": ("lacey_mae", 1.0)}
+PROBE_VELOCITY_SHARES = (0.0, 0.5, 1.0)  # probe points: trained range lo, middle, hi
+
+
+def split_records(m: Manifest, meta: dict[str, Any]) -> dict[str, list[SimRecord]]:
+    """The runs of each part as the checkpoint trained on them: its recorded ids, or (checkpoints written
+    before they were recorded) the manifest's split with the training part cut to the recorded velocities."""
+    usable = {r.sim_id: r for r in m.usable()}
+    ids = meta.get("split_ids")
+    if ids is None:
+        ids = {part: m.split_ids(meta["split"], part) for part in ("train", "val", "test")}
+        trained = np.array(meta.get("train_velocities", []), dtype=np.float64)
+        ids["train"] = [i for i in ids["train"] if i in usable and trained.size and np.min(
+            np.abs(trained - float(usable[i].params["inlet_velocity"]))) < 1e-9]
+    missing = [i for part in ids.values() for i in part if i not in usable]
+    if missing:
+        raise DataError(f"{m.name}: runs {missing[:5]} the checkpoint used are not usable in this dataset")
+    return {part: [usable[i] for i in part_ids] for part, part_ids in ids.items()}
+
+
+def errors(pred: list[dict[str, float]], truth: list[dict[str, float]]) -> dict[str, float]:
+    """Mean absolute error per answer, in the units a user reads (mm, percentage points, Lacey index)."""
+    out = {}
+    for key, (name, scale) in ERROR_UNITS.items():
+        d = [abs(p[key] - t[key]) for p, t in zip(pred, truth, strict=True)]
+        out[name] = float(scale * np.mean(d)) if d else float("nan")
+    out["n_runs"] = len(truth)
+    return out
+
+
+def seed_floor(test: list[SimRecord], answers: dict[str, dict[str, float]]) -> dict[str, float] | None:
+    """CFD-DEM at the same velocity from another packing, as the 'prediction' of each held-out run."""
+    by_velocity: dict[float, list[str]] = defaultdict(list)
+    for r in test:
+        by_velocity[round(float(r.params["inlet_velocity"]), 9)].append(r.sim_id)
+    pairs = [(a, b) for ids in by_velocity.values() for a, b in permutations(ids, 2)]
+    if not pairs:
+        return None
+    return errors([answers[a] for a, _ in pairs], [answers[b] for _, b in pairs])
+
+
+def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | None, lacey_time: float = 1.0,
+                        progress: bool = True) -> Path:
+    from tqdm import tqdm
+
+    from neuraldem.data.integrity import digest
+    from neuraldem.data.manifest import MANIFEST_NAME
+    from neuraldem.data.schema import atomic_write_json
+    from neuraldem.eval.checkpoints import read_checkpoint
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess, ConstantBaseline, GaussianProcessBaseline
+    from neuraldem.paths import data_dir
+    from neuraldem.pretrained.build import build_record, strip_checkpoint
+    from neuraldem.scenes.fluidized_bed.datagen import FbMetricSettings
+    from neuraldem.scenes.fluidized_bed.whatif import (
+        TARGET_RANGE,
+        TARGETS,
+        AnswerWindow,
+        InitialStates,
+        field_answer,
+        file_answers,
+    )
+
+    checkpoint = read_checkpoint(ckpt)
+    meta = checkpoint.metadata
+    if meta.get("kind") != "fluidized_bed":
+        raise DataError(f"{ckpt} is a {meta.get('kind')!r} checkpoint; this builds fluidized-bed models")
+    dataset = dataset or data_dir() / "datasets" / meta["data_name"]
+    m = Manifest.load(dataset)
+    parts = split_records(m, meta)
+    fit_runs = parts.get("train", []) + parts.get("val", [])
+    test = parts.get("test", [])
+    duration = float(m.parameters["duration"])
+    if not 0 < lacey_time <= duration:
+        raise DataError(f"--lacey-time {lacey_time:g} must lie in (0, {duration:g}] s, the trajectories' duration")
+    folder = out_root / name
+    folder.mkdir(parents=True, exist_ok=True)
+    strip_checkpoint(ckpt, folder / "field.pt")
+    module = read_checkpoint(folder / "field.pt").module("fluidized_bed", "cpu", "build")
+    window = AnswerWindow(duration, float(lacey_time), module.norm.dt)
+    settings = FbMetricSettings.from_config(m.parameters.get("metrics"), f"{dataset} metrics")
+
+    truth = {r.sim_id: file_answers(dataset / str(r.file), settings, window)[0] for r in fit_runs + test}
+    x = np.array([[float(r.params["inlet_velocity"])] for r in fit_runs])
+    y = {t: np.array([truth[r.sim_id][t] for r in fit_runs]) for t in TARGETS}
+    gp = GaussianProcessBaseline(["inlet_velocity"], targets=TARGETS, target_range=TARGET_RANGE).fit(x, y)
+    ArrayGaussianProcess.from_fitted(gp).save_npz(folder / "gp.npz")
+    constant = ConstantBaseline(["inlet_velocity"], targets=TARGETS, target_range=TARGET_RANGE).fit(x, y)
+
+    firsts: dict[float, SimRecord] = {}
+    for r in parts.get("train", []):  # one state per training velocity (its first packing)
+        firsts.setdefault(float(r.params["inlet_velocity"]), r)
+    states = InitialStates.from_files([dataset / str(r.file) for _, r in sorted(firsts.items())])
+    states.save_npz(folder / "states.npz")
+
+    rows = []
+    for r in tqdm(test, desc="test rollouts", unit="run", disable=not progress):
+        v = float(r.params["inlet_velocity"])
+        f = field_answer(module, states, v, settings, window)
+        rows.append({"sim_id": r.sim_id, "inlet_velocity": v, "cfd_dem": truth[r.sim_id], "field model": f.summary,
+                     "field_start": f.start, "rollout_seconds": f.seconds,
+                     "gp": gp.predict(np.array([[v]]))[0].mean, "constant": constant.predict(np.array([[v]]))[0].mean})
+    cfd = [row["cfd_dem"] for row in rows]
+    test_errors: dict[str, Any] = {"n_test_runs": len(rows), "runs": rows}
+    for who in ("field model", "gp", "constant"):
+        test_errors[who] = errors([row[who] for row in rows], cfd)
+    floor = seed_floor(test, truth)
+    if floor is not None:
+        test_errors["seed floor"] = floor
+
+    gp_arrays = ArrayGaussianProcess.load_npz(folder / "gp.npz")
+    lo, hi = float(gp_arrays.lo[0]), float(gp_arrays.hi[0])
+    probe_v = [lo + s * (hi - lo) for s in PROBE_VELOCITY_SHARES]
+    mid = field_answer(module, states, probe_v[1], settings, window)
+    probes = [{"parameters": {"inlet_velocity": v}, "gp_mean": a.mean}
+              for v, a in zip(probe_v, gp.predict(np.array([[v] for v in probe_v])), strict=True)]
+    probes[1]["field_summary"] = mid.summary
+
+    info = build_record(
+        ckpt, name, "fluidized_bed", folder, {"field": "field.pt", "gp": "gp.npz", "states": "states.npz"},
+        description=f"fluidized-bed field model ({sum(p.numel() for p in module.net.parameters()) / 1e6:.2f}M "
+                    f"parameters) and scalar GP, trained on {len(parts.get('train', []))} {m.name} CFD-DEM "
+                    f"trajectories ({len(parts.get('val', []))} for validation)",
+        inputs=["inlet_velocity"], trained_range={"inlet_velocity": [lo, hi]},
+        training_data={"dataset": m.name, "manifest_sha256": digest(dataset / MANIFEST_NAME), "split": meta["split"],
+                       "run_ids": {p: [r.sim_id for r in rs] for p, rs in parts.items()}},
+        extra={"conditioning": meta["conditioning"], "metric_settings": settings.__dict__ | {
+                   "lacey_block": list(settings.lacey_block)},
+               "answer_window": window.as_dict(), "scene": m.scene, "test_errors": test_errors, "probes": probes,
+               "initial_states": [f"{i} ({v:.4g} m/s)" for i, v in zip(states.sim_ids, states.velocities,
+                                                                         strict=True)]},
+        build_flags=f"--lacey-time {lacey_time:g}")
+    atomic_write_json(folder / "meta.json", info)
+    return folder

@@ -1,0 +1,77 @@
+"""`neuraldem predict fb`: the bed's what-if from a shipped model (tiny, plumbing only), --verify with DPMFoam,
+and bad input in one line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.helpers import run_module
+
+
+def predict(*args: str, env: dict[str, str] | None = None):
+    return run_module("neuraldem", "predict", *args, env=env)
+
+
+def test_bed_answers_fields_animation_and_verify(fb_tiny_pretrained: Path, tmp_path: Path):
+    env = {"NEURALDEM_PRETRAINED_DIR": str(fb_tiny_pretrained)}
+    proc = predict("fb", "inlet_velocity=1.5", "--verify", "--out", str(tmp_path), env=env)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "| bed height (mean) [mm] |" in proc.stdout and "| Lacey index after 0.1 s |" in proc.stdout
+    assert "held-out CFD-DEM runs (meta.json)" in proc.stdout and "GP vs DPMFoam: bed height" in proc.stdout
+    answer = json.loads((tmp_path / "answer.json").read_text())
+    gp = answer["gp"]
+    for key in ("bed_height", "bubble_fraction", "lacey"):
+        assert gp["low"][key] <= gp["mean"][key] <= gp["high"][key], key
+    truth = answer["dpmfoam"]["answers"]
+    assert answer["dpmfoam"]["status"] == "ok" and 0.005 < truth["bed_height"] < 0.06
+    assert answer["field"]["steps"] == 19 and np.isfinite(answer["field"]["summary"]["bed_height"])
+    for name in ("curves.png", "animation.gif", "vtk/bed_predicted_grid.pvd"):
+        assert (tmp_path / name).stat().st_size > 0, name
+    # the same inputs again: the finished DPMFoam check is read back, not rerun
+    again = predict("fb", "inlet_velocity=1.5", "--verify", "--no-fields", "--out", str(tmp_path), env=env)
+    assert again.returncode == 0 and "DPMFoam answer read back" in again.stderr, again.stderr
+
+
+def test_the_bed_answer_equals_its_scalar_model_and_the_build_scores_the_predict_path(fb_tiny_pretrained: Path,
+                                                                                       tmp_path: Path):
+    from neuraldem import pretrained
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess
+
+    env = {"NEURALDEM_PRETRAINED_DIR": str(fb_tiny_pretrained)}
+    proc = predict("fb", "inlet_velocity=1.3", "--no-fields", "--json", "--out", str(tmp_path), env=env)
+    assert proc.returncode == 0, proc.stderr
+    printed = json.loads(proc.stdout)
+    model = pretrained.Pretrained("fb_tiny_test", fb_tiny_pretrained / "fb_tiny_test",
+                                  json.loads((fb_tiny_pretrained / "fb_tiny_test" / "meta.json").read_text()))
+    expected = ArrayGaussianProcess.load_npz(model.file("gp")).predict([[1.3]])[0]
+    assert printed["gp"]["mean"] == pytest.approx(expected.mean) and "field" not in printed
+    errors = model.meta["test_errors"]
+    run = errors["runs"][0]  # the stored error is |rollout answer - CFD-DEM answer| of the predict path
+    assert errors["field model"]["bed_height_mae_mm"] == pytest.approx(
+        1000 * abs(run["field model"]["bed_height"] - run["cfd_dem"]["bed_height"]))
+    assert set(model.meta["files"]) == {"field", "gp", "states"}
+
+
+def test_bed_what_if_bad_input(fb_tiny_pretrained: Path, tmp_path: Path):
+    env = {"NEURALDEM_PRETRAINED_DIR": str(fb_tiny_pretrained)}
+    far = predict("fb", "inlet_velocity=3.5", "--no-fields", "--out", str(tmp_path), env=env)
+    assert far.returncode == 0 and "inlet_velocity=3.5 is outside the trained range" in far.stderr, far.stderr
+    for args, expected in ((("fb", "velocity=1.5"), "unknown fb parameter 'velocity': the parameters are "
+                                                    "inlet_velocity"),
+                           (("fb", "inlet_velocity=-1"), "outside what the solver can run")):
+        proc = predict(*args, "--out", str(tmp_path), env=env)
+        out = proc.stdout + proc.stderr
+        assert proc.returncode == 2 and expected in out and "Traceback" not in out, out
+    broken = tmp_path / "models"
+    import shutil
+
+    shutil.copytree(fb_tiny_pretrained, broken)
+    (broken / "fb_tiny_test" / "states.npz").write_bytes(b"damaged")
+    proc = predict("fb", "inlet_velocity=1.5", "--out", str(tmp_path / "o"),
+                   env={"NEURALDEM_PRETRAINED_DIR": str(broken)})
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 2 and "states.npz is damaged" in out and "rebuild" in out, out
