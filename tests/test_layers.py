@@ -32,7 +32,7 @@ LAYERS = [
     ("gns", ["neuraldem.gns"]),
     ("composition", ["neuraldem.bench", "neuraldem.datagen", "neuraldem.train", "neuraldem.evaluate",
                      "neuraldem.rollout", "neuraldem.doctor", "neuraldem.__main__",
-                     "neuraldem.pretrained", "neuraldem.predict", "neuraldem.scan"]),
+                     "neuraldem.pretrained", "neuraldem.predict", "neuraldem.scan", "neuraldem.serve"]),
 ]
 
 
