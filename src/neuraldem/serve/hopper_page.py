@@ -278,7 +278,8 @@ class HopperPage:
         step = float(self.engine.times[1] - self.engine.times[0])
         self.status.object = (f'<small id="hopper-status" data-model="{self.engine.model.name}" '
                               f'data-point="{views.point_text(self.engine.values(point))}" data-time="{frame.time:g}" '
-                              f'data-step="{step:g}">frame: {1000 * frame.seconds:.0f} ms</small>')
+                              f'data-step="{step:g}" data-frame-ms="{1000 * frame.seconds:.1f}">'
+                              f'frame: {1000 * frame.seconds:.0f} ms</small>')
         if self.engine.discharge(point) is None:
             self.shared.worker.want(id(self), point, partial(self._discharge_done, point))
 
