@@ -69,7 +69,10 @@ class DischargeWorker:
             if self._wanted.get(session, (None,))[0] != point:
                 return
             del self._wanted[session]
-        done()
+        try:
+            done()
+        except Exception as err:  # e.g. the browser tab closed meanwhile: the other sessions still get theirs
+            print(f"neuraldem serve: a session's callback for {point} failed: {err}", file=sys.stderr)
 
     def _run(self) -> None:
         lower_priority()

@@ -10,6 +10,7 @@ The whole discharge (field model numbers and curve, seconds) then runs on the sh
 
 from __future__ import annotations
 
+import html
 import math
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -93,6 +94,7 @@ class HopperPage:
         self.values = default_values(self.engine)
         self.clamp_notes: dict[str, str] = {}
         self._syncing = False
+        self._field_pending = True  # the numbers table waits for the field model's whole discharge
         self._generation = 0
         self._lock = threading.Lock()
         self.sliders, self.typed = {}, {}
@@ -196,6 +198,7 @@ class HopperPage:
         point = self.point()
         gp = self.engine.numbers(point)
         done = self.engine.discharge(point)
+        self._field_pending = done is None
         near = self._near_for(self.values)
         self.numbers.object = views.numbers_table(self.values, gp, done.answer if done else None, near,
                                                   "computing ..." if done is None else "")
@@ -269,7 +272,7 @@ class HopperPage:
         if generation != self._generation:
             return
         if isinstance(figures, Exception):
-            self.status.object = f'<span id="hopper-error" style="color:#b00">{figures}</span>'
+            self.status.object = f'<span id="hopper-error" style="color:#b00">{html.escape(str(figures))}</span>'
             return
         particles, curve, frame = figures
         self.particles.object = particles
@@ -282,6 +285,8 @@ class HopperPage:
                               f'frame: {1000 * frame.seconds:.0f} ms</small>')
         if self.engine.discharge(point) is None:
             self.shared.worker.want(id(self), point, partial(self._discharge_done, point))
+        elif self._field_pending and point == self.point():  # done meanwhile (for another session)
+            self._show_numbers()
 
     # ---- the whole discharge: from the background worker
     def _discharge_done(self, point: Point) -> None:
