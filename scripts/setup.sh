@@ -3,6 +3,7 @@
 # Safe to run again: every step checks first and says what it did.
 #   NEURALDEM_VENV      venv folder (default: .venv in the checkout)
 #   NEURALDEM_NO_SOLVERS=1  skip the apt-get step (e.g. solvers installed another way)
+#   NEURALDEM_NO_BROWSER=1  skip installing chromium + chromium-driver (the explorer's browser tests then skip)
 #   TORCH_INDEX_URL     where to get torch 2.13.0 when no local wheel exists
 #                       (default https://download.pytorch.org/whl/cpu: the CPU build, not the multi-GB CUDA one)
 set -euo pipefail
@@ -29,6 +30,24 @@ elif command -v apt-get >/dev/null 2>&1; then
   say "installed ${need_apt[*]}"
 else
   say "WARNING: no apt-get here: install LIGGGHTS 3.8 and OpenFOAM v1912 yourself (see README); continuing"
+fi
+
+# ---- headless browser (system packages): `neuraldem serve`'s tests and latency benchmark drive Chromium
+need_browser=()
+command -v chromium >/dev/null 2>&1 || need_browser+=(chromium)
+command -v chromedriver >/dev/null 2>&1 || need_browser+=(chromium-driver)
+if [ "${NEURALDEM_NO_BROWSER:-0}" = 1 ]; then
+  say "skipping chromium install (NEURALDEM_NO_BROWSER=1)"
+elif [ ${#need_browser[@]} -eq 0 ]; then
+  say "browser present: $(command -v chromium), $(command -v chromedriver)"
+elif command -v apt-get >/dev/null 2>&1; then
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  say "installing ${need_browser[*]} with apt-get (headless Chromium for the explorer's tests)"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${need_browser[@]}" >/dev/null
+  say "installed ${need_browser[*]}"
+else
+  say "WARNING: no apt-get here: install chromium and chromedriver yourself for the explorer's tests; continuing"
 fi
 
 # ---- venv
@@ -70,7 +89,7 @@ else
   say "built and installed torch-cluster 1.6.3"
 fi
 
-# ---- neuraldem itself (editable) with test and sweep extras
-"${PIP[@]}" install -e "$ROOT[test,sweep]" 2> >(grep -v "^WARNING: Location" >&2)
+# ---- neuraldem itself (editable) with test, sweep and serve (the explorer) extras
+"${PIP[@]}" install -e "$ROOT[test,sweep,serve]" 2> >(grep -v "^WARNING: Location" >&2)
 say "installed neuraldem (editable) into $VENV"
 say "done: activate with 'source $VENV/bin/activate'"

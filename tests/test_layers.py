@@ -32,7 +32,8 @@ LAYERS = [
     ("gns", ["neuraldem.gns"]),
     ("composition", ["neuraldem.bench", "neuraldem.datagen", "neuraldem.train", "neuraldem.evaluate",
                      "neuraldem.rollout", "neuraldem.doctor", "neuraldem.__main__",
-                     "neuraldem.pretrained", "neuraldem.predict", "neuraldem.predict_fb", "neuraldem.scan"]),
+                     "neuraldem.pretrained", "neuraldem.predict", "neuraldem.predict_fb", "neuraldem.scan",
+                     "neuraldem.serve"]),
 ]
 
 

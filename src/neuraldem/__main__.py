@@ -20,6 +20,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
     "evaluate": ("neuraldem.evaluate", "score a checkpoint against its solver (ckpt=PATH)"),
     "predict": ("neuraldem.predict", "a what-if answer from a shipped model (hopper alpha=40 mu_s=0.3 mu_r=0.1)"),
     "scan": ("neuraldem.scan", "a design chart over two parameters (hopper alpha=0:60:31 mu_s=0.05:1:20 mu_r=0.1)"),
+    "serve": ("neuraldem.serve.__main__", "the interactive explorer in your browser (http://127.0.0.1:5006/hopper)"),
     "rollout": ("neuraldem.rollout", "roll a fluidized-bed model out (ckpt=PATH velocity=1.6 steps=3000)"),
     "import": {
         "liggghts": ("neuraldem.scenes.hopper.importer", "LIGGGHTS dump files of your own hopper runs as a dataset"),

@@ -1,0 +1,169 @@
+"""`python -m neuraldem.bench serve_latency`: how fast the explorer answers a slider move, in a real browser.
+
+    python -m neuraldem.bench serve_latency --moves 20 --time-steps 10
+
+Starts `neuraldem serve` on a free port of this machine, opens the hopper page in headless Chromium (Debian's
+chromium + chromium-driver, through Selenium) and moves the sliders with the keyboard as a person would:
+--moves parameter moves, one slider step each, every one to a point not seen before (nothing cached), --pause
+seconds apart (the whole discharge then runs in the background between moves, as it does for a person), then
+--time-steps moves of the time slider. For each move, milliseconds in the browser's own clock from the key
+event to
+- numbers: the numbers table in the DOM showing the new point (a MutationObserver);
+- fields: the particle view redrawn by Plotly with the new point (`plotly_afterplot`);
+- painted: two animation frames after that (headless Chromium has no GPU: SwiftShader draws WebGL on the CPU).
+The first --warmup moves (Plotly's first WebGL draws) are not counted. The server's own time for each frame
+(the field model at one time) is read from the page. Writes results/bench/serve_latency.json and .md, and the
+page as a new visitor sees it as serve_latency.png (the screenshot docs/explorer.md shows).
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from neuraldem.bench.report import command_line, resolve_out, warn_if_busy, write_results
+from neuraldem.cli import doc_parser, report_user_errors
+from neuraldem.errors import ConfigError
+from neuraldem.machine import machine_info
+
+TARGETS_MS = {"numbers_ms": 100.0, "fields_ms": 300.0}  # issue 24: numbers <= 100 ms, fields <= 300 ms
+
+
+def parse_point(text: str) -> dict[str, float]:
+    return {k: float(v) for k, v in (item.split("=") for item in text.split())}
+
+
+def point_text(values: dict[str, float]) -> str:
+    return " ".join(f"{k}={v:g}" for k, v in values.items())
+
+
+def summary(rows: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """Median, 90th percentile and largest of each latency over the counted moves."""
+    out = {}
+    for key in ("numbers_ms", "fields_ms", "painted_ms", "server_frame_ms"):
+        values = sorted(r[key] for r in rows if r.get(key) is not None)
+        if values:
+            out[key] = {"median": statistics.median(values), "p90": values[min(len(values) - 1,
+                                                                                 int(0.9 * len(values)))],
+                        "max": values[-1], "n": len(values)}
+    return out
+
+
+def parameter_moves(page: Any, steps: dict[str, float], n: int, pause: float) -> list[dict[str, Any]]:
+    """`n` slider steps to the right, the sliders in turn: every point is new."""
+    from neuraldem.serve.inputs import parameter_value
+
+    rows = []
+    values = parse_point(page.numbers()["point"])
+    keys = [k for k in values if k in steps]
+    for i in range(n):
+        key = keys[i % len(keys)]
+        values[key] = parameter_value(values[key] + steps[key])
+        target = point_text(values)
+        rows.append({"slider": key, "point": target, **page.timed_press(key, target),
+                     "server_frame_ms": float(page.status("frame-ms"))})
+        time.sleep(pause)
+    return rows
+
+
+def time_moves(page: Any, n: int, pause: float) -> list[dict[str, Any]]:
+    """`n` steps of the time slider at the point shown (each a frame not drawn before)."""
+    point, t, step = page.status("point"), float(page.status("time")), float(page.status("step"))
+    rows = []
+    for _ in range(n):
+        t = round(t + step, 9)
+        rows.append({"slider": "time", "point": point, "t": t, **page.timed_time_step(point, t),
+                     "server_frame_ms": float(page.status("frame-ms"))})
+        time.sleep(pause)
+    return rows
+
+
+def docs_screenshot(page: Any, url: str, path: Path) -> None:
+    """The page as a new visitor sees it (the default point, t = 1 s), once the field model's numbers are in."""
+    from neuraldem.serve.browser import HopperBrowser
+
+    fresh = HopperBrowser(page.driver, url, timeout=page.timeout)
+    fresh.wait_field_numbers(timeout=120)
+    time.sleep(1.0)  # the curve redrawn with the field model's
+    fresh.screenshot(path)
+
+
+def markdown(result: dict[str, Any]) -> str:
+    s, ts = result["summary"]["parameter_moves"], result["summary"]["time_moves"]
+
+    def row(name: str, stats: dict[str, Any], key: str) -> str:
+        if key not in stats:
+            return f"| {name} | - | - | - | - |"
+        v = stats[key]
+        target = TARGETS_MS.get(key)
+        verdict = "" if target is None else (" (met)" if v["median"] <= target else f" (over {target:.0f})")
+        return f"| {name} | {v['n']} | {v['median']:.0f}{verdict} | {v['p90']:.0f} | {v['max']:.0f} |"
+
+    load = (result["machine"].get("load_average_1_5_15min") or [float("nan")])[0]
+    lines = [f"# Explorer latency: slider move to updated page (model {result['model']})", "",
+             f"`{result['command']}`; headless {result['browser']}; 1-minute load average {load:.2f} on "
+             f"{result['machine'].get('cpu_count')} CPUs when it began.", "",
+             "| move -> update | moves | median [ms] | p90 [ms] | max [ms] |", "|---|---|---|---|---|",
+             row("parameter slider -> numbers (DOM)", s, "numbers_ms"),
+             row("parameter slider -> particles redrawn (plotly_afterplot)", s, "fields_ms"),
+             row("parameter slider -> particles painted", s, "painted_ms"),
+             row("(server: the frame's field model, in the above)", s, "server_frame_ms"),
+             row("time slider -> particles redrawn", ts, "fields_ms"),
+             row("time slider -> particles painted", ts, "painted_ms"), "",
+             f"Targets (issue 24): numbers <= {TARGETS_MS['numbers_ms']:.0f} ms, fields <= "
+             f"{TARGETS_MS['fields_ms']:.0f} ms (medians). Each parameter move is one slider step to a point not "
+             f"seen before (no cache hit), {result['pause_s']:g} s apart; {result['warmup']} warm-up moves not "
+             "counted. 'Painted' adds the browser's WebGL draw: without a GPU, Chromium draws it with "
+             "SwiftShader on the same CPUs as the server."]
+    return "\n".join(lines) + "\n"
+
+
+@report_user_errors
+def main(argv: list[str] | None = None) -> int:
+    from neuraldem.serve.browser import HopperBrowser, ServerProcess, chromium_paths, start_chromium
+    from neuraldem.serve.hopper_page import STEPS
+
+    argv = sys.argv[1:] if argv is None else argv
+    p = doc_parser("neuraldem.bench", __doc__)
+    p.add_argument("--model", default=None, help="shipped hopper model (default: the shipped one)")
+    p.add_argument("--moves", type=int, default=20, help="parameter slider moves counted")
+    p.add_argument("--time-steps", type=int, default=10, help="time slider moves counted")
+    p.add_argument("--warmup", type=int, default=3, help="moves before counting (first WebGL draws)")
+    p.add_argument("--pause", type=float, default=1.0, help="seconds between moves")
+    p.add_argument("--out", type=Path, default=None, help="results JSON (default results/bench/serve_latency.json)")
+    args = p.parse_args(argv)
+    if chromium_paths() is None:
+        raise ConfigError("the benchmark drives a real browser: chromium and chromedriver are not installed",
+                          "apt-get install chromium chromium-driver (scripts/setup.sh does)")
+    out = resolve_out(args.out, "serve_latency")
+    machine = machine_info()
+    warn_if_busy(machine)
+    with ServerProcess(["--model", args.model] if args.model else []) as server:
+        driver = start_chromium()
+        try:
+            page = HopperBrowser(driver, server.url, timeout=120)
+            warm = parameter_moves(page, STEPS, args.warmup, args.pause)
+            moves = parameter_moves(page, STEPS, args.moves, args.pause)
+            steps = time_moves(page, args.time_steps, args.pause)
+            model = page.status("model")
+            docs_screenshot(page, server.url, out.with_suffix(".png"))
+            browser = driver.capabilities.get("browserName", "chrome") + " " + driver.capabilities.get(
+                "browserVersion", "")
+        finally:
+            driver.quit()
+    result = {"model": model, "command": command_line("serve_latency", argv), "browser": browser,
+              "pause_s": args.pause, "warmup": args.warmup, "targets_ms": TARGETS_MS,
+              "summary": {"parameter_moves": summary(moves), "time_moves": summary(steps)},
+              "warmup_moves": warm, "parameter_moves": moves, "time_moves": steps, "machine": machine}
+    write_results("serve_latency", result, command=result["command"], path=out, machine=machine)
+    md = markdown(result)
+    out.with_suffix(".md").write_text(md)
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

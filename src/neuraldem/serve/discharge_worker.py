@@ -1,0 +1,89 @@
+"""The background worker of the whole discharge: one thread per server, the newest wanted point first.
+
+Each browser session says which point it wants (only its latest); a computation nobody wants any more is
+cancelled between chunks, so dragging a slider never queues seconds of stale work. Done points are cached
+by the engine, and the sessions that wanted them are called back (from this thread).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import threading
+from collections.abc import Callable, Hashable
+from typing import Any
+
+Callback = Callable[[], None]
+NICE = 10  # the worker thread's niceness: a person's moves (nice 0) get the CPU first
+
+
+def lower_priority() -> None:
+    """Lower this thread's CPU priority (Linux schedules threads one by one; elsewhere nothing happens), so
+    the seconds of background work take CPU from idle time, not from the page's answers."""
+    import os
+
+    with contextlib.suppress(AttributeError, OSError):
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), NICE)
+
+
+class DischargeWorker:
+    def __init__(self, engine: Any):
+        self.engine = engine
+        self._wanted: dict[Hashable, tuple[Any, Callback]] = {}  # session -> (point, call when done)
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.computed = 0  # whole discharges finished (tests read it)
+
+    def want(self, session: Hashable, point: Any, done: Callback) -> None:
+        """Session `session` now wants the whole discharge at `point` (replacing what it wanted before)."""
+        with self._lock:
+            self._wanted[session] = (point, done)
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="hopper-discharge", daemon=True)
+                self._thread.start()
+        self._wake.set()
+
+    def forget(self, session: Hashable) -> None:
+        with self._lock:
+            self._wanted.pop(session, None)
+
+    def _still_wanted(self, point: Any) -> bool:
+        with self._lock:
+            return any(p == point for p, _ in self._wanted.values())
+
+    def _next(self) -> Any | None:
+        """The most recently wanted point not computed yet; sessions whose point is done are called back."""
+        with self._lock:
+            wanted = list(self._wanted.items())
+        todo = None
+        for session, (point, done) in wanted:
+            if self.engine.discharge(point) is not None:
+                self._finish(session, point, done)
+            else:
+                todo = point
+        return todo
+
+    def _finish(self, session: Hashable, point: Any, done: Callback) -> None:
+        with self._lock:
+            if self._wanted.get(session, (None,))[0] != point:
+                return
+            del self._wanted[session]
+        try:
+            done()
+        except Exception as err:  # e.g. the browser tab closed meanwhile: the other sessions still get theirs
+            print(f"neuraldem serve: a session's callback for {point} failed: {err}", file=sys.stderr)
+
+    def _run(self) -> None:
+        lower_priority()
+        while True:
+            self._wake.wait()
+            self._wake.clear()
+            while (point := self._next()) is not None:
+                try:
+                    if self.engine.compute_discharge(point, lambda p=point: not self._still_wanted(p)) is not None:
+                        self.computed += 1
+                except Exception as err:  # a point the model cannot answer: drop it, keep serving
+                    print(f"neuraldem serve: the whole discharge at {point} failed: {err}", file=sys.stderr)
+                    with self._lock:
+                        self._wanted = {s: w for s, w in self._wanted.items() if w[0] != point}
