@@ -34,6 +34,8 @@ BENCHMARKS = {
                       "the GNS baseline's stability map on the fluidized bed (fb_stability's JSON and figure)"),
     "whatif": ("neuraldem.bench.whatif",
                "neuraldem predict: answer times, and GP / field model vs LIGGGHTS at random in-range points"),
+    "whatif_fb": ("neuraldem.bench.whatif_fb",
+                  "neuraldem predict fb: answer times, and GP / field model vs DPMFoam where --verify checked"),
     "serve_latency": ("neuraldem.bench.serve_latency",
                       "neuraldem serve in headless Chromium: slider move to updated numbers / particles, 20 moves"),
     "all": ("neuraldem.bench.suite:run_all", "the hopper benchmarks above, and the fluidized bed's with --fb-ckpt"),
