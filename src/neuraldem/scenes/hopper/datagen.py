@@ -32,12 +32,21 @@ from neuraldem.sim import liggghts
 from neuraldem.sim.material import Material
 
 
-def trajectory_metrics(traj: HopperTrajectory, diameter: float,
-                       settings: HopperMetricSettings = HopperMetricSettings(),  # noqa: B008 frozen dataclass, immutable
-                       horizon: float | None = None) -> dict[str, float]:
-    """Ground-truth metrics through the same path as predictions: fields at the initial positions on the
-    metric time grid (0 .. `horizon`, the scene's max_time; default the run's own end), a run that ended
-    earlier holding its final state."""
+@dataclass
+class MetricFields:
+    """The fields a run's metrics are read from: occupancy and transport at the initial positions on the
+    metric time grid."""
+
+    times: np.ndarray  # (T,)
+    points: np.ndarray  # (Q, 3) the initial positions
+    occupancy: np.ndarray  # (T, Q)
+    transport: np.ndarray  # (T, Q, 3)
+
+
+def metric_fields(traj: HopperTrajectory, diameter: float, settings: HopperMetricSettings,
+                  horizon: float | None = None) -> MetricFields:
+    """Fields at the initial positions on the metric time grid (0 .. `horizon`, the scene's max_time; default
+    the run's own end), a run that ended earlier holding its final state."""
     points = traj.positions[0]
     horizon = float(traj.times[-1]) if horizon is None else max(float(horizon), float(traj.times[-1]))
     interval = float(np.round(traj.times[1] - traj.times[0], 9)) if len(traj.times) > 1 else horizon or 1.0
@@ -46,7 +55,15 @@ def trajectory_metrics(traj: HopperTrajectory, diameter: float,
     exits = np.where(np.isfinite(traj.exit_times), traj.exit_times, horizon)
     occ, transport, _ = trajectory_fields_at(points, times, positions, exits,
                                              settings.occupancy_radius_d * diameter)
-    out = hopper_summary(times, occ, transport[..., 2], points[:, 2], settings)
+    return MetricFields(times, points, occ, transport)
+
+
+def trajectory_metrics(traj: HopperTrajectory, diameter: float,
+                       settings: HopperMetricSettings = HopperMetricSettings(),  # noqa: B008 frozen dataclass, immutable
+                       horizon: float | None = None, fields: MetricFields | None = None) -> dict[str, float]:
+    """Ground-truth metrics through the same path as predictions (`metric_fields`; pass them when computed)."""
+    f = fields if fields is not None else metric_fields(traj, diameter, settings, horizon)
+    out = hopper_summary(f.times, f.occupancy, f.transport[..., 2], f.points[:, 2], settings)
     # direct particle counts, for reference (not available to a field surrogate)
     out["residual_fraction_particles"] = float(np.mean(~np.isfinite(traj.exit_times)))
     out["duration"] = float(traj.times[-1])

@@ -104,10 +104,8 @@ class SolverAnswer:
 def liggghts_answer(scene: HopperScene, params: dict[str, float], workdir: Path,
                     settings: HopperMetricSettings) -> SolverAnswer:
     """LIGGGHTS on the same parameters, scored like every dataset run (fields at the initial positions)."""
-    from neuraldem.scenes.hopper.datagen import trajectory_metrics
-    from neuraldem.scenes.hopper.fields import trajectory_fields_at
-    from neuraldem.scenes.hopper.metrics import layer_edges, layer_stripes, metric_times
-    from neuraldem.scenes.hopper.predict import hold_final_state
+    from neuraldem.scenes.hopper.datagen import metric_fields, trajectory_metrics
+    from neuraldem.scenes.hopper.metrics import layer_edges, layer_stripes
     from neuraldem.scenes.hopper.solver import run_hopper
 
     t0 = time.perf_counter()
@@ -116,15 +114,11 @@ def liggghts_answer(scene: HopperScene, params: dict[str, float], workdir: Path,
     traj = result.trajectory
     if traj is None:
         return SolverAnswer(result.status, result.reason, {}, seconds, None, None)
-    metrics = trajectory_metrics(traj, scene.material.diameter, settings, scene.max_time)
-    times = metric_times(scene.max_time, scene.snapshot_interval)
-    positions = hold_final_state(traj.positions, len(times))
-    exits = np.where(np.isfinite(traj.exit_times), traj.exit_times, scene.max_time)
-    points = traj.positions[0]
-    occ, transport, _ = trajectory_fields_at(points, times, positions, exits,
-                                             settings.occupancy_radius_d * scene.material.diameter)
-    stripes = layer_stripes(occ.astype(np.float64), transport[..., 2], layer_edges(points[:, 2], settings.n_layers))
-    return SolverAnswer(result.status, result.reason, metrics, seconds, stripes, times)
+    fields = metric_fields(traj, scene.material.diameter, settings, scene.max_time)  # once, for both uses
+    metrics = trajectory_metrics(traj, scene.material.diameter, settings, scene.max_time, fields=fields)
+    stripes = layer_stripes(fields.occupancy.astype(np.float64), fields.transport[..., 2],
+                            layer_edges(fields.points[:, 2], settings.n_layers))
+    return SolverAnswer(result.status, result.reason, metrics, seconds, stripes, fields.times)
 
 
 def regime(index: float, settings: HopperMetricSettings) -> str:
