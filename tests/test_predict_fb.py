@@ -75,3 +75,29 @@ def test_bed_what_if_bad_input(fb_tiny_pretrained: Path, tmp_path: Path):
                    env={"NEURALDEM_PRETRAINED_DIR": str(broken)})
     out = proc.stdout + proc.stderr
     assert proc.returncode == 2 and "states.npz is damaged" in out and "rebuild" in out, out
+
+
+@pytest.mark.parametrize("shipped", [False, True], ids=["tiny", "fb_small"])
+def test_the_shipped_bed_files_reproduce_their_stored_probe_answers(fb_tiny_pretrained: Path, shipped: bool):
+    """Loaded back, a model's files answer its probe velocities as when it was built: the GP exactly, the
+    field model's rollout (seed 0, from the shipped state) to round-off."""
+    from neuraldem import pretrained
+    from neuraldem.eval.checkpoints import read_checkpoint
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess
+    from neuraldem.predict_fb import fb_settings, fb_window
+    from neuraldem.scenes.fluidized_bed.whatif import InitialStates, field_answer
+
+    if shipped:
+        model = pretrained.load("fb_small", "fluidized_bed")
+    else:
+        folder = fb_tiny_pretrained / "fb_tiny_test"
+        model = pretrained.Pretrained("fb_tiny_test", folder, json.loads((folder / "meta.json").read_text()))
+    gp = ArrayGaussianProcess.load_npz(model.file("gp"))
+    for probe in model.meta["probes"]:
+        v = probe["parameters"]["inlet_velocity"]
+        assert gp.predict([[v]])[0].mean == pytest.approx(probe["gp_mean"], rel=1e-9)
+    probe = next(p for p in model.meta["probes"] if "field_summary" in p)
+    module = read_checkpoint(model.file("field")).module("fluidized_bed", "cpu", "test")
+    f = field_answer(module, InitialStates.load_npz(model.file("states")), probe["parameters"]["inlet_velocity"],
+                     fb_settings(model), fb_window(model))
+    assert f.summary == pytest.approx(probe["field_summary"], rel=1e-4, abs=1e-6)
