@@ -54,8 +54,8 @@ def test_without_a_shipped_model_no_page_is_served(tmp_path: Path, monkeypatch: 
 def test_an_unknown_page_is_refused():
     from neuraldem.serve.app import prepare_pages
 
-    with pytest.raises(ConfigError, match="unknown page 'bed': choose from hopper"):
-        prepare_pages(None, None, 0.05, ["bed"])
+    with pytest.raises(ConfigError, match="unknown page 'silo': choose from hopper, bed"):
+        prepare_pages(None, None, 0.05, ["silo"])
 
 
 def test_every_page_module_has_what_the_server_calls():

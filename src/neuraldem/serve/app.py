@@ -20,6 +20,7 @@ from neuraldem.errors import ConfigError
 
 PAGES = {  # route -> page module
     "hopper": "neuraldem.serve.hopper_page",
+    "bed": "neuraldem.serve.fb_page",
 }
 
 

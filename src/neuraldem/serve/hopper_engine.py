@@ -147,7 +147,8 @@ class HopperEngine:
         return self._numbers.get_or_compute(point, lambda: self._gp_numbers(point))
 
     def _gp_numbers(self, point: Point) -> dict[str, Any]:
-        from neuraldem.scenes.hopper.whatif import gp_answers, regime
+        from neuraldem.models.scalar_baselines import gp_answers
+        from neuraldem.scenes.hopper.whatif import regime
 
         a = gp_answers(self.gp, [self.values(point)])[0]
         index = (a.mean["mass_flow_index"], a.low["mass_flow_index"], a.high["mass_flow_index"])

@@ -1,0 +1,110 @@
+"""The bed page's background rollouts: one thread per server, at a lower CPU priority.
+
+Work in this order: the exact velocity a session rests on (the newest wanted first), then the lattice over the
+trained range (filled at server start, so a slider move always finds a rollout near it). A rollout steps only
+after QUIET_S without a move; an exact one nobody wants any more, or a lattice one while an exact one waits,
+stops between two steps (a stopped lattice rollout is redone later). Sessions whose velocity is done are called
+back from this thread.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+from collections.abc import Callable, Hashable
+from typing import Any
+
+from neuraldem.serve.discharge_worker import lower_priority
+from neuraldem.serve.fb_engine import Superseded
+
+Callback = Callable[[], None]
+
+
+class RolloutWorker:
+    def __init__(self, engine: Any, start: bool = True):
+        self.engine = engine
+        self._wanted: dict[Hashable, tuple[float, Callback]] = {}  # session -> (velocity, call when done)
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self.computed: list[float] = []  # velocities rolled out, in order (tests and the page read it)
+        self.failed: dict[float, str] = {}
+        mid = sum(engine.trained_range) / 2
+        from neuraldem.serve.fb_engine import spread_order
+
+        self._lattice = spread_order(engine.lattice, mid)
+        self._thread = threading.Thread(target=self._run, name="bed-rollouts", daemon=True)
+        if start:
+            self._thread.start()
+            self._wake.set()
+
+    def want(self, session: Hashable, velocity: float, done: Callback) -> None:
+        """Session `session` now wants the rollout at `velocity` (replacing what it wanted before)."""
+        with self._lock:
+            self._wanted.pop(session, None)  # re-inserted last: the newest wanted
+            self._wanted[session] = (velocity, done)
+        self._wake.set()
+
+    def forget(self, session: Hashable) -> None:
+        with self._lock:
+            self._wanted.pop(session, None)
+
+    def _exact_todo(self) -> float | None:
+        """The newest wanted velocity not done; sessions whose velocity is done are called back."""
+        with self._lock:
+            wanted = list(self._wanted.items())
+        todo = None
+        for session, (v, done) in wanted:
+            if self.engine.rollout(v) is not None:
+                self._finish(session, v, done)
+            elif v not in self.failed:
+                todo = v
+        return todo
+
+    def _finish(self, session: Hashable, v: float, done: Callback) -> None:
+        with self._lock:
+            if self._wanted.get(session, (None,))[0] != v:
+                return
+            del self._wanted[session]
+        try:
+            done()
+        except Exception as err:  # e.g. the tab closed meanwhile: the other sessions still get theirs
+            print(f"neuraldem serve: a session's callback for {v} m/s failed: {err}", file=sys.stderr)
+
+    def _still_wanted(self, v: float) -> bool:
+        with self._lock:
+            return any(w == v for w, _ in self._wanted.values())
+
+    def _gate(self, v: float, exact: bool) -> Callback:
+        def gate() -> None:
+            self.engine.wait_until_quiet()
+            if exact and not self._still_wanted(v):
+                raise Superseded(v)
+            if not exact and self._exact_todo() is not None:
+                raise Superseded(v)
+        return gate
+
+    def next_job(self) -> tuple[float, bool] | None:
+        """(velocity, exact?) of the next rollout, or None when there is nothing to do."""
+        v = self._exact_todo()
+        if v is not None:
+            return v, True
+        for v in self._lattice:
+            if self.engine.rollout(v) is None and v not in self.failed:
+                return v, False
+        return None
+
+    def _run(self) -> None:
+        lower_priority()
+        while True:
+            self._wake.wait()
+            self._wake.clear()
+            while (job := self.next_job()) is not None:
+                v, exact = job
+                try:
+                    self.engine.compute(v, self._gate(v, exact))
+                    self.computed.append(v)
+                except Superseded:
+                    continue
+                except Exception as err:  # a velocity the model cannot answer: note it, keep serving
+                    self.failed[v] = f"{type(err).__name__}: {err}"
+                    print(f"neuraldem serve: the rollout at {v} m/s failed: {err}", file=sys.stderr)
