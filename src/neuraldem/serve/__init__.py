@@ -8,6 +8,7 @@ Scatter3d draws the few thousand particles of a hopper with WebGL in the browser
 (sliders, a player, text inputs) run Python callbacks over one websocket, which is what the latency budget
 needs. Both are maintained (Panel by HoloViz, Plotly by Plotly Inc.), installed by the `serve` extra.
 
-Pages are registered in `serve.app.PAGES` (scene -> module); `hopper_page` is the first. Web code stays in
-the page modules; `hopper_engine` answers with no web code (the tests and the benchmark call it directly).
+Pages are registered in `serve.app.PAGES` (route -> module): `hopper_page`, `fb_page`. Web code stays in the
+page modules; the engines (`hopper_engine`, `fb_engine`) answer with no web code (the tests and the benchmark
+call them directly).
 """

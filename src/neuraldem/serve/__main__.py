@@ -1,6 +1,6 @@
 """`neuraldem serve`: the interactive explorer of the shipped models in your browser.
 
-    neuraldem serve                      # http://127.0.0.1:5006/hopper
+    neuraldem serve                      # http://127.0.0.1:5006/hopper and /bed
     neuraldem serve --port 5010 --show   # another port, and open the browser
     neuraldem serve --model hopper_small --dataset ~/data/hopper_small
 
@@ -9,7 +9,14 @@ slider to go beyond: values past what LIGGGHTS can run are clamped with a note, 
 get the extrapolation warning of `neuraldem predict`), a time player, the particles in 3D coloured by initial
 layer or residence time, the discharge curve, and the numbers with 95 % intervals: the GP's at once, the field
 model's when its whole discharge is computed (a few seconds), and a stored LIGGGHTS run's when one is within
---near of the point. Needs the `serve` extra: pip install -e '.[serve]'.
+--near of the point.
+
+Bed page: the inlet-velocity slider (same clamping and warnings), the GP's three numbers (mean bed height,
+bubble fraction, Lacey after 1 s) with 95 % intervals at once, animated solid-fraction and mixing maps and the
+bed-height / bubble-fraction / Lacey curves of the nearest rollout already computed (a lattice of 9 velocities
+rolls out in the background at start; the rollout at the slider's velocity replaces it once the slider rests),
+and the held-out errors of both models beside CFD-DEM's own spread. `--page hopper` serves one page only.
+Needs the `serve` extra: pip install -e '.[serve]'.
 """
 
 from __future__ import annotations
