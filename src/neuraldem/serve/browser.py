@@ -113,11 +113,70 @@ def find(driver: Any, selector: str) -> Any:
     return driver.execute_script("return window.ndDeep(arguments[0]);", selector)
 
 
-class HopperBrowser:
+class PageBrowser:
+    """What every explorer page offers a browser test: its notes and status line (ids `<prefix>-notes`,
+    `<prefix>-status`), keyboard arrows on a slider or the time player, typing into a value box, screenshots."""
+
+    prefix = ""
+
+    def __init__(self, driver: Any, timeout: float):
+        self.driver, self.timeout = driver, timeout
+
+    def notes(self) -> list[str]:
+        """The lines under the sliders (read in one script: Panel replaces the element on every update)."""
+        return self.driver.execute_script(f"const n = window.ndDeep('#{self.prefix}-notes'); "
+                                          "return n ? [...n.querySelectorAll('li')].map(li => li.textContent) : [];")
+
+    def status(self, name: str) -> str | None:
+        """An attribute (`data-<name>`) of the page's status line."""
+        return self.driver.execute_script(f"const s = window.ndDeep('#{self.prefix}-status'); "
+                                          "return s ? s.getAttribute(arguments[0]) : null;", f"data-{name}")
+
+    def within(self, host: str, inner: str) -> Any:
+        return self.driver.execute_script("return window.ndWithin(arguments[0], arguments[1]);", host, inner)
+
+    def press_slider(self, key: str, arrow: str = "right", times: int = 1) -> None:
+        """Keyboard arrows on slider `key`'s handle: each press moves it one step (as a person would)."""
+        from selenium.webdriver.common.keys import Keys
+
+        handle = self.within(f".nd-slider-{key}", ".noUi-handle")
+        if handle is None:
+            raise LookupError(f"no slider for {key} on the page")
+        handle.send_keys(*([Keys.ARROW_RIGHT if arrow == "right" else Keys.ARROW_LEFT] * times))
+
+    def press_time(self, arrow: str = "right") -> None:
+        """Keyboard arrows on the time slider (the player's range input)."""
+        from selenium.webdriver.common.keys import Keys
+
+        slider = self.within(".nd-time", "input[type=range]")
+        if slider is None:
+            raise LookupError("no time slider on the page")
+        slider.send_keys(Keys.ARROW_RIGHT if arrow == "right" else Keys.ARROW_LEFT)
+
+    def type_into(self, key: str, text: str) -> None:
+        """Type `text` into the value box of `key` and press Enter (typing replaces the old value)."""
+        from selenium.webdriver.common.keys import Keys
+
+        box = self.within(f".nd-typed-{key}", "input")
+        if box is None:
+            raise LookupError(f"no text box for {key} on the page")
+        self.driver.execute_script("arguments[0].value = '';", box)
+        box.send_keys(text, Keys.ENTER)
+
+    def screenshot(self, path: Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.driver.save_screenshot(str(path))
+        return path
+
+
+class HopperBrowser(PageBrowser):
     """The hopper page in a browser: read its numbers, move its sliders, type values, time the updates."""
 
+    prefix = "hopper"
+
     def __init__(self, driver: Any, url: str, timeout: float = 60.0):
-        self.driver, self.timeout = driver, timeout
+        super().__init__(driver, timeout)
         driver.get(url)
         wait_for(lambda: driver.execute_script(PAGE_JS) and self.status_point() is not None, timeout,
                  "the hopper page's first frame")
@@ -135,16 +194,6 @@ class HopperBrowser:
             raw[part] = {k: float(v) for k, v in raw[part].items()}
         return raw
 
-    def notes(self) -> list[str]:
-        """The lines under the sliders (read in one script: Panel replaces the element on every update)."""
-        return self.driver.execute_script("const n = window.ndDeep('#hopper-notes'); "
-                                          "return n ? [...n.querySelectorAll('li')].map(li => li.textContent) : [];")
-
-    def status(self, name: str) -> str | None:
-        """An attribute of the status line under the numbers: model, point, time or step (of the time slider)."""
-        return self.driver.execute_script("const s = window.ndDeep('#hopper-status'); "
-                                          "return s ? s.getAttribute(arguments[0]) : null;", f"data-{name}")
-
     def status_point(self) -> str | None:
         return self.status("point")
 
@@ -152,27 +201,12 @@ class HopperBrowser:
         """Whether the particle view and the status line show `point`."""
         return bool(self.driver.execute_script("return window.ndShows(arguments[0]);", point))
 
-    def within(self, host: str, inner: str) -> Any:
-        return self.driver.execute_script("return window.ndWithin(arguments[0], arguments[1]);", host, inner)
-
     # ---- acting
     def press(self, key: str, arrow: str = "right", times: int = 1) -> None:
-        """Keyboard arrows on a slider's handle: each press moves it one step (as a person would)."""
-        from selenium.webdriver.common.keys import Keys
-
-        handle = self.within(f".nd-slider-{key}", ".noUi-handle")
-        if handle is None:
-            raise LookupError(f"no slider for {key} on the page")
-        handle.send_keys(*([Keys.ARROW_RIGHT if arrow == "right" else Keys.ARROW_LEFT] * times))
+        self.press_slider(key, arrow, times)
 
     def type_value(self, key: str, text: str) -> None:
-        from selenium.webdriver.common.keys import Keys
-
-        box = self.within(f".nd-typed-{key}", "input")
-        if box is None:
-            raise LookupError(f"no text box for {key} on the page")
-        self.driver.execute_script("arguments[0].value = '';", box)  # typing replaces the old value
-        box.send_keys(text, Keys.ENTER)
+        self.type_into(key, text)
 
     def wait_numbers_for(self, point: str, timeout: float | None = None) -> dict[str, Any]:
         return wait_for(lambda: (n := self.numbers()) and n["point"] == point and n, timeout or self.timeout,
@@ -211,21 +245,6 @@ class HopperBrowser:
         result = wait_for(lambda: self.driver.execute_script(LATENCY_JS), timeout or self.timeout,
                           f"the updates of {what}")
         return {"numbers_ms": result[0], "fields_ms": result[1], "painted_ms": result[2]}
-
-    def press_time(self, arrow: str = "right") -> None:
-        """Keyboard arrows on the time slider (the player's range input)."""
-        from selenium.webdriver.common.keys import Keys
-
-        slider = self.within(".nd-time", "input[type=range]")
-        if slider is None:
-            raise LookupError("no time slider on the page")
-        slider.send_keys(Keys.ARROW_RIGHT if arrow == "right" else Keys.ARROW_LEFT)
-
-    def screenshot(self, path: Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.driver.save_screenshot(str(path))
-        return path
 
 
 READ_NUMBERS = """

@@ -10,7 +10,7 @@ from __future__ import annotations
 import contextlib
 import sys
 import threading
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Container, Hashable
 from typing import Any
 
 Callback = Callable[[], None]
@@ -26,12 +26,51 @@ def lower_priority() -> None:
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), NICE)
 
 
-class DischargeWorker:
-    def __init__(self, engine: Any):
-        self.engine = engine
-        self._wanted: dict[Hashable, tuple[Any, Callback]] = {}  # session -> (point, call when done)
+class SessionWants:
+    """What each browser session wants computed in the background (only its latest item), shared by the pages'
+    workers: which items are still wanted, the newest one not done, and calling back the sessions whose item
+    is done (from the worker thread)."""
+
+    def __init__(self) -> None:
+        self._wanted: dict[Hashable, tuple[Any, Callback]] = {}  # session -> (item, call when done)
         self._lock = threading.Lock()
         self._wake = threading.Event()
+
+    def forget(self, session: Hashable) -> None:
+        with self._lock:
+            self._wanted.pop(session, None)
+
+    def _still_wanted(self, item: Any) -> bool:
+        with self._lock:
+            return any(w == item for w, _ in self._wanted.values())
+
+    def _pending(self, is_done: Callable[[Any], bool], skip: Container[Any] = ()) -> Any | None:
+        """The newest wanted item not done (nor in `skip`); sessions whose item is done are called back."""
+        with self._lock:
+            wanted = list(self._wanted.items())
+        todo = None
+        for session, (item, done) in wanted:
+            if is_done(item):
+                self._finish(session, item, done)
+            elif item not in skip:
+                todo = item
+        return todo
+
+    def _finish(self, session: Hashable, item: Any, done: Callback) -> None:
+        with self._lock:
+            if self._wanted.get(session, (None,))[0] != item:
+                return
+            del self._wanted[session]
+        try:
+            done()
+        except Exception as err:  # e.g. the browser tab closed meanwhile: the other sessions still get theirs
+            print(f"neuraldem serve: a session's callback for {item} failed: {err}", file=sys.stderr)
+
+
+class DischargeWorker(SessionWants):
+    def __init__(self, engine: Any):
+        super().__init__()
+        self.engine = engine
         self._thread: threading.Thread | None = None
         self.computed = 0  # whole discharges finished (tests read it)
 
@@ -44,35 +83,9 @@ class DischargeWorker:
                 self._thread.start()
         self._wake.set()
 
-    def forget(self, session: Hashable) -> None:
-        with self._lock:
-            self._wanted.pop(session, None)
-
-    def _still_wanted(self, point: Any) -> bool:
-        with self._lock:
-            return any(p == point for p, _ in self._wanted.values())
-
     def _next(self) -> Any | None:
         """The most recently wanted point not computed yet; sessions whose point is done are called back."""
-        with self._lock:
-            wanted = list(self._wanted.items())
-        todo = None
-        for session, (point, done) in wanted:
-            if self.engine.discharge(point) is not None:
-                self._finish(session, point, done)
-            else:
-                todo = point
-        return todo
-
-    def _finish(self, session: Hashable, point: Any, done: Callback) -> None:
-        with self._lock:
-            if self._wanted.get(session, (None,))[0] != point:
-                return
-            del self._wanted[session]
-        try:
-            done()
-        except Exception as err:  # e.g. the browser tab closed meanwhile: the other sessions still get theirs
-            print(f"neuraldem serve: a session's callback for {point} failed: {err}", file=sys.stderr)
+        return self._pending(lambda point: self.engine.discharge(point) is not None)
 
     def _run(self) -> None:
         lower_priority()

@@ -8,10 +8,9 @@ the new velocity (what that figure shows then is the nearest ready rollout: its 
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
-from neuraldem.serve.browser import PAGE_JS, wait_for
+from neuraldem.serve.browser import PAGE_JS, PageBrowser, wait_for
 
 # the bed's latency probe, installed after browser.PAGE_JS (which gives ndDeep / ndAll / ndWithin)
 BED_JS = """
@@ -70,11 +69,14 @@ def page_url(server_url: str, route: str = "bed") -> str:
     return server_url.rsplit("/", 1)[0] + "/" + route
 
 
-class BedBrowser:
-    """The bed page in a browser."""
+class BedBrowser(PageBrowser):
+    """The bed page in a browser (status attributes: model, velocity, shown (the rollout's velocity), time,
+    frames, lattice, ready)."""
+
+    prefix = "bed"
 
     def __init__(self, driver: Any, url: str, timeout: float = 60.0):
-        self.driver, self.timeout = driver, timeout
+        super().__init__(driver, timeout)
         driver.get(url)
         wait_for(lambda: driver.execute_script(PAGE_JS) and driver.execute_script(BED_JS)
                  and self.status("velocity") is not None and self.numbers() is not None, timeout, "the bed page")
@@ -90,48 +92,16 @@ class BedBrowser:
         raw["field"] = {k: float(v) for k, v in raw["field"].items()}
         return raw
 
-    def notes(self) -> list[str]:
-        return self.driver.execute_script("const n = window.ndDeep('#bed-notes'); "
-                                          "return n ? [...n.querySelectorAll('li')].map(li => li.textContent) : [];")
-
-    def status(self, name: str) -> str | None:
-        """An attribute of the status line: model, velocity, shown (the rollout's velocity), time, frames,
-        lattice, ready."""
-        return self.driver.execute_script("const s = window.ndDeep('#bed-status'); "
-                                          "return s ? s.getAttribute(arguments[0]) : null;", f"data-{name}")
-
     def fields_title(self) -> str | None:
         return self.driver.execute_script("const g = window.ndBedFields(); "
                                           "return g ? String(g.layout.title.text) : null;")
 
-    def within(self, host: str, inner: str) -> Any:
-        return self.driver.execute_script("return window.ndWithin(arguments[0], arguments[1]);", host, inner)
-
     # ---- acting
     def press(self, arrow: str = "right", times: int = 1) -> None:
-        from selenium.webdriver.common.keys import Keys
-
-        handle = self.within(".nd-slider-inlet_velocity", ".noUi-handle")
-        if handle is None:
-            raise LookupError("no velocity slider on the page")
-        handle.send_keys(*([Keys.ARROW_RIGHT if arrow == "right" else Keys.ARROW_LEFT] * times))
-
-    def press_time(self, arrow: str = "right") -> None:
-        from selenium.webdriver.common.keys import Keys
-
-        slider = self.within(".nd-time", "input[type=range]")
-        if slider is None:
-            raise LookupError("no time slider on the page")
-        slider.send_keys(Keys.ARROW_RIGHT if arrow == "right" else Keys.ARROW_LEFT)
+        self.press_slider("inlet_velocity", arrow, times)
 
     def type_value(self, text: str) -> None:
-        from selenium.webdriver.common.keys import Keys
-
-        box = self.within(".nd-typed-inlet_velocity", "input")
-        if box is None:
-            raise LookupError("no velocity box on the page")
-        self.driver.execute_script("arguments[0].value = '';", box)
-        box.send_keys(text, Keys.ENTER)
+        self.type_into("inlet_velocity", text)
 
     # ---- waiting
     def wait_numbers_for(self, velocity: float, timeout: float | None = None) -> dict[str, Any]:
@@ -158,9 +128,3 @@ class BedBrowser:
         r = wait_for(lambda: self.driver.execute_script(LATENCY_JS), timeout or self.timeout,
                      f"the updates of {velocity:g} m/s")
         return {"numbers_ms": r[0], "fields_ms": r[1], "painted_ms": r[2], "fields_title": r[3]}
-
-    def screenshot(self, path: Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.driver.save_screenshot(str(path))
-        return path

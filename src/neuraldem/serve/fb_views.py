@@ -12,7 +12,10 @@ from typing import Any
 
 import numpy as np
 
-from neuraldem.serve.hopper_views import exact
+from neuraldem.scenes.fluidized_bed.whatif import answer_label as label  # predict fb's labels and values
+from neuraldem.scenes.fluidized_bed.whatif import format_answer as shown
+from neuraldem.serve import markup
+from neuraldem.serve.markup import exact
 
 SOLID_MAX = 0.65  # colour range of the solid fraction (plots.animate_fields)
 GP_COLOUR, FIELD_COLOUR = "#1f77b4", "#d62728"
@@ -24,18 +27,6 @@ def velocity_text(v: float) -> str:
     return f"{v:g} m/s"
 
 
-def shown(key: str, v: float | None, quantities: dict[str, tuple[str, str, float]]) -> str:
-    """A value as `neuraldem predict fb`'s table prints it ('-' when there is none)."""
-    if v is None or not np.isfinite(v):
-        return "-"
-    return f"{quantities[key][2] * v:.{3 if key == 'lacey' else 2}f}"
-
-
-def label(key: str, quantities: dict[str, tuple[str, str, float]]) -> str:
-    name, unit, _ = quantities[key]
-    return f"{name}{f' [{unit}]' if unit else ''}"
-
-
 def numbers_table(velocity: float, gp: dict[str, Any], field: Any | None, field_state: str,
                   quantities: dict[str, tuple[str, str, float]]) -> str:
     """GP with its 95 % interval, and the field model's answer from the rollout at exactly this velocity (or
@@ -43,14 +34,11 @@ def numbers_table(velocity: float, gp: dict[str, Any], field: Any | None, field_
     rows = ["<tr><th>quantity</th><th>GP [95 % interval]</th><th>field model (rollout)</th></tr>"]
     for key in quantities:
         m, lo, hi = gp["mean"][key], gp["low"][key], gp["high"][key]
+        v = None if field is None else field.summary[key]
         cells = [f"<td>{html.escape(label(key, quantities))}</td>",
-                 f'<td class="gp" data-mean="{exact(m)}" data-low="{exact(lo)}" data-high="{exact(hi)}">'
-                 f"{shown(key, m, quantities)} [{shown(key, lo, quantities)}, {shown(key, hi, quantities)}]</td>"]
-        if field is not None:
-            v = field.summary[key]
-            cells.append(f'<td class="field" data-value="{exact(v)}">{shown(key, v, quantities)}</td>')
-        else:
-            cells.append(f'<td class="field pending">{html.escape(field_state)}</td>')
+                 markup.gp_cell(m, lo, hi, f"{shown(key, m, quantities)} [{shown(key, lo, quantities)}, "
+                                           f"{shown(key, hi, quantities)}]"),
+                 markup.field_cell(v, shown(key, v, quantities), field_state)]
         rows.append(f'<tr data-key="{key}">{"".join(cells)}</tr>')
     times = [f"{1000 * gp['seconds']:.1f} ms", f"{field.seconds:.1f} s" if field is not None else ""]
     rows.append("<tr><td>answer time</td>" + "".join(f"<td>{t}</td>" for t in times) + "</tr>")
@@ -75,9 +63,7 @@ def held_out_table(test_errors: dict[str, Any]) -> str:
 
 
 def notes_html(notes: list[str]) -> str:
-    items = "".join(f'<li class="{"warn" if n.startswith("warning") or "clamped" in n else "info"}">'
-                    f"{html.escape(n)}</li>" for n in notes)
-    return f'<ul id="bed-notes" class="nd-notes">{items}</ul>'
+    return markup.notes_html(notes, "bed-notes")
 
 
 def fields_title(velocity: float, r: Any | None, t: float | None) -> str:

@@ -14,18 +14,16 @@ import threading
 from collections.abc import Callable, Hashable
 from typing import Any
 
-from neuraldem.serve.discharge_worker import lower_priority
+from neuraldem.serve.discharge_worker import SessionWants, lower_priority
 from neuraldem.serve.fb_engine import Superseded
 
 Callback = Callable[[], None]
 
 
-class RolloutWorker:
+class RolloutWorker(SessionWants):
     def __init__(self, engine: Any, start: bool = True):
+        super().__init__()
         self.engine = engine
-        self._wanted: dict[Hashable, tuple[float, Callback]] = {}  # session -> (velocity, call when done)
-        self._lock = threading.Lock()
-        self._wake = threading.Event()
         self.computed: list[float] = []  # velocities rolled out, in order (tests and the page read it)
         self.failed: dict[float, str] = {}
         mid = sum(engine.trained_range) / 2
@@ -44,35 +42,9 @@ class RolloutWorker:
             self._wanted[session] = (velocity, done)
         self._wake.set()
 
-    def forget(self, session: Hashable) -> None:
-        with self._lock:
-            self._wanted.pop(session, None)
-
     def _exact_todo(self) -> float | None:
         """The newest wanted velocity not done; sessions whose velocity is done are called back."""
-        with self._lock:
-            wanted = list(self._wanted.items())
-        todo = None
-        for session, (v, done) in wanted:
-            if self.engine.rollout(v) is not None:
-                self._finish(session, v, done)
-            elif v not in self.failed:
-                todo = v
-        return todo
-
-    def _finish(self, session: Hashable, v: float, done: Callback) -> None:
-        with self._lock:
-            if self._wanted.get(session, (None,))[0] != v:
-                return
-            del self._wanted[session]
-        try:
-            done()
-        except Exception as err:  # e.g. the tab closed meanwhile: the other sessions still get theirs
-            print(f"neuraldem serve: a session's callback for {v} m/s failed: {err}", file=sys.stderr)
-
-    def _still_wanted(self, v: float) -> bool:
-        with self._lock:
-            return any(w == v for w, _ in self._wanted.values())
+        return self._pending(lambda v: self.engine.rollout(v) is not None, skip=self.failed)
 
     def _gate(self, v: float, exact: bool) -> Callback:
         def gate() -> None:

@@ -13,15 +13,12 @@ import numpy as np
 
 from neuraldem.predict import format_value
 from neuraldem.scenes.hopper.whatif import QUANTITIES
+from neuraldem.serve import markup
+from neuraldem.serve.markup import exact
 from neuraldem.serve.stored_runs import NearRun
 
 LAYER_COLOURS = ["#313695", "#4575b4", "#74add1", "#abd9e9", "#fee090", "#fdae61", "#f46d43", "#a50026"]
 STORED_COLOUR = "rgba(40, 40, 40, 0.55)"
-
-
-def exact(v: float) -> str:
-    """A value as its shortest exact decimal (read back to the same float)."""
-    return repr(float(v))
 
 
 def point_text(values: dict[str, float]) -> str:
@@ -41,14 +38,11 @@ def numbers_table(values: dict[str, float], gp: dict[str, Any], field: dict[str,
     rows = [f"<tr>{''.join(f'<th>{html.escape(h)}</th>' for h in head)}</tr>"]
     for key in QUANTITIES:
         m, lo, hi = gp["mean"][key], gp["low"][key], gp["high"][key]
+        v = None if field is None else field["summary"][key]
         cells = [f"<td>{html.escape(label(key))}</td>",
-                 f'<td class="gp" data-mean="{exact(m)}" data-low="{exact(lo)}" data-high="{exact(hi)}">'
-                 f"{format_value(key, m)} [{format_value(key, lo)}, {format_value(key, hi)}]</td>"]
-        if field is not None:
-            v = field["summary"][key]
-            cells.append(f'<td class="field" data-value="{exact(v)}">{format_value(key, v)}</td>')
-        else:
-            cells.append(f'<td class="field pending">{html.escape(field_state)}</td>')
+                 markup.gp_cell(m, lo, hi, f"{format_value(key, m)} [{format_value(key, lo)}, "
+                                           f"{format_value(key, hi)}]"),
+                 markup.field_cell(v, "" if v is None else format_value(key, v), field_state)]
         if stored is not None:
             v = stored.metrics.get(key, float("nan"))
             cells.append(f'<td class="stored" data-value="{exact(v)}">{format_value(key, v)}</td>')
@@ -77,9 +71,7 @@ def held_out_line(test_errors: dict[str, Any]) -> str:
 
 
 def notes_html(notes: list[str]) -> str:
-    items = "".join(f'<li class="{"warn" if n.startswith("warning") or "clamped" in n else "info"}">'
-                    f"{html.escape(n)}</li>" for n in notes)
-    return f'<ul id="hopper-notes" class="nd-notes">{items}</ul>'
+    return markup.notes_html(notes, "hopper-notes")
 
 
 def particles_figure(frame: Any, colour_by: str, n_layers: int, box_lo: np.ndarray, box_hi: np.ndarray,
