@@ -38,6 +38,15 @@ def write_results(name: str, results: Any, *, command: str, path: Path | None = 
     return path
 
 
+def write_report(name: str, results: Any, markdown: str, *, command: str, path: Path,
+                 machine: dict[str, Any] | None = None) -> Path:
+    """`write_results`, the markdown table beside it (same name, .md), and the table on stdout."""
+    write_results(name, results, command=command, path=path, machine=machine)
+    path.with_suffix(".md").write_text(markdown)
+    print(markdown)
+    return path
+
+
 def resolve_out(out: Path | None, name: str) -> Path:
     """Where benchmark `name` writes its JSON: `--out` as a .json file, or a folder (existing, or named without
     a suffix) to hold NAME.json; default results/bench/NAME.json. Figures and tables go beside the JSON."""

@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from neuraldem.bench.report import command_line, resolve_out, warn_if_busy, write_results
+from neuraldem.bench.report import command_line, resolve_out, warn_if_busy, write_report
 from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.errors import ConfigError
 from neuraldem.machine import machine_info
@@ -101,16 +101,18 @@ def docs_screenshot(page: Any, url: str, path: Path) -> None:
     fresh.screenshot(path)
 
 
+def row(name: str, stats: dict[str, Any], key: str) -> str:
+    """One table row: moves, median (against its target), p90 and max of `stats[key]`."""
+    if key not in stats:
+        return f"| {name} | - | - | - | - |"
+    v = stats[key]
+    target = TARGETS_MS.get(key)
+    verdict = "" if target is None else (" (met)" if v["median"] <= target else f" (over {target:.0f})")
+    return f"| {name} | {v['n']} | {v['median']:.0f}{verdict} | {v['p90']:.0f} | {v['max']:.0f} |"
+
+
 def markdown(result: dict[str, Any]) -> str:
     s, ts = result["summary"]["parameter_moves"], result["summary"]["time_moves"]
-
-    def row(name: str, stats: dict[str, Any], key: str) -> str:
-        if key not in stats:
-            return f"| {name} | - | - | - | - |"
-        v = stats[key]
-        target = TARGETS_MS.get(key)
-        verdict = "" if target is None else (" (met)" if v["median"] <= target else f" (over {target:.0f})")
-        return f"| {name} | {v['n']} | {v['median']:.0f}{verdict} | {v['p90']:.0f} | {v['max']:.0f} |"
 
     load = (result["machine"].get("load_average_1_5_15min") or [float("nan")])[0]
     lines = [f"# Explorer latency: slider move to updated page (model {result['model']})", "",
@@ -151,14 +153,6 @@ def bed_moves(page: Any, n: int, pause: float) -> list[dict[str, Any]]:
 def bed_markdown(result: dict[str, Any]) -> str:
     s = result["summary"]
 
-    def row(name: str, key: str) -> str:
-        if key not in s:
-            return f"| {name} | - | - | - | - |"
-        v = s[key]
-        target = TARGETS_MS.get(key)
-        verdict = "" if target is None else (" (met)" if v["median"] <= target else f" (over {target:.0f})")
-        return f"| {name} | {v['n']} | {v['median']:.0f}{verdict} | {v['p90']:.0f} | {v['max']:.0f} |"
-
     moves = result["moves"]
     off = [m["shown_off_m_s"] for m in moves]
     load = (result["machine"].get("load_average_1_5_15min") or [float("nan")])[0]
@@ -167,9 +161,9 @@ def bed_markdown(result: dict[str, Any]) -> str:
         f"`{result['command']}`; headless {result['browser']}; 1-minute load average {load:.2f} on "
         f"{result['machine'].get('cpu_count')} CPUs when it began.", "",
         "| move -> update | moves | median [ms] | p90 [ms] | max [ms] |", "|---|---|---|---|---|",
-        row("velocity slider -> numbers (GP, DOM)", "numbers_ms"),
-        row("velocity slider -> fields redrawn (nearest ready rollout, plotly_afterplot)", "fields_ms"),
-        row("velocity slider -> fields painted", "painted_ms"), "",
+        row("velocity slider -> numbers (GP, DOM)", s, "numbers_ms"),
+        row("velocity slider -> fields redrawn (nearest ready rollout, plotly_afterplot)", s, "fields_ms"),
+        row("velocity slider -> fields painted", s, "painted_ms"), "",
         f"Targets (issue 24): numbers <= {TARGETS_MS['numbers_ms']:.0f} ms, fields <= "
         f"{TARGETS_MS['fields_ms']:.0f} ms (medians). What the fields figure shows within that time is the "
         f"nearest rollout already computed, labelled with its velocity, not a rollout at the new velocity: "
@@ -213,10 +207,7 @@ def bed_main(args: Any, argv: list[str]) -> int:
               "pause_s": args.pause, "warmup": args.warmup, "targets_ms": TARGETS_MS, "lattice_size": lattice,
               "lattice_ready_s": lattice_s, "exact_after_rest_s": exact_s, "summary": summary(moves),
               "warmup_moves": warm, "moves": moves, "machine": machine}
-    write_results("serve_latency_fb", result, command=result["command"], path=out, machine=machine)
-    md = bed_markdown(result)
-    out.with_suffix(".md").write_text(md)
-    print(md)
+    write_report("serve_latency_fb", result, bed_markdown(result), command=result["command"], path=out, machine=machine)
     return 0
 
 
@@ -261,10 +252,7 @@ def main(argv: list[str] | None = None) -> int:
               "pause_s": args.pause, "warmup": args.warmup, "targets_ms": TARGETS_MS,
               "summary": {"parameter_moves": summary(moves), "time_moves": summary(steps)},
               "warmup_moves": warm, "parameter_moves": moves, "time_moves": steps, "machine": machine}
-    write_results("serve_latency", result, command=result["command"], path=out, machine=machine)
-    md = markdown(result)
-    out.with_suffix(".md").write_text(md)
-    print(md)
+    write_report("serve_latency", result, markdown(result), command=result["command"], path=out, machine=machine)
     return 0
 
 

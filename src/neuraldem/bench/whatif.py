@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from neuraldem import pretrained
-from neuraldem.bench.report import command_line, resolve_out, warn_if_busy, write_results
+from neuraldem.bench.report import command_line, resolve_out, warn_if_busy, write_report
 from neuraldem.bench.timing import time_call
 from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.machine import machine_info
@@ -137,10 +137,8 @@ def main(argv: list[str] | None = None) -> int:
               "answer_times": answer_times(model, args.repeats, settings),
               "points": point_rows(model, points, settings)}
     out = resolve_out(args.out, "whatif")
-    write_results("whatif", result, command=result["command"], path=out, machine=machine)
-    md = markdown(result, settings.mass_flow_threshold)
-    out.with_suffix(".md").write_text(md)
-    print(md)
+    write_report("whatif", result, markdown(result, settings.mass_flow_threshold), command=result["command"],
+                 path=out, machine=machine)
     return 0
 
 

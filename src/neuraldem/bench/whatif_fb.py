@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from neuraldem import pretrained
-from neuraldem.bench.report import command_line, resolve_out, warn_if_busy, write_results
+from neuraldem.bench.report import command_line, resolve_out, warn_if_busy, write_report
 from neuraldem.bench.timing import time_call
 from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.errors import DataError
@@ -108,10 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     result = {"model": model.name, "command": command_line("whatif_fb", argv),
               "answer_times": answer_times(model, args.repeats), "verified": verified_rows(args.verified)}
     out = resolve_out(args.out, "whatif_fb")
-    write_results("whatif_fb", result, command=result["command"], path=out, machine=machine)
-    md = markdown(result)
-    out.with_suffix(".md").write_text(md)
-    print(md)
+    write_report("whatif_fb", result, markdown(result), command=result["command"], path=out, machine=machine)
     return 0
 
 
