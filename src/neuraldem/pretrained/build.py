@@ -29,7 +29,6 @@ from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.data.integrity import digest
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest
 from neuraldem.data.schema import atomic_write_json
-from neuraldem.errors import DataError
 from neuraldem.paths import data_dir
 
 PROBES = [{"alpha": 10.0, "mu_s": 0.2, "mu_r": 0.05}, {"alpha": 35.0, "mu_s": 0.5, "mu_r": 0.2},
@@ -40,8 +39,21 @@ KEEP = ("state_dict", "hyper_parameters", "pytorch-lightning_version", "global_s
 
 def strip_checkpoint(ckpt: Path, out: Path) -> None:
     """The weights and what rebuilds the module, without optimizer states and loop counters."""
-    raw = torch.load(ckpt, map_location="cpu", weights_only=False)
+    from neuraldem.eval.checkpoints import read_checkpoint
+
+    raw = read_checkpoint(ckpt).raw  # the process's one read of it
     torch.save({k: raw[k] for k in KEEP if k in raw}, out)
+
+
+def training_inputs(ckpt: Path, kind: str, dataset: Path | None) -> tuple[dict[str, Any], Path, Manifest]:
+    """A checkpoint's metadata (of scene `kind`, else refused with the command that trains one), its dataset
+    dir (default: <data dir>/datasets/<its data name>) and that dataset's manifest."""
+    from neuraldem.eval.checkpoints import read_checkpoint, require_kind
+
+    meta = read_checkpoint(ckpt).metadata
+    require_kind(meta, kind, Path(ckpt), "building a shipped model")
+    dataset = dataset or data_dir() / "datasets" / meta["data_name"]
+    return meta, dataset, Manifest.load(dataset)
 
 
 def run_overrides(ckpt: Path) -> list[str]:
@@ -74,7 +86,9 @@ def build_record(ckpt: Path, name: str, kind: str, folder: Path, files: dict[str
                  extra: dict[str, Any], build_flags: str = "") -> dict[str, Any]:
     """meta.json of a shipped model: what its files are (with checksums), what it was trained on and with,
     what it scored, and how to rebuild it."""
-    checkpoint = torch.load(ckpt, map_location="cpu", weights_only=False)
+    from neuraldem.eval.checkpoints import read_checkpoint
+
+    checkpoint = read_checkpoint(ckpt).raw
     hp = checkpoint.get("hyper_parameters", {})
     overrides = run_overrides(Path(ckpt))
     return {
@@ -100,12 +114,7 @@ def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) ->
     from neuraldem.scenes.hopper.evaluation import evaluate_checkpoint
     from neuraldem.scenes.hopper.scoring import dataset_metric_settings
 
-    checkpoint = read_checkpoint(ckpt)
-    meta = checkpoint.metadata
-    if meta.get("kind") != "hopper":
-        raise DataError(f"{ckpt} is a {meta.get('kind')!r} checkpoint; this builds hopper models")
-    dataset = dataset or data_dir() / "datasets" / meta["data_name"]
-    m = Manifest.load(dataset)
+    meta, dataset, m = training_inputs(ckpt, "hopper", dataset)
     ids = meta.get("split_ids") or {}
     fit_runs = [m.record(i) for i in ids.get("train", []) + ids.get("val", [])]
     folder = out_root / name

@@ -71,8 +71,7 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
     from neuraldem.data.schema import atomic_write_json
     from neuraldem.eval.checkpoints import read_checkpoint
     from neuraldem.models.scalar_baselines import ArrayGaussianProcess, ConstantBaseline, GaussianProcessBaseline
-    from neuraldem.paths import data_dir
-    from neuraldem.pretrained.build import build_record, strip_checkpoint
+    from neuraldem.pretrained.build import build_record, strip_checkpoint, training_inputs
     from neuraldem.scenes.fluidized_bed.datagen import FbMetricSettings
     from neuraldem.scenes.fluidized_bed.whatif import (
         TARGET_RANGE,
@@ -83,12 +82,7 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
         file_answers,
     )
 
-    checkpoint = read_checkpoint(ckpt)
-    meta = checkpoint.metadata
-    if meta.get("kind") != "fluidized_bed":
-        raise DataError(f"{ckpt} is a {meta.get('kind')!r} checkpoint; this builds fluidized-bed models")
-    dataset = dataset or data_dir() / "datasets" / meta["data_name"]
-    m = Manifest.load(dataset)
+    meta, dataset, m = training_inputs(ckpt, "fluidized_bed", dataset)
     parts = split_records(m, meta)
     fit_runs = parts.get("train", []) + parts.get("val", [])
     test = parts.get("test", [])
