@@ -116,7 +116,7 @@ def fb_verify(model: pretrained.Pretrained, velocity: float, settings: Any, wind
 
 def fb_table(answer: dict[str, Any]) -> str:
     """The answers side by side, one line per quantity, then the stored held-out errors."""
-    from neuraldem.scenes.fluidized_bed.whatif import quantities
+    from neuraldem.scenes.fluidized_bed.whatif import answer_label, format_answer, quantities
 
     q = quantities(answer["answer_window"]["lacey_time"])
     cols = ["GP [95 % interval]"] + (["field model"] if "field" in answer else []) + \
@@ -124,16 +124,16 @@ def fb_table(answer: dict[str, Any]) -> str:
     lines = [f"| quantity | {' | '.join(cols)} |", "|---|" + "---|" * len(cols)]
 
     def fmt(key: str, v: float) -> str:
-        return "-" if v is None or not np.isfinite(v) else f"{q[key][2] * v:.{3 if key == 'lacey' else 2}f}"
+        return format_answer(key, v, q)
 
     gp = answer["gp"]
-    for key, (label, unit, _) in q.items():
+    for key in q:
         row = [f"{fmt(key, gp['mean'][key])} [{fmt(key, gp['low'][key])}, {fmt(key, gp['high'][key])}]"]
         if "field" in answer:
             row.append(fmt(key, answer["field"]["summary"][key]))
         if "dpmfoam" in answer:
             row.append(fmt(key, answer["dpmfoam"]["answers"].get(key, float("nan"))))
-        lines.append(f"| {label}{f' [{unit}]' if unit else ''} | {' | '.join(row)} |")
+        lines.append(f"| {answer_label(key, q)} | {' | '.join(row)} |")
     times = [f"{gp['seconds']:.3g} s"] + ([f"{answer['field']['seconds']:.3g} s"] if "field" in answer else []) + \
         ([f"{answer['dpmfoam']['seconds']:.3g} s"] if "dpmfoam" in answer else [])
     lines.append(f"| answer time | {' | '.join(times)} |")

@@ -45,6 +45,16 @@ def quantities(lacey_time: float) -> dict[str, tuple[str, str, float]]:
             "lacey": (f"Lacey index after {lacey_time:g} s", "", 1.0)}
 
 
+def format_answer(key: str, v: float | None, q: dict[str, tuple[str, str, float]]) -> str:
+    """A value in its unit as `predict fb` and the explorer show it ('-' when there is none)."""
+    return "-" if v is None or not np.isfinite(v) else f"{q[key][2] * v:.{3 if key == 'lacey' else 2}f}"
+
+
+def answer_label(key: str, q: dict[str, tuple[str, str, float]]) -> str:
+    name, unit, _ = q[key]
+    return f"{name}{f' [{unit}]' if unit else ''}"
+
+
 @dataclass(frozen=True)
 class AnswerWindow:
     """Where the answers are read: snapshots START_SNAPSHOT .. duration, Lacey at lacey_time."""
