@@ -13,6 +13,15 @@ VENV=${NEURALDEM_VENV:-$ROOT/.venv}
 PY=${PYTHON:-python3.11}
 command -v "$PY" >/dev/null 2>&1 || PY=python3
 say() { printf '[setup] %s\n' "$*"; }
+# apt_install WHY PACKAGE...: system packages with apt-get (sudo when not root), saying what and why
+apt_install() {
+  local why=$1; shift
+  local SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  say "installing $* with apt-get ($why)"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "$@" >/dev/null
+  say "installed $*"
+}
 
 # ---- solvers (system packages)
 need_apt=()
@@ -23,11 +32,7 @@ if [ "${NEURALDEM_NO_SOLVERS:-0}" = 1 ]; then
 elif [ ${#need_apt[@]} -eq 0 ]; then
   say "solvers present: $(command -v liggghts), $(command -v DPMFoam)"
 elif command -v apt-get >/dev/null 2>&1; then
-  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-  say "installing ${need_apt[*]} with apt-get (LIGGGHTS 3.8 and OpenFOAM v1912 on Debian 12; a few minutes)"
-  $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${need_apt[@]}" >/dev/null
-  say "installed ${need_apt[*]}"
+  apt_install "LIGGGHTS 3.8 and OpenFOAM v1912 on Debian 12; a few minutes" "${need_apt[@]}"
 else
   say "WARNING: no apt-get here: install LIGGGHTS 3.8 and OpenFOAM v1912 yourself (see README); continuing"
 fi
@@ -41,11 +46,7 @@ if [ "${NEURALDEM_NO_BROWSER:-0}" = 1 ]; then
 elif [ ${#need_browser[@]} -eq 0 ]; then
   say "browser present: $(command -v chromium), $(command -v chromedriver)"
 elif command -v apt-get >/dev/null 2>&1; then
-  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
-  say "installing ${need_browser[*]} with apt-get (headless Chromium for the explorer's tests)"
-  $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${need_browser[@]}" >/dev/null
-  say "installed ${need_browser[*]}"
+  apt_install "headless Chromium for the explorer's tests" "${need_browser[@]}"
 else
   say "WARNING: no apt-get here: install chromium and chromedriver yourself for the explorer's tests; continuing"
 fi
