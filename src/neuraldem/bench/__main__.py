@@ -38,6 +38,8 @@ BENCHMARKS = {
                   "neuraldem predict fb: answer times, and GP / field model vs DPMFoam where --verify checked"),
     "serve_latency": ("neuraldem.bench.serve_latency",
                       "neuraldem serve in headless Chromium: slider move to updated numbers / particles, 20 moves"),
+    "cluster_cost": ("neuraldem.bench.cluster_cost",
+                     "CPU-hours of paper-scale datasets (hopper at 5k / 50k / 250k particles, bed trajectories)"),
     "all": ("neuraldem.bench.suite:run_all", "the hopper benchmarks above, and the fluidized bed's with --fb-ckpt"),
     "render": ("neuraldem.bench.suite:render", "redraw every figure and table from the results files"),
     "seed_floor": ("neuraldem.scenes.hopper.bench.seed_floor",

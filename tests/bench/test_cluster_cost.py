@@ -1,0 +1,73 @@
+"""`neuraldem bench cluster_cost` on synthetic result files (made up here, labelled so: no solver runs) with
+known answers: measured counts are read off, a power law is extrapolated exactly, CPU-hours scale with the
+batch, and results of the wrong benchmark or lacking a field are refused by name."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from neuraldem.bench.cluster_cost import hopper_points, hopper_run_cost, main
+from neuraldem.bench.report import write_results
+from neuraldem.errors import DataError
+
+COUNTS = (2000, 5000, 10000, 20000, 50000)
+
+
+def settle(n: float) -> float:  # synthetic: 1e-3 N^1.25 s
+    return 1e-3 * n ** 1.25
+
+
+def drain(n: float) -> float:  # synthetic: 2e-3 N^1.1 s
+    return 2e-3 * n ** 1.1
+
+
+def synthetic_scaling(tmp_path: Path) -> Path:
+    points = [{"n_particles": n, "measured": {"settle_s": settle(n), "drain_particle_steps_per_s": 2e6},
+               "extrapolated": {"drain_s": drain(n), "full_run_s": settle(n) + drain(n)}} for n in COUNTS]
+    points[1]["full_run_measured"] = {"process_cpu_s": 50.0}
+    results = {"solver": {"points": points, "drain_profile": {"drain_time_s": 3.5}}}
+    return write_results("hopper_scaling", results, command="synthetic", path=tmp_path / "hopper_scaling.json")
+
+
+def synthetic_fb_speed(tmp_path: Path) -> Path:
+    results = {"n_particles": 1000, "cells": [12, 1, 30], "dt": 0.01, "solver": {"DPMFoam, dataset manifest": {
+        "median_cpu_s": 100.0, "repeats": 4, "dataset": "synthetic",
+        "per_simulation": {"median_cpu_s": 320.0, "simulated_s": [3.2, 3.2, 3.2, 3.2]}}}}
+    return write_results("fb_speed", results, command="synthetic", path=tmp_path / "fb_speed.json")
+
+
+def test_measured_counts_are_read_and_a_power_law_is_extrapolated_exactly(tmp_path: Path):
+    points = hopper_points(json.loads(synthetic_scaling(tmp_path).read_text())["results"])
+    measured = hopper_run_cost(points, 5000)
+    assert measured["run_s"] == pytest.approx(settle(5000) + drain(5000))
+    assert "a full run measured 50 CPU s" in measured["source"]
+    far = hopper_run_cost(points, 250000)
+    assert far["settle_s_exponent"] == pytest.approx(1.25) and far["drain_s_exponent"] == pytest.approx(1.1)
+    assert far["run_s"] == pytest.approx(settle(250000) + drain(250000), rel=1e-9)
+    assert "extrapolated" in far["source"]
+
+
+def test_cpu_hours_per_batch_and_the_bed(tmp_path: Path):
+    out = tmp_path / "cluster_cost.json"
+    assert main(["--hopper-scaling", str(synthetic_scaling(tmp_path)), "--fb-speed", str(synthetic_fb_speed(tmp_path)),
+                 "--hopper-runs", "1000", "--bed-trajectories", "10", "--out", str(out)]) == 0
+    res = json.loads(out.read_text())["results"]
+    by_n = {r["n_particles"]: r for r in res["hopper"]}
+    assert by_n[50000]["cpu_hours_per_batch"] == pytest.approx((settle(50000) + drain(50000)) * 1000 / 3600)
+    bed = {t["trajectory"]: t for t in res["bed_trajectories_cost"]}
+    # fb_small: 0.2 s spin-up + 3 s (training) or 30 s (long), at 100 CPU s per simulated second
+    assert bed["training (3 s stored)"]["cpu_s"] == pytest.approx(320.0)
+    assert bed["long test (30 s stored)"]["cpu_hours_per_batch"] == pytest.approx(30.2 * 100 * 10 / 3600)
+    assert "| 250,000 |" in out.with_suffix(".md").read_text()
+
+
+def test_wrong_or_incomplete_inputs_are_refused_by_name(tmp_path: Path):
+    fb = synthetic_fb_speed(tmp_path)
+    with pytest.raises(DataError, match="not 'hopper_scaling'"):
+        main(["--hopper-scaling", str(fb), "--fb-speed", str(fb), "--out", str(tmp_path / "x.json")])
+    broken = write_results("hopper_scaling", {"solver": {}}, command="synthetic", path=tmp_path / "broken.json")
+    with pytest.raises(DataError, match="lack solver.points"):
+        main(["--hopper-scaling", str(broken), "--fb-speed", str(fb), "--out", str(tmp_path / "x.json")])
