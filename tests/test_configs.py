@@ -18,9 +18,18 @@ def test_there_are_experiments():
 
 @pytest.mark.solver
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
-def test_experiment_builds(experiment: str, compose_train_cfg, request: pytest.FixtureRequest):
+def test_experiment_builds(experiment: str, compose_train_cfg, request: pytest.FixtureRequest, tmp_path):
     # the tiny real dataset of the experiment's kind stands in for its own (built by the same pipeline)
     kind = compose_train_cfg(f"experiment={experiment}").data.kind
+    if kind == "gns_export":  # trained from an export (`neuraldem export`): one of the tiny hopper stands in
+        from neuraldem.export.__main__ import export_dataset
+
+        export_dataset("gns", request.getfixturevalue("hopper_tiny_dataset"), tmp_path / "export", exits="hold")
+        cfg = compose_train_cfg(f"experiment={experiment}", f"data.export_dir={tmp_path / 'export'}")
+        module = instantiate(cfg.model, datamodule=instantiate(cfg.data.datamodule), _recursive_=False)
+        assert cfg.task_name == experiment and module.metadata["scene_kind"] == "hopper"
+        assert module.net.n_scalars == len(module.metadata["conditioning"]) and module.net.n_extra_walls == 0
+        return
     tiny = {"hopper": "hopper_tiny", "hopper_refill": "hopper_refill_tiny", "fluidized_bed": "fb_tiny"}[kind]
     dataset = request.getfixturevalue(f"{tiny}_dataset")
     overrides = [f"data.dataset_dir={dataset}", f"data.name={tiny}"]

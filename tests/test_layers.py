@@ -2,7 +2,8 @@
 
 Shared layers first (solver runners, data helpers, models, the LightningModule base, evaluation helpers, bench
 primitives), then the scenes (each a folder holding its solver use, store, metrics, model and evaluation), then
-the GNS baseline (it reads every scene's store), then what composes scenes (the charts over scenes, the commands).
+the GNS baseline (it reads every scene's store), then the exports (they read runs as the GNS does, and train it
+from what they wrote), then what composes scenes (the charts over scenes, the commands).
 Imports inside functions count too: a lazy import is still a dependency.
 """
 
@@ -30,6 +31,7 @@ LAYERS = [
                           "neuraldem.bench.__init__"]),
     ("scenes", ["neuraldem.scenes"]),
     ("gns", ["neuraldem.gns"]),
+    ("export", ["neuraldem.export"]),
     ("composition", ["neuraldem.bench", "neuraldem.datagen", "neuraldem.train", "neuraldem.evaluate",
                      "neuraldem.rollout", "neuraldem.doctor", "neuraldem.__main__",
                      "neuraldem.pretrained", "neuraldem.predict", "neuraldem.predict_fb", "neuraldem.scan",

@@ -3,7 +3,7 @@
 Two argument styles, one per kind of command:
 - runs composed from the config tree take Hydra overrides (`key=value`, `-m` for sweeps, `--cfg job` to
   print the composed config): datagen, train, evaluate, rollout;
-- tools that read files take flags (`--out DIR`): import, report, bench, transfer, doctor.
+- tools that read files take flags (`--out DIR`): import, report, bench, transfer, export, doctor.
 `neuraldem COMMAND --help` shows a command's own options. `python -m neuraldem.<module>` still works for each.
 """
 
@@ -47,6 +47,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
     },
     "bench": ("neuraldem.bench.__main__", "speed / accuracy benchmarks (results written to files)"),
     "transfer": ("neuraldem.scenes.hopper.transfer", "pack / unpack compact copies of a hopper dataset"),
+    "export": ("neuraldem.export.__main__", "a dataset for GNS (npz) or LagrangeBench (HDF5): export gns DATASET OUT"),
 }
 
 

@@ -40,7 +40,11 @@ def train(cfg: DictConfig) -> dict[str, float]:
     if cfg.model.get("net") is not None:  # the net's typed schema, before minutes go into loading data
         validate_net(cfg.model.net)
     check_resume_checkpoint(cfg)
-    require_dataset(Path(cfg.data.dataset_dir), str(cfg.data.name))
+    if OmegaConf.is_missing(cfg.data, "export_dir"):
+        raise ConfigError("data.export_dir is required: python -m neuraldem.train experiment=gns_export_tiny "
+                          "data.export_dir=DIR (a folder written by `neuraldem export gns`)")
+    if cfg.data.get("export_dir") is None:  # else trained from an export, which its datamodule reads
+        require_dataset(Path(cfg.data.dataset_dir), str(cfg.data.name))
 
     datamodule = instantiate_checked("data.datamodule", cfg.data.datamodule)
     module = instantiate_checked("model", cfg.model, datamodule=datamodule, _recursive_=False)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Self
@@ -163,16 +164,28 @@ class GnsNormalizer(DictStats):
     def fit(cls, runs: list[tuple[Path, dict[str, float]]], kind: str, scene: dict[str, Any], history: int,
             conditioning: list[str]) -> GnsNormalizer:
         """Statistics of the velocities and accelerations of every particle step of the training runs."""
+
+        def trajectories() -> Iterator[tuple[np.ndarray, float, float]]:
+            for path, _ in runs:
+                with ParticleRun(path, kind, scene) as run:  # validates every training file once
+                    yield run.positions(), run.dt, float(np.mean(run.diameters))
+
+        return cls.from_trajectories(trajectories(), [values for _, values in runs], kind, history, conditioning)
+
+    @classmethod
+    def from_trajectories(cls, trajectories: Iterable[tuple[np.ndarray, float, float]],
+                          values_of_runs: list[dict[str, float]], kind: str, history: int,
+                          conditioning: list[str]) -> GnsNormalizer:
+        """`fit` from (positions (T, N, 3) [m] with NaN = absent, dt [s], mean diameter [m]) per training run and
+        each run's conditioning scalars."""
         sums = {"v": [np.zeros(3), np.zeros(3), 0], "a": [np.zeros(3), np.zeros(3), 0]}
         lengths, dts, horizon = [], [], 0
-        for path, _ in runs:
-            with ParticleRun(path, kind, scene) as run:  # validates every training file once
-                x = run.positions()
-                lengths.append(float(np.mean(run.diameters)))
-                dts.append(run.dt)
-                horizon = max(horizon, run.n_snapshots - 1)
-            v = (x[1:] - x[:-1]) / run.dt
-            a = (x[2:] - 2 * x[1:-1] + x[:-2]) / run.dt**2
+        for x, dt, diameter in trajectories:
+            lengths.append(diameter)
+            dts.append(dt)
+            horizon = max(horizon, len(x) - 1)
+            v = (x[1:] - x[:-1]) / dt
+            a = (x[2:] - 2 * x[1:-1] + x[:-2]) / dt**2
             for key, arr in (("v", v), ("a", a)):
                 ok = arr[np.isfinite(arr).all(axis=-1)]
                 sums[key][0] += ok.sum(axis=0)
@@ -188,9 +201,9 @@ class GnsNormalizer(DictStats):
             mean = s / n
             std = np.sqrt(np.maximum(s2 / n - mean**2, 0.0))
             stats[key] = (mean.tolist(), np.maximum(std, STD_FLOOR * std.max() + 1e-12).tolist())
-        values = {name: [vals[name] for _, vals in runs if name in vals] for name in conditioning}
+        values = {name: [vals[name] for vals in values_of_runs if name in vals] for name in conditioning}
         for name, vals in values.items():
-            if len(vals) < len(runs):
+            if len(vals) < len(values_of_runs):
                 raise DataError(f"conditioning scalar {name!r} is missing for some training runs; run datagen "
                                 "with data.characterization.enabled=true")
         return cls(kind=kind, length=float(np.mean(lengths)), dt=float(dts[0]), history=history,
@@ -237,6 +250,10 @@ class GnsSamples(FileSamples):
     def _open_file(self, s: int) -> ParticleRun:
         return ParticleRun(self.dir / str(self.records[s].file), self.kind, self.scene, validate=False)
 
+    def conditioning(self, s: int) -> dict[str, float]:
+        """The conditioning scalars of run `s`."""
+        return self.records[s].conditioning()
+
     def sample(self, i: int, rng: np.random.Generator) -> Data:
         s, t = self.items[i]
         run, norm = self._open(s), self.norm
@@ -253,7 +270,7 @@ class GnsSamples(FileSamples):
             hist = hist[0][None] + dt * np.concatenate([np.zeros((1, len(nodes), 3)),
                                                         np.cumsum(np.moveaxis(v, 1, 0), axis=0)])
             accel = accel - noise[:, -1] / dt  # one step from the noisy state reaches the true next velocity
-        scalars = norm.scalars(self.records[s].conditioning())
+        scalars = norm.scalars(self.conditioning(s))
         x = graph_inputs(norm, run, hist, scalars)
         target = torch.from_numpy(norm.acceleration(accel).astype(np.float32))
         return Data(num_nodes=len(nodes), y=target, mask=torch.from_numpy(mask), **x)

@@ -242,8 +242,14 @@ def score(r: GnsRollout, run: ParticleRun, manifest: Manifest) -> dict[str, Any]
 
 # ---- checkpoints and files
 def load_gns_checkpoint(path: Path, device: str = "cpu") -> GnsModule:
-    """A trained GNS; a checkpoint of another kind is refused with a message."""
-    return read_checkpoint(path).module("gns", device, "a GNS rollout")
+    """A trained GNS; a checkpoint of another kind, or one trained from an export, is refused with a message."""
+    module = read_checkpoint(path).module("gns", device, "a GNS rollout")
+    export = module.metadata.get("export")
+    if export:
+        raise DataError(f"{path} is a GNS trained from the export {export['dir']}, which sees the scene's walls "
+                        "only as its box: rollouts replay stored runs with the scene's walls",
+                        "roll out a GNS trained on the dataset itself (experiment=gns_hopper or gns_fb)")
+    return module
 
 
 def run_gns_rollout(ckpt: Path, out_dir: Path | None = None, sim: str | None = None, steps: int | None = None,
