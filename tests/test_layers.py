@@ -21,7 +21,7 @@ LAYERS = [
     ("base", ["neuraldem.errors", "neuraldem.paths", "neuraldem.machine", "neuraldem.cli", "neuraldem.config",
               "neuraldem.__init__"]),
     ("sim", ["neuraldem.sim"]),
-    ("data", ["neuraldem.data", "neuraldem.datagen.driver", "neuraldem.datagen.sampling",
+    ("data", ["neuraldem.data", "neuraldem.datagen.driver", "neuraldem.datagen.records", "neuraldem.datagen.sampling",
               "neuraldem.datagen.__init__"]),
     ("models", ["neuraldem.models"]),
     ("lit", ["neuraldem.lit"]),

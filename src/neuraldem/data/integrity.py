@@ -7,8 +7,8 @@ folders. The lock is an OS file lock (`filelock`): a killed writer releases it w
 `verify_recorded_checksum` is called by every dataset reader before it opens a file: the file's SHA-256 must
 be the one in the dataset's `manifest.json`. A digest is computed once per process and file (cached by path,
 size and modification time), so a datamodule that opens the same file again pays only a `stat`. A writer
-reading back what it is writing (before the manifest has the new checksum) holds the dataset's lock, and
-reads of its own dataset are not checked.
+reading back what it is writing (before the manifest has the new checksum) holds the dataset's lock (or is an
+array task of the process that holds it, `writing_for`), and reads of its own dataset are not checked.
 """
 
 from __future__ import annotations
@@ -70,6 +70,19 @@ def dataset_lock(dataset_dir: Path, command: str, wait_s: float = 0.0) -> Iterat
         _WRITING.discard(dataset_dir)
         (dataset_dir / HOLDER_NAME).unlink(missing_ok=True)
         lock.release()
+
+
+@contextmanager
+def writing_for(dataset_dir: Path) -> Iterator[None]:
+    """Inside an array task of a datagen (neuraldem.datagen.executors): the task writes part of the dataset for the
+    datagen that submitted it (which holds the lock, or left the job in the dataset's array_jobs.json) and reads
+    back its own new files before the manifest has their checksums, as the lock holder does."""
+    dataset_dir = Path(dataset_dir).resolve()
+    _WRITING.add(dataset_dir)
+    try:
+        yield
+    finally:
+        _WRITING.discard(dataset_dir)
 
 
 @functools.lru_cache(maxsize=8192)

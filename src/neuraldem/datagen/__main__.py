@@ -3,12 +3,17 @@
 Runs the real solver for every simulation of a dataset that is not finished yet, side by side on
 `workers` cores (serial solver processes; MPI on few cores only burns CPU), and keeps the manifest up to
 date after every simulation. Kill it any time and start it again: finished simulations are kept.
+
+`executor=slurm executor.partition=... executor.array_parallelism=...` runs them as a Slurm job array instead
+(`executor.dry_run=true` writes its sbatch script only), `executor=submitit_local` as separate processes here
+(neuraldem.datagen.executors, docs/cluster_datagen.md).
 """
 
 from __future__ import annotations
 
 import logging
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 from omegaconf import DictConfig
@@ -17,6 +22,7 @@ from neuraldem.cli import hydra_app
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest
 from neuraldem.datagen.driver import DatagenOptions, Pipeline, cpu_count, generate
+from neuraldem.datagen.executors import ExecutorSettings, dry_run, make_runner, require_backend
 from neuraldem.errors import ConfigError
 from neuraldem.scenes import scene
 
@@ -67,11 +73,21 @@ def first_ids(value: object) -> tuple[str, ...]:
 def main(cfg: DictConfig) -> None:
     n_sims = checks.positive_int("n_sims", cfg.n_sims)
     workers = checks.positive_int("workers", cfg.workers)
-    if workers > cpu_count():
-        log.warning("workers=%d > %d cores: runs will share cores and each gets slower", workers, cpu_count())
+    executor = ExecutorSettings.from_config(cfg.get("executor"))
+    require_backend(executor)
+    parallel = workers if executor.kind == "local" else executor.array_parallelism
+    if executor.kind != "slurm" and parallel > cpu_count():
+        log.warning("%d simulations at a time > %d cores: runs will share cores and each gets slower", parallel,
+                    cpu_count())
     pipe = make_pipeline(cfg.data)
-    m = generate(pipe, DatagenOptions(n_sims=n_sims, workers=workers, retry_failed=bool(cfg.retry_failed),
-                                      progress=bool(cfg.progress), first=first_ids(cfg.get("first"))))
+    run_dir = Path(cfg.paths.output_dir)
+    opts = DatagenOptions(n_sims=n_sims, workers=workers, retry_failed=bool(cfg.retry_failed),
+                          progress=bool(cfg.progress), first=first_ids(cfg.get("first")),
+                          runner=make_runner(executor, run_dir))
+    if executor.dry_run:
+        dry_run(pipe, opts, executor, run_dir)
+        return
+    m = generate(pipe, opts)
     for line in summary_lines(m, n_sims):
         print(line)
 

@@ -1,9 +1,11 @@
 """The resumable datagen loop shared by all scenes: manifest, parameter table, workers, progress.
 
 A scene plugs in a `Pipeline` (how to run and store one simulation, how to split). The loop:
-load or create the manifest (refusing a dataset made with a different scene), extend the parameter table,
-run every unfinished simulation on `workers` threads (each thread drives one serial solver process), and
-save the manifest after every finished simulation. Killed and restarted, it redoes only unfinished work.
+load or create the manifest (refusing a dataset made with a different scene), merge the results array tasks left
+in record files (neuraldem.datagen.records), extend the parameter table, run every unfinished simulation through
+a `SimRunner` (by default `workers` threads, each driving one serial solver process; neuraldem.datagen.executors
+runs them as submitit/Slurm array tasks), and save the manifest after every finished simulation. Killed and
+restarted, it redoes only unfinished work.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from tqdm import tqdm
 from neuraldem.data.integrity import command_line, dataset_lock
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import TMP_SUFFIX, sha256
+from neuraldem.datagen.records import drop_records, earlier_jobs_error, merge_records, still_running
 from neuraldem.errors import ConfigError, DataError, NeuraldemError, SolverInterrupted
 
 log = logging.getLogger(__name__)
@@ -79,6 +82,7 @@ class DatagenOptions:
     retry_failed: bool = False
     progress: bool = True
     first: tuple[str, ...] = ()  # sim ids run before the scene's own order (e.g. a long test trajectory)
+    runner: SimRunner | None = None  # where the simulations run; default: `workers` threads (ThreadRunner)
 
 
 def open_manifest(pipe: Pipeline) -> Manifest:
@@ -145,10 +149,12 @@ def generate(pipe: Pipeline, opts: DatagenOptions) -> Manifest:
         return _generate(pipe, opts)
 
 
-def _generate(pipe: Pipeline, opts: DatagenOptions) -> Manifest:
-    pipe.dataset_dir.mkdir(parents=True, exist_ok=True)
-    remove_partials(pipe.dataset_dir)
+def plan(pipe: Pipeline, opts: DatagenOptions) -> tuple[Manifest, list[SimRecord], list[str]]:
+    """Open the manifest, merge the results array tasks left in record files, adjust it to the current settings,
+    extend the table to `n_sims`, and list the simulations still to run in the order they run; also returns the
+    record files read (delete them once the manifest is saved). Changes nothing on disk (a dry run calls this)."""
     m = open_manifest(pipe)
+    merged, ignored = merge_records(m, pipe.dataset_dir)
     pipe.prepare(m)
     extend_table(m, pipe, opts.n_sims)
     todo = [r for r in m.simulations[: opts.n_sims] if needs_run(r, pipe, opts.retry_failed)]
@@ -156,42 +162,101 @@ def _generate(pipe: Pipeline, opts: DatagenOptions) -> Manifest:
         if rec.status == "failed":  # retried from scratch
             rec.status, rec.reason = "pending", ""
     todo = put_first(pipe.run_order(todo, m), opts.first, m.simulations[: opts.n_sims])
+    return m, todo, merged + ignored
+
+
+def _generate(pipe: Pipeline, opts: DatagenOptions) -> Manifest:
+    pipe.dataset_dir.mkdir(parents=True, exist_ok=True)
+    refuse_while_earlier_jobs_run(pipe)
+    remove_partials(pipe.dataset_dir)
+    m, todo, read = plan(pipe, opts)
     done = opts.n_sims - len(todo)
     m.splits = pipe.splits(m)
     m.save(pipe.dataset_dir)
-    log.info("%s: %d simulations, %d finished, %d to run on %d worker(s)", pipe.name, opts.n_sims, done,
-             len(todo), opts.workers)
+    drop_records(pipe.dataset_dir, read)
+    runner = opts.runner or ThreadRunner(opts.workers)
+    log.info("%s: %d simulations, %d finished, %d to run %s", pipe.name, opts.n_sims, done, len(todo),
+             runner.describe())
     counts = Counter(r.status for r in m.simulations[: opts.n_sims] if r not in todo)
     bar = tqdm(total=opts.n_sims, initial=done, desc=pipe.name, unit="sim", disable=not opts.progress,
                dynamic_ncols=True)
-    interrupted: SolverInterrupted | None = None
-    with ThreadPoolExecutor(max_workers=opts.workers) as pool:
-        pending: dict[Future[SimRecord], SimRecord] = {pool.submit(_run_safely, pipe.run, r): r for r in todo}
-        while pending:
-            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in finished:
-                old = pending.pop(fut)
-                if fut.cancelled():
-                    continue
-                try:
-                    new = fut.result()
-                except SolverInterrupted as err:  # stays pending; queued ones never start, running ones finish
-                    interrupted = interrupted or err
-                    for queued in pending:
-                        queued.cancel()
-                    continue
-                m.simulations[m.simulations.index(old)] = new
-                counts[new.status] += 1
-                m.splits = pipe.splits(m)
-                m.save(pipe.dataset_dir)
-                bar.update(1)
-                bar.set_postfix(dict(counts))
-                if new.status != "ok":
-                    bar.write(f"{new.sim_id}: {new.status}: {new.reason}")
-    bar.close()
-    if interrupted is not None:
-        raise interrupted
+
+    def finished(new: SimRecord) -> None:
+        row = next(k for k, r in enumerate(m.simulations) if r.sim_id == new.sim_id)
+        m.simulations[row] = new
+        counts[new.status] += 1
+        m.splits = pipe.splits(m)
+        m.save(pipe.dataset_dir)
+        bar.update(1)
+        bar.set_postfix(dict(counts))
+        if new.status != "ok":
+            bar.write(f"{new.sim_id}: {new.status}: {new.reason}")
+
+    try:
+        runner.run(pipe, todo, finished)
+    finally:
+        bar.close()
     return m
+
+
+def refuse_while_earlier_jobs_run(pipe: Pipeline) -> None:
+    """Array jobs of an earlier datagen that may still run: merge what they finished, then refuse to start
+    (a second run of their simulations would write the same folders)."""
+    running, unknown = still_running(pipe.dataset_dir)
+    if not running and not unknown:
+        return
+    merged: list[str] = []
+    if (pipe.dataset_dir / MANIFEST_NAME).exists():
+        m = open_manifest(pipe)
+        merged, ignored = merge_records(m, pipe.dataset_dir)
+        if merged:
+            m.splits = pipe.splits(m)
+            m.save(pipe.dataset_dir)
+        drop_records(pipe.dataset_dir, merged + ignored)
+    raise earlier_jobs_error(pipe.dataset_dir, running, unknown, len(merged))
+
+
+class SimRunner(Protocol):
+    """Runs simulations somewhere (threads here, array tasks elsewhere) and reports each finished one."""
+
+    def describe(self) -> str:
+        """How they run, for the log line (e.g. `on 2 worker(s)`)."""
+
+    def run(self, pipe: Pipeline, todo: list[SimRecord], finished: Callable[[SimRecord], None]) -> None:
+        """Run every record of `todo` (`pipe.run`), calling `finished` with each resulting record as it comes
+        (in this process, one at a time). A simulation stopped from outside stays pending and ends the run with
+        an error once the others are in."""
+
+
+@dataclass
+class ThreadRunner:
+    """executor=local: `workers` threads in this process, each driving one serial solver process."""
+
+    workers: int
+
+    def describe(self) -> str:
+        return f"on {self.workers} worker(s)"
+
+    def run(self, pipe: Pipeline, todo: list[SimRecord], finished: Callable[[SimRecord], None]) -> None:
+        interrupted: SolverInterrupted | None = None
+        with ThreadPoolExecutor(max_workers=self.workers) as pool:
+            pending: dict[Future[SimRecord], SimRecord] = {pool.submit(run_safely, pipe.run, r): r for r in todo}
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    pending.pop(fut)
+                    if fut.cancelled():
+                        continue
+                    try:
+                        new = fut.result()
+                    except SolverInterrupted as err:  # stays pending; queued ones never start, running ones finish
+                        interrupted = interrupted or err
+                        for queued in pending:
+                            queued.cancel()
+                        continue
+                    finished(new)
+        if interrupted is not None:
+            raise interrupted
 
 
 def put_first(todo: list[SimRecord], first: tuple[str, ...], table: list[SimRecord]) -> list[SimRecord]:
@@ -204,7 +269,7 @@ def put_first(todo: list[SimRecord], first: tuple[str, ...], table: list[SimReco
     return sorted(todo, key=lambda r: first.index(r.sim_id) if r.sim_id in first else len(first))
 
 
-def _run_safely(fn: Callable[[SimRecord], SimRecord], rec: SimRecord) -> SimRecord:
+def run_safely(fn: Callable[[SimRecord], SimRecord], rec: SimRecord) -> SimRecord:
     """A simulation that breaks in an unexpected way is recorded as failed; the others go on. A solver
     killed from outside is not a failure: it stops the job and the simulation stays pending."""
     try:
