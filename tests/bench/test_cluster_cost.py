@@ -64,6 +64,26 @@ def test_cpu_hours_per_batch_and_the_bed(tmp_path: Path):
     assert "| 250,000 |" in out.with_suffix(".md").read_text()
 
 
+def test_a_datasets_own_costs_are_its_manifests_medians(tmp_path: Path, hopper_tiny_dataset: Path):
+    """The real tiny hopper dataset (LIGGGHTS, with characterization) adds its recorded costs; a dataset made
+    without characterization is refused by name."""
+    import numpy as np
+
+    from neuraldem.bench.cluster_cost import dataset_costs
+    from neuraldem.data.manifest import Manifest
+
+    m = Manifest.load(hopper_tiny_dataset)
+    costs = dataset_costs(hopper_tiny_dataset)
+    key = "characterization_cpu_s"
+    expected = np.median([r.cost[key] for r in m.simulations if key in r.cost])
+    assert costs["median_cpu_s"] == pytest.approx(expected) and costs["n_particles"] == 500
+    for r in m.simulations:
+        r.cost.pop("characterization_cpu_s", None)
+    m.save(tmp_path)
+    with pytest.raises(DataError, match="records no characterization_cpu_s"):
+        dataset_costs(tmp_path)
+
+
 def test_wrong_or_incomplete_inputs_are_refused_by_name(tmp_path: Path):
     fb = synthetic_fb_speed(tmp_path)
     with pytest.raises(DataError, match="not 'hopper_scaling'"):

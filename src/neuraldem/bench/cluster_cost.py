@@ -84,14 +84,23 @@ def hopper_run_cost(points: list[dict[str, float]], n: int) -> dict[str, Any]:
     return out
 
 
-def characterization_cpu_s(dataset_dir: Path) -> dict[str, Any]:
+def dataset_costs(dataset_dir: Path) -> dict[str, Any]:
+    """What the dataset's manifest recorded: the material characterization per parameter set and the solver CPU
+    seconds per stored run (a direct check of the read-off cost at the dataset's own particle count)."""
     m = Manifest.load(dataset_dir)
-    values = [r.cost["characterization_cpu_s"] for r in m.simulations
-              if math.isfinite(r.cost.get("characterization_cpu_s", math.nan))]
-    if not values:
+
+    def median(key: str) -> tuple[float, int]:
+        values = [r.cost[key] for r in m.simulations if math.isfinite(r.cost.get(key, math.nan))]
+        return (float(np.median(values)) if values else math.nan), len(values)
+
+    char_s, n_char = median("characterization_cpu_s")
+    run_s, n_run = median("cpu_s")
+    if not n_char:
         raise DataError(f"{dataset_dir}/manifest.json records no characterization_cpu_s: generate the dataset "
                         "with data.characterization.enabled=true, or leave --hopper-dataset out")
-    return {"median_cpu_s": float(np.median(values)), "n": len(values), "dataset": str(dataset_dir)}
+    return {"median_cpu_s": char_s, "n": n_char, "run_median_cpu_s": run_s, "runs": n_run,
+            "n_particles": int(m.scene.get("hopper", {}).get("n_particles", 0)),
+            "dataset": str(dataset_dir)}
 
 
 def bed_cost(fb_speed: dict[str, Any]) -> dict[str, Any]:
@@ -142,7 +151,9 @@ def markdown(res: dict[str, Any]) -> str:
     if ch:
         lines += ["", f"Material characterization (shear + heap, independent of the particle count): "
                       f"{ch['median_cpu_s']:.0f} CPU s per parameter set (median of {ch['n']}), "
-                      f"{ch['cpu_hours_per_batch']:.0f} CPU-hours for {n_runs} parameter sets."]
+                      f"{ch['cpu_hours_per_batch']:.0f} CPU-hours for {n_runs} parameter sets. The dataset's own "
+                      f"stored runs ({ch['n_particles']:,} particles) took {ch['run_median_cpu_s']:.0f} CPU s each "
+                      f"(median of {ch['runs']}, `{ch['dataset']}`)."]
     rates = ", ".join(f"{p['n_particles']:,}: {p['drain_particle_steps_per_s'] / 1e6:.2f} M"
                       for p in res["hopper_measured"])
     lines += ["", f"Measured drain rate, particle-steps per CPU second: {rates}."]
@@ -172,7 +183,7 @@ def build(scaling_path: Path, fb_path: Path, particles: list[int], n_runs: int, 
         "hopper_measured": points, "hopper": hopper,
     }
     if hopper_dataset is not None:
-        ch = characterization_cpu_s(hopper_dataset)
+        ch = dataset_costs(hopper_dataset)
         ch["cpu_hours_per_batch"] = ch["median_cpu_s"] * n_runs / HOUR
         res["characterization"] = ch
     bed = bed_cost(fb["results"])
