@@ -95,10 +95,13 @@ def dataset_costs(dataset_dir: Path) -> dict[str, Any]:
 
     char_s, n_char = median("characterization_cpu_s")
     run_s, n_run = median("cpu_s")
+    sizes = [(dataset_dir / r.file).stat().st_size / 1e6 for r in m.usable() if r.file
+             and (dataset_dir / r.file).is_file()]
     if not n_char:
         raise DataError(f"{dataset_dir}/manifest.json records no characterization_cpu_s: generate the dataset "
                         "with data.characterization.enabled=true, or leave --hopper-dataset out")
     return {"median_cpu_s": char_s, "n": n_char, "run_median_cpu_s": run_s, "runs": n_run,
+            "run_median_mb": float(np.median(sizes)) if sizes else math.nan,
             "n_particles": int(m.scene.get("hopper", {}).get("n_particles", 0)),
             "dataset": str(dataset_dir)}
 
@@ -154,6 +157,9 @@ def markdown(res: dict[str, Any]) -> str:
                       f"{ch['cpu_hours_per_batch']:.0f} CPU-hours for {n_runs} parameter sets. The dataset's own "
                       f"stored runs ({ch['n_particles']:,} particles) took {ch['run_median_cpu_s']:.0f} CPU s each "
                       f"(median of {ch['runs']}, `{ch['dataset']}`)."]
+        lines += ["", "Storage (the dataset's median file scaled with the particle count): " + ", ".join(
+            f"{r['n_particles']:,}: {r['stored_gb_per_batch']:.0f} GB" for r in res["hopper"])
+            + f" per {n_runs} runs."]
     rates = ", ".join(f"{p['n_particles']:,}: {p['drain_particle_steps_per_s'] / 1e6:.2f} M"
                       for p in res["hopper_measured"])
     lines += ["", f"Measured drain rate, particle-steps per CPU second: {rates}."]
@@ -186,6 +192,8 @@ def build(scaling_path: Path, fb_path: Path, particles: list[int], n_runs: int, 
         ch = dataset_costs(hopper_dataset)
         ch["cpu_hours_per_batch"] = ch["median_cpu_s"] * n_runs / HOUR
         res["characterization"] = ch
+        for r in hopper:  # stored positions grow with the particle count
+            r["stored_gb_per_batch"] = ch["run_median_mb"] * r["n_particles"] / ch["n_particles"] * n_runs / 1e3
     bed = bed_cost(fb["results"])
     spinup, durations = fb_durations()
     trajectories = bed_trajectories(bed, spinup, durations)
