@@ -2,6 +2,8 @@
 
 Outputs (checkpoints, logs, the composed config) go to the run folder under the data dir.
 `--cfg job` prints the composed config, `--help` lists the config groups, `-m` runs a Hydra sweep.
+Data-parallel training (trainer=ddp_cpu, trainer=ddp; docs/cluster_training.md): every process runs `train`,
+rank 0 alone writes checkpoints and logs and runs the evaluation after training.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from neuraldem.config.build import build_callbacks, build_loggers, build_trainer
 from neuraldem.data.manifest import require_dataset
 from neuraldem.errors import ConfigError, DataError, NeuraldemError
 from neuraldem.eval.checkpoints import differing_keys, read_checkpoint
+from neuraldem.lit import distributed
 from neuraldem.models.schemas import validate_net
 from neuraldem.scenes import scene
 
@@ -31,6 +34,7 @@ log = logging.getLogger(__name__)
 
 def train(cfg: DictConfig) -> dict[str, float]:
     """Fit the model of `cfg` on its dataset; return the final logged metrics (for sweeps and tests)."""
+    distributed.quiet_other_ranks()
     seed = checks.positive_int("seed", cfg.seed, allow_zero=True)
     L.seed_everything(seed, workers=True)
     for key in ("data", "model"):
@@ -51,6 +55,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
     loggers = build_loggers(cfg.get("logger"))
     trainer = build_trainer(cfg.trainer, callbacks=build_callbacks(cfg.get("callbacks"), with_logger=bool(loggers)),
                             loggers=loggers)
+    distributed.prepare(trainer, cfg)
     for lg in trainer.loggers:
         lg.log_hyperparams(OmegaConf.to_container(cfg, resolve=True))  # type: ignore[arg-type]
 
@@ -60,10 +65,11 @@ def train(cfg: DictConfig) -> dict[str, float]:
     if cfg.get("test"):
         trainer.test(module, datamodule=datamodule, ckpt_path="best" if trainer.checkpoint_callback else None)
         metrics.update({k: float(v) for k, v in trainer.callback_metrics.items() if v.numel() == 1})
+    distributed.finish(trainer)
     bad = [k for k, v in metrics.items() if not math.isfinite(v)]
     if bad:
         log.warning("non-finite metrics at the end of training: %s", bad)
-    if cfg.get("evaluate"):
+    if cfg.get("evaluate") and trainer.is_global_zero:  # one process writes the evaluation
         metrics.update(evaluate_after_training(cfg, trainer))
     return metrics
 

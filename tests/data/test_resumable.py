@@ -55,3 +55,35 @@ def test_sample_randomness_is_a_function_of_seed_and_draw():
     assert not np.array_equal(sample_rng(0, 5).random(3), sample_rng(0, 6).random(3))
     assert not np.array_equal(sample_rng(0, 5).random(3), sample_rng(1, 5).random(3))
     assert Draw(2, 9).index == 2
+
+
+def _batches(sampler: ResumableSampler, size: int) -> list[list[Draw]]:
+    draws = list(sampler)
+    return [draws[i:i + size] for i in range(0, len(draws) - size + 1, size)]
+
+
+@pytest.mark.parametrize("n,world,batch", [(23, 2, 4), (24, 3, 6), (10, 4, 8)])
+def test_processes_share_out_the_one_process_batches(n: int, world: int, batch: int):
+    """Data-parallel: process r takes positions r, r + W, ...; at each step the processes' batches of B / W are
+    together the one-process batch B, with its draw numbers (so each sample's randomness is the same)."""
+    one = ResumableSampler(n, seed=3)
+    one.set_epoch(2)
+    shards = [ResumableSampler(n, seed=3, rank=r, world=world) for r in range(world)]
+    for s in shards:
+        s.set_epoch(2)
+    reference = _batches(one, batch)
+    per_rank = [_batches(s, batch // world) for s in shards]
+    assert all(len(b) == len(reference) for b in per_rank)  # as many steps on every process
+    for step, expected in enumerate(reference):
+        got = [d for r in range(world) for d in per_rank[r][step]]
+        assert sorted(got) == sorted(expected)
+        assert per_rank[1][step][0] == expected[1]  # process r's row j is global row r + W j
+
+
+def test_a_process_resumes_at_its_share_of_the_saved_position():
+    s = ResumableSampler(20, seed=1, rank=1, world=2)
+    full = list(s)
+    s.skip_next(3)  # 3 of this process's samples done
+    assert list(s) == full[3:] and len(s) == 10
+    with pytest.raises(ValueError, match="rank 2 of 2"):
+        ResumableSampler(20, seed=1, rank=2, world=2)

@@ -127,8 +127,8 @@ def test_training_killed_at_random_points_equals_an_uninterrupted_run(hopper_tin
 
 @pytest.mark.solver
 def test_a_killed_bed_training_resumes_exactly(fb_tiny_dataset: Path, tmp_path: Path):
-    """The bed's training draws from the global RNG (unroll lengths, input noise): killed at step 5 and
-    resumed from its step-4 checkpoint, it ends with the uninterrupted run's weights."""
+    """The bed's training steps draw (unroll lengths, input noise, supernodes): killed at step 5 and resumed
+    from its step-4 checkpoint, it ends with the uninterrupted run's weights."""
     args = ("experiment=fb_quick", "logger=none", "evaluate=false", "trainer.max_steps=8", "callbacks.progress=null",
             "+callbacks.latest.every_n_train_steps=2", f"data.dataset_dir={fb_tiny_dataset}")
     env = {"NEURALDEM_DATA": str(tmp_path)}

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import re
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +16,7 @@ from omegaconf import DictConfig
 
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError
+from neuraldem.lit.distributed import JobDDPStrategy
 
 ACCELERATORS = ("auto", "cpu", "gpu", "cuda", "mps")
 ROLLOUT_METRICS = "val/rollout_"  # logged by neuraldem.scenes.fluidized_bed.rollout_validation.RolloutValidation
@@ -38,9 +41,36 @@ def check_trainer(cfg: DictConfig) -> None:
     clip = cfg.get("gradient_clip_val")
     if clip is not None:
         checks.positive("trainer.gradient_clip_val", clip)
-    devices = cfg.get("devices", "auto")
-    if devices not in ("auto", -1) and not isinstance(devices, str) and isinstance(devices, int):
-        checks.positive_int("trainer.devices", devices)
+    check_devices(cfg.get("devices", "auto"))
+    checks.positive_int("trainer.num_nodes", cfg.get("num_nodes", 1))
+    if cfg.get("use_distributed_sampler", False) is not False:
+        raise ConfigError(f"config value trainer.use_distributed_sampler={cfg.get('use_distributed_sampler')!r} is "
+                          "invalid: neuraldem's loaders split the data between processes themselves (Lightning's "
+                          "sampler would split it again)", "leave it at false")
+
+
+DEVICES_TEXT = re.compile(r"-1|\d+(,\d+)*,?")  # what Lightning reads from a string: a count, -1, GPU ids
+
+
+def check_devices(devices: object) -> None:
+    """trainer.devices: a number of processes (>= 1), -1 or auto (all GPUs / one CPU process), or GPU ids."""
+    fix = ("must be a number of processes (>= 1), -1 (every GPU), auto, or a list of GPU ids "
+           "(override it, e.g. trainer.devices=2)")
+    if isinstance(devices, bool):
+        ok = False
+    elif isinstance(devices, int):
+        ok = devices >= 1 or devices == -1
+    elif isinstance(devices, str):
+        ok = devices == "auto" or (DEVICES_TEXT.fullmatch(devices.strip()) is not None
+                                   and devices.strip() not in ("0", ""))
+    elif isinstance(devices, Sequence):
+        ids = list(devices)
+        ok = bool(ids) and all(isinstance(i, int) and not isinstance(i, bool) and i >= 0 for i in ids) \
+            and len(set(ids)) == len(ids)
+    else:
+        ok = False
+    if not ok:
+        raise ConfigError(f"config value trainer.devices={devices!r} is invalid: {fix}")
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
@@ -69,9 +99,11 @@ def build_trainer(cfg: DictConfig, callbacks: list[Any], loggers: list[Any]) -> 
         callbacks = [cb for cb in callbacks if not isinstance(cb, ProgressBar)]
     has_bar = any(isinstance(cb, ProgressBar) for cb in callbacks)
     try:
-        plugins = {} if cfg.get("plugins") else {"plugins": [AtomicCheckpointIO()]}  # a user's own plugins win
-        return instantiate(cfg, callbacks=callbacks, logger=loggers or False, enable_progress_bar=has_bar,
-                           **plugins)
+        extra: dict[str, Any] = {} if cfg.get("plugins") else {"plugins": [AtomicCheckpointIO()]}  # users' win
+        if cfg.get("strategy") == "ddp":  # the DDP that launches this Hydra job's config (lit.distributed)
+            extra["strategy"] = JobDDPStrategy()
+        extra["use_distributed_sampler"] = False  # our loaders split the batches (data.part_loaders)
+        return instantiate(cfg, callbacks=callbacks, logger=loggers or False, enable_progress_bar=has_bar, **extra)
     except Exception as err:  # Lightning's own validation (MisconfigurationException, ValueError, ...)
         msg = str(getattr(err, "__cause__", None) or err).strip().splitlines()[0]
         raise ConfigError(f"invalid trainer config: {msg}") from None

@@ -12,6 +12,8 @@ from lightning.pytorch.utilities.warnings import PossibleUserWarning
 from torch.utils.data import DataLoader
 
 from neuraldem.data.resumable import ResumableSampler, loader_generator
+from neuraldem.errors import ConfigError
+from neuraldem.lit.distributed import process_share, rank_batch_size
 
 
 class PartLoaders(L.LightningDataModule):
@@ -21,7 +23,15 @@ class PartLoaders(L.LightningDataModule):
 
     The training order comes from a `ResumableSampler` (weighted when `train_weights` returns weights), and
     the checkpoint stores where in it training was (`state_dict`): a resumed run's loader starts at that
-    batch, before any worker prefetches, so it continues with the samples an uninterrupted run would draw."""
+    batch, before any worker prefetches, so it continues with the samples an uninterrupted run would draw.
+
+    `batch_size` is the global batch. With W processes (data-parallel training, `lit.distributed`) a training
+    loader gives its process batch_size / W samples, its share of the one-process order: the processes'
+    batches of a step together are the one-process batch, and a run resumes with any number of processes.
+    Validation and test deal out the one-process batches themselves, whole (batch r, r + W, ... to process r;
+    all of them to every process when there are fewer than W), so that the epoch means the module logs
+    (`SurrogateModule`) are the one-process ones. Lightning must not replace these samplers
+    (`trainer.use_distributed_sampler=false`)."""
 
     loader_class: type = DataLoader
     datasets: dict
@@ -36,24 +46,39 @@ class PartLoaders(L.LightningDataModule):
 
     def _loader(self, part: str) -> DataLoader | list:
         dataset, train = self.datasets[part], part == "train"
-        if not len(dataset):
+        n = len(dataset)
+        if not n:
             return []
-        sampler = ResumableSampler(len(dataset), self.seed, self.train_weights()) if train else None
-        drop_last = train and len(dataset) >= self.batch_size
-        if sampler is not None and self._resume_at is not None:
-            self._position(sampler, len(dataset) // self.batch_size if drop_last
-                           else math.ceil(len(dataset) / self.batch_size))
-        return self.loader_class(dataset, batch_size=self.batch_size, sampler=sampler,
-                                 num_workers=self.num_workers, persistent_workers=self.num_workers > 0,
-                                 drop_last=drop_last, generator=loader_generator(self.seed))
+        rank, world = process_share(self.trainer)
+        workers = {"num_workers": self.num_workers, "persistent_workers": self.num_workers > 0,
+                   "generator": loader_generator(self.seed)}
+        if not train:
+            n_batches = math.ceil(n / self.batch_size)
+            if world == 1 or n_batches < world:
+                return self.loader_class(dataset, batch_size=self.batch_size, **workers)
+            batches = [list(range(i * self.batch_size, min(n, (i + 1) * self.batch_size)))
+                       for i in range(rank, n_batches, world)]
+            return self.loader_class(dataset, batch_sampler=batches, **workers)
+        batch_size = rank_batch_size(self.batch_size, world)
+        if world > 1 and n < self.batch_size:
+            raise ConfigError(f"config value data.datamodule.batch_size={self.batch_size} is invalid: the training "
+                              f"part has only {n} samples, fewer than one global batch for {world} processes",
+                              f"override it, e.g. data.datamodule.batch_size={n - n % world}")
+        sampler = ResumableSampler(n, self.seed, self.train_weights(), rank=rank, world=world)
+        drop_last = n >= self.batch_size
+        if self._resume_at is not None:
+            self._position(sampler, n // self.batch_size if drop_last else math.ceil(n / self.batch_size),
+                           batch_size)
+        return self.loader_class(dataset, batch_size=batch_size, sampler=sampler, drop_last=drop_last, **workers)
 
-    def _position(self, sampler: ResumableSampler, n_batches: int) -> None:
+    def _position(self, sampler: ResumableSampler, n_batches: int, batch_size: int) -> None:
+        """`n_batches` per epoch (global batches: as many per process); `batch_size` this process's."""
         at, self._resume_at = self._resume_at or {}, None
         epoch, done = at["epoch"], at["batches_done"]
         if done >= n_batches:  # saved at the end of an epoch: the next one starts afresh
             epoch, done = epoch + 1, 0
         sampler.set_epoch(epoch)
-        sampler.skip_next(done * self.batch_size)
+        sampler.skip_next(done * batch_size)
 
     def state_dict(self) -> dict[str, Any]:
         """Where training is: the epoch and the batches of it whose step has run (written with checkpoints)."""

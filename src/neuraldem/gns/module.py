@@ -64,7 +64,7 @@ class GnsModule(SurrogateModule):
         pred = self(batch)
         mask = batch.mask.float()
         err = (pred - batch.y).square().mean(dim=-1)
-        return {"loss": (err * mask).sum() / mask.sum().clamp(min=1.0)}
+        return {"loss": (err * mask).sum() / self.shared_count(mask.sum()).clamp(min=1.0)}
 
     def stage_losses(self, batch: Any, stage: str) -> dict[str, torch.Tensor]:
         return self.losses(batch)

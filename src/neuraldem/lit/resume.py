@@ -1,10 +1,13 @@
 """ExactResume: a run killed and resumed from its checkpoint continues as if it had never stopped.
 
 Lightning's checkpoint holds the weights, the optimizer, the schedule and the loop counters; the datamodule
-(`data.part_loaders.PartLoaders`) stores where in the epoch's sample order training was. What is still missing
-are the global RNG states (torch, numpy, python) that training steps draw from (push-forward unroll lengths,
-input noise, supernode picks): this callback writes them with every checkpoint and puts them back just before
-the first resumed step.
+(`data.part_loaders.PartLoaders`) stores where in the epoch's sample order training was, and the draws of our
+modules' training steps (unroll lengths, input noise, supernode picks) are keyed by the batch number
+(`lit.distributed.TrainingDraws`). What is still missing are the global RNG states (torch, numpy, python) for
+anything else that draws from them while training (a net of one's own with dropout): this callback writes them
+with every checkpoint and puts them back just before the first resumed step. Under DDP the checkpoint holds
+rank 0's states and every process resumes with them; our modules' draws do not depend on them, so a run resumes
+exactly with any number of processes (docs/cluster_training.md).
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ concentration carried by the predicted solids flux (`mixing=advect`).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -89,11 +90,17 @@ def grid_queries(inputs: OperatorInputs) -> torch.Tensor:
     return centres.expand(inputs.grid.shape[0], -1, -1)
 
 
-def sample_positions(solid_fraction: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+def sample_positions(solid_fraction: torch.Tensor, n: int,
+                     generator: torch.Generator | Sequence[torch.Generator] | None = None) -> torch.Tensor:
     """(B, n, 3) normalised positions drawn with density proportional to the solid fraction (B, nx, ny, nz).
 
     Negative and non-finite values count as empty; a field with no solid anywhere is sampled uniformly
-    (a diverging rollout is caught by its caller, not here)."""
+    (a diverging rollout is caught by its caller, not here). `generator`: one for the batch, or one per row
+    (a row's positions then depend on nothing else: the training draws of `neuraldem.lit.distributed`)."""
+    if isinstance(generator, Sequence):
+        if len(generator) != solid_fraction.shape[0]:
+            raise ValueError(f"{len(generator)} generators for {solid_fraction.shape[0]} rows")
+        return torch.cat([sample_positions(solid_fraction[i:i + 1], n, g) for i, g in enumerate(generator)])
     batch, shape = solid_fraction.shape[0], solid_fraction.shape[1:]
     weights = torch.nan_to_num(solid_fraction.reshape(batch, -1).float(), nan=0.0, posinf=0.0).clamp(min=0.0)
     weights = torch.where(weights.sum(dim=1, keepdim=True) > 0, weights, torch.ones_like(weights))
@@ -153,7 +160,8 @@ def apply_stability(fields: dict[str, torch.Tensor], inputs: OperatorInputs, nor
 
 def next_inputs(net: MultiBranchOperator, tokens: dict[str, torch.Tensor], cond: torch.Tensor,
                 fields: dict[str, torch.Tensor], inputs: OperatorInputs, norm: FbNormalizer, n_particles: int,
-                generator: torch.Generator | None = None, chunk_size: int | None = None) -> OperatorInputs:
+                generator: torch.Generator | Sequence[torch.Generator] | None = None,
+                chunk_size: int | None = None) -> OperatorInputs:
     """The next state as the next input: the grids, particles re-sampled from the solid fraction with the
     particle branch decoded at them (zero displacement for a grid-only model)."""
     shape = inputs.grid.shape[2:]

@@ -11,6 +11,10 @@ squared error of the change relative to that size, every channel weighted alike)
 change. The net is built here with as many input scalars as the data's conditioning list; checkpoints carry the data's
 metadata (scene, conditioning, normalisation, velocities seen in training) that rollouts and evaluation check
 before using a model.
+
+Training draws (the unroll length, input noise, supernodes, latent noise, the particles re-sampled between unrolled
+steps) come from `training_draws()`, per row of the global batch: the same with one process or several, and
+in a resumed run (`neuraldem.lit.distributed`). Outside training steps they come from torch's global RNG.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from omegaconf import DictConfig, OmegaConf
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError
 from neuraldem.lit.base import SurrogateModule
+from neuraldem.lit.distributed import TrainingDraws
 from neuraldem.lit.module_setup import loss_weight_settings, net_config_and_metadata
 from neuraldem.lit.optim import optimizer_settings, plain
 from neuraldem.models.multi_branch_operator import BRANCHES, OperatorInputs
@@ -97,34 +102,51 @@ class FluidizedBedModule(SurrogateModule):
             return {name: getattr(self, f"step_error_{name}") for name in ("particles", "fluid", "mixing")}
         return dict.fromkeys(("particles", "fluid", "mixing"), float(self.stability.input_noise))
 
-    def add_input_noise(self, x: OperatorInputs) -> OperatorInputs:
+    def add_input_noise(self, x: OperatorInputs, draws: TrainingDraws | None = None) -> OperatorInputs:
         std = self.noise_std()
         if all(not torch.is_tensor(v) and v == 0.0 for v in std.values()):
             return x
 
-        def noisy(t: torch.Tensor, s: torch.Tensor | float, channel_dim: int) -> torch.Tensor:
+        def noisy(name: str, t: torch.Tensor, s: torch.Tensor | float, channel_dim: int) -> torch.Tensor:
             if torch.is_tensor(s):
                 shape = [1] * t.ndim
                 shape[channel_dim] = -1
                 s = s.to(t.dtype).reshape(shape)
-            return t + s * torch.randn_like(t)
+            noise = torch.randn_like(t) if draws is None else \
+                draws.rows(f"input_noise/{name}", t.shape[0], t.shape[1:], dtype=t.dtype)
+            return t + s * noise
 
-        return replace(x, particle_features=noisy(x.particle_features, std["particles"], -1),
-                       grid=noisy(x.grid, std["fluid"], 1), mixing_grid=noisy(x.mixing_grid, std["mixing"], 1))
+        return replace(x, particle_features=noisy("particles", x.particle_features, std["particles"], -1),
+                       grid=noisy("fluid", x.grid, std["fluid"], 1),
+                       mixing_grid=noisy("mixing", x.mixing_grid, std["mixing"], 1))
 
     @torch.no_grad()
     def update_step_error(self, out: dict[str, torch.Tensor], targets: dict[str, torch.Tensor]) -> None:
         rate = self.stability.noise_ema if int(self.step_error_count) > 0 else 0.0
         for name in self.net.branches:
-            rms = (out[name] - targets[name]).float().square().mean(dim=tuple(range(out[name].ndim - 1))).sqrt()
+            # the mean square over the global batch (every process holds as many rows), then its root
+            ms = (out[name] - targets[name]).float().square().mean(dim=tuple(range(out[name].ndim - 1)))
+            rms = self.mean_over_ranks(ms).sqrt()
             buf = getattr(self, f"step_error_{name}")
             buf.mul_(rate).add_((1.0 - rate) * rms.clamp(max=1.0))
         self.step_error_count += 1
 
     # ---- losses
-    def draw_unroll(self) -> int:
+    def draw_unroll(self, draws: TrainingDraws | None = None) -> int:
         probs = torch.tensor(self.stability.unroll, dtype=torch.float64)
-        return int(torch.multinomial(probs, 1).item()) + 1
+        generator = None if draws is None else draws.batch_generator("unroll")
+        return int(torch.multinomial(probs, 1, generator=generator).item()) + 1
+
+    def keyed_inputs(self, x: OperatorInputs, draws: TrainingDraws, k: int, members: int) -> OperatorInputs:
+        """Step k's supernodes (and latent noise of a stochastic net) from the batch's training draws, rather
+        than drawn inside the net from the global RNG."""
+        rows = x.scalars.shape[0] // members
+        if self.net.particle_branch:
+            pick = draws.rows(f"supernodes/{k}", rows, (x.particle_pos.shape[1],), kind="uniform", members=members)
+            x = replace(x, supernode_idx=pick.topk(self.net.encoders["particles"].n_supernodes, dim=1).indices)
+        if self.net.noise_dim:
+            x = replace(x, noise=draws.rows(f"latent_noise/{k}", rows, (self.net.noise_dim,), members=members))
+        return x
 
     def branch_loss(self, pred: torch.Tensor, target: torch.Tensor, members: int) -> torch.Tensor:
         """MSE (one member) or the fair CRPS over `members` stacked along the batch (averaged over elements)."""
@@ -133,19 +155,22 @@ class FluidizedBedModule(SurrogateModule):
         return fair_crps(pred.reshape(members, -1, *pred.shape[1:]), target.reshape(members, -1,
                                                                                     *target.shape[1:])[0])
 
-    def losses(self, batch: dict[str, torch.Tensor], unroll: int = 1, train: bool = False) -> dict[str, torch.Tensor]:
+    def losses(self, batch: dict[str, torch.Tensor], unroll: int = 1, train: bool = False,
+               draws: TrainingDraws | None = None) -> dict[str, torch.Tensor]:
         """Per-branch losses (model units), averaged over the scored steps of a `unroll`-step rollout from the
-        batch's snapshot against its targets at t + 1 .. t + unroll."""
+        batch's snapshot against its targets at t + 1 .. t + unroll; `draws`: the training draws (else torch's
+        global RNG)."""
         members = self.stability.ensemble if train else 1
         x = self.inputs(batch)
         volume = batch.get("solid_volume")
         if volume is None:
             volume = solid_volume(x.grid, self.norm)
         if train:
-            x = self.add_input_noise(x)
+            x = self.add_input_noise(x, draws)
         if members > 1:
             x = repeat_members(x, members)
             volume = volume.repeat(members)
+        rows = x.scalars.shape[0] // members
         n_particles = x.particle_pos.shape[1]
         totals: dict[str, torch.Tensor] = {}
         scored = 0
@@ -153,6 +178,8 @@ class FluidizedBedModule(SurrogateModule):
             targets = {name: batch[f"target_{name}"][:, k] for name in self.net.branches}
             if members > 1:
                 targets = {name: t.repeat(members, *([1] * (t.ndim - 1))) for name, t in targets.items()}
+            if draws is not None:
+                x = self.keyed_inputs(x, draws, k, members)
             tokens, cond = self.net.latents(x)
             raw = decode_grid(self.net, tokens, cond, x, self.chunk_size, self.step_scales)
             fields = apply_stability(raw, x, self.norm, self.stability, volume)
@@ -176,16 +203,19 @@ class FluidizedBedModule(SurrogateModule):
                 scored += 1
             if k < unroll - 1:  # the next step starts from this one's prediction, without its graph
                 with torch.no_grad():
+                    generator = None if draws is None else draws.generators(f"positions/{k}", rows, members)
                     x = next_inputs(self.net, tokens, cond, {n: f.detach() for n, f in fields.items()}, x, self.norm,
-                                    n_particles, chunk_size=self.chunk_size)
+                                    n_particles, generator=generator, chunk_size=self.chunk_size)
         losses = {name: v / scored for name, v in totals.items()}
         losses["loss"] = sum(self.loss_weights[k] * losses[k] for k in self.net.branches)
         return losses
 
     def stage_losses(self, batch: dict[str, torch.Tensor], stage: str) -> dict[str, torch.Tensor]:
         """Training draws the unroll length per batch; validation and test score the one-step map."""
-        train = stage == "train"
-        return self.losses(batch, self.draw_unroll() if train else 1, train=train)
+        if stage != "train":
+            return self.losses(batch)
+        draws = self.training_draws()
+        return self.losses(batch, self.draw_unroll(draws), train=True, draws=draws)
 
 
 def fair_crps(members: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

@@ -91,6 +91,6 @@ class RolloutValidation(L.Callback):
         means = {k: float(np.mean([row[k] for row in rows])) for k in (*SCORE_TERMS, "score")}
         for k, v in means.items():
             name = "val/rollout_score" if k == "score" else f"val/rollout_{k}"
-            pl_module.log(name, v, on_step=False, on_epoch=True, batch_size=1)
+            pl_module.log(name, v, on_step=False, on_epoch=True, batch_size=1, sync_dist=True)
         log.info("rollout validation at step %d (%d velocities, %d steps): %s", trainer.global_step, len(rows),
                  self.steps, ", ".join(f"{k} {v:.4f}" for k, v in means.items()))

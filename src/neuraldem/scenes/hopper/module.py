@@ -46,13 +46,14 @@ class HopperModule(SurrogateModule):
         out = self.net(batch["scalars"], {"occupancy": batch["occupancy_pos"],
                                           "transport": batch["particle_pos"], "residence": batch["particle_pos"]})
         mask = batch["particle_mask"].float()
-        n = mask.sum().clamp(min=1.0)
+        # masked means: the count is shared between data-parallel processes (SurrogateModule.shared_count)
+        n = self.shared_count(mask.sum()).clamp(min=1.0)
         # refill data: material inserted after the reference time has no transport target
         tmask = batch["transport_mask"].float() if "transport_mask" in batch else mask
         losses = {
             "occupancy": F.binary_cross_entropy_with_logits(out["occupancy"][..., 0], batch["occupancy"]),
             "transport": (((out["transport"] - batch["transport"]) ** 2).mean(-1) * tmask).sum()
-            / tmask.sum().clamp(min=1.0),
+            / self.shared_count(tmask.sum()).clamp(min=1.0),
             "residence": (((out["residence"][..., 0] - batch["residence"]) ** 2) * mask).sum() / n,
         }
         with torch.no_grad():

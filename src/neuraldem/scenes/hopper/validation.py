@@ -110,6 +110,6 @@ class PractitionerValidation(L.Callback):
         values["val/count_abs_pct"] = 100 * float(np.mean([b[1] for b in biases]))
         values["val/practitioner_score"] = practitioner_score(agg, self.scales)
         for name, v in values.items():
-            pl_module.log(name, v, on_step=False, on_epoch=True, batch_size=1)
+            pl_module.log(name, v, on_step=False, on_epoch=True, batch_size=1, sync_dist=True)
         log.info("practitioner validation at step %d (%d runs): %s", trainer.global_step, len(records),
                  ", ".join(f"{k.removeprefix('val/')} {v:.3f}" for k, v in values.items()))
