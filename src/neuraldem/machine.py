@@ -10,6 +10,11 @@ from typing import Any
 import torch
 
 
+def cpu_count() -> int:
+    """CPU cores this process may run on (its affinity: a Slurm allocation or taskset, not the machine's)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def cpu_model() -> str:
     """The CPU's marketing name (from /proc/cpuinfo on Linux), else what `platform` knows."""
     cpuinfo = Path("/proc/cpuinfo")

@@ -54,7 +54,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
     module = instantiate_checked("model", cfg.model, datamodule=datamodule, _recursive_=False)
     loggers = build_loggers(cfg.get("logger"))
     trainer = build_trainer(cfg.trainer, callbacks=build_callbacks(cfg.get("callbacks"), with_logger=bool(loggers)),
-                            loggers=loggers)
+                            loggers=loggers, strategies=distributed.STRATEGIES)
     distributed.prepare(trainer, cfg)
     for lg in trainer.loggers:
         lg.log_hyperparams(OmegaConf.to_container(cfg, resolve=True))  # type: ignore[arg-type]

@@ -87,7 +87,7 @@ def _trainer(devices: int, strategy: object = "ddp"):
 
     cfg = {"_target_": "lightning.pytorch.Trainer", "accelerator": "cpu", "devices": devices, "strategy": strategy,
            "logger": False, "enable_checkpointing": False}
-    return build_trainer(OmegaConf.create(cfg), [], [])
+    return build_trainer(OmegaConf.create(cfg), [], [], strategies=distributed.STRATEGIES)
 
 
 def _job(batch_size: int = 4, devices: int = 2):

@@ -16,7 +16,6 @@ from omegaconf import DictConfig
 
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError
-from neuraldem.lit.distributed import JobDDPStrategy
 
 ACCELERATORS = ("auto", "cpu", "gpu", "cuda", "mps")
 ROLLOUT_METRICS = "val/rollout_"  # logged by neuraldem.scenes.fluidized_bed.rollout_validation.RolloutValidation
@@ -91,7 +90,10 @@ class AtomicCheckpointIO(TorchCheckpointIO):
             tmp.unlink(missing_ok=True)
 
 
-def build_trainer(cfg: DictConfig, callbacks: list[Any], loggers: list[Any]) -> L.Trainer:
+def build_trainer(cfg: DictConfig, callbacks: list[Any], loggers: list[Any],
+                  strategies: dict[str, Any] | None = None) -> L.Trainer:
+    """The Trainer of `cfg`; `strategies` maps a strategy name to the object that replaces it (the caller's DDP
+    that launches its own job, `lit.distributed.JobDDPStrategy`, for `trainer.strategy=ddp`)."""
     check_trainer(cfg)
     # the progress bar is the `callbacks.progress` entry; with it set to null there is none (Lightning would
     # otherwise add its default bar, which fills the logs of background runs)
@@ -100,8 +102,9 @@ def build_trainer(cfg: DictConfig, callbacks: list[Any], loggers: list[Any]) -> 
     has_bar = any(isinstance(cb, ProgressBar) for cb in callbacks)
     try:
         extra: dict[str, Any] = {} if cfg.get("plugins") else {"plugins": [AtomicCheckpointIO()]}  # users' win
-        if cfg.get("strategy") == "ddp":  # the DDP that launches this Hydra job's config (lit.distributed)
-            extra["strategy"] = JobDDPStrategy()
+        strategy = cfg.get("strategy")
+        if isinstance(strategy, str) and strategy in (strategies or {}):
+            extra["strategy"] = (strategies or {})[strategy]()
         extra["use_distributed_sampler"] = False  # our loaders split the batches (data.part_loaders)
         return instantiate(cfg, callbacks=callbacks, logger=loggers or False, enable_progress_bar=has_bar, **extra)
     except Exception as err:  # Lightning's own validation (MisconfigurationException, ValueError, ...)

@@ -13,7 +13,23 @@ from torch.utils.data import DataLoader
 
 from neuraldem.data.resumable import ResumableSampler, loader_generator
 from neuraldem.errors import ConfigError
-from neuraldem.lit.distributed import process_share, rank_batch_size
+
+
+def process_share(trainer: Any) -> tuple[int, int]:
+    """(global rank, number of processes) of a trainer; (0, 1) without one."""
+    if trainer is None:
+        return 0, 1
+    return int(trainer.global_rank), int(trainer.world_size)
+
+
+def rank_batch_size(batch_size: int, world: int, key: str = "data.datamodule.batch_size") -> int:
+    """The per-process batch of the global `batch_size` over `world` processes; refused if it does not divide."""
+    if world > 1 and batch_size % world:
+        ok = max(world, (batch_size // world) * world)
+        raise ConfigError(f"config value {key}={batch_size} is invalid: it is the global batch, split evenly over "
+                          f"{world} processes (trainer.devices x trainer.num_nodes), so it must be a multiple of "
+                          f"{world}", f"override it, e.g. {key}={ok}")
+    return batch_size // world
 
 
 class PartLoaders(L.LightningDataModule):

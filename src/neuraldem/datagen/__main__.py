@@ -21,9 +21,10 @@ from omegaconf import DictConfig
 from neuraldem.cli import hydra_app
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest
-from neuraldem.datagen.driver import DatagenOptions, Pipeline, cpu_count, generate
+from neuraldem.datagen.driver import DatagenOptions, Pipeline, generate
 from neuraldem.datagen.executors import ExecutorSettings, dry_run, make_runner, require_backend
 from neuraldem.errors import ConfigError
+from neuraldem.machine import cpu_count
 from neuraldem.scenes import scene
 
 log = logging.getLogger("neuraldem.datagen")

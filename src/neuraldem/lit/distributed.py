@@ -40,33 +40,12 @@ from lightning.pytorch.strategies.launchers.subprocess_script import _Subprocess
 from lightning.pytorch.utilities.rank_zero import rank_zero_only
 from omegaconf import DictConfig, OmegaConf
 
-from neuraldem.errors import ConfigError
+from neuraldem.data.part_loaders import rank_batch_size
+from neuraldem.machine import cpu_count
 
 log = logging.getLogger(__name__)
 
 TRAIN_MODULE = "neuraldem.train"
-
-
-def cpu_count() -> int:
-    """CPU cores this process may run on (its affinity: a Slurm allocation or taskset, not the machine's)."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
-def process_share(trainer: Any) -> tuple[int, int]:
-    """(global rank, number of processes) of a trainer; (0, 1) without one."""
-    if trainer is None:
-        return 0, 1
-    return int(trainer.global_rank), int(trainer.world_size)
-
-
-def rank_batch_size(batch_size: int, world: int, key: str = "data.datamodule.batch_size") -> int:
-    """The per-process batch of the global `batch_size` over `world` processes; refused if it does not divide."""
-    if world > 1 and batch_size % world:
-        ok = max(world, (batch_size // world) * world)
-        raise ConfigError(f"config value {key}={batch_size} is invalid: it is the global batch, split evenly over "
-                          f"{world} processes (trainer.devices x trainer.num_nodes), so it must be a multiple of "
-                          f"{world}", f"override it, e.g. {key}={ok}")
-    return batch_size // world
 
 
 def _stream_id(stream: str) -> int:
@@ -164,6 +143,10 @@ class JobDDPStrategy(DDPStrategy):
         super()._configure_launcher()
         if isinstance(self._launcher, _SubprocessScriptLauncher):
             self._launcher = _JobLauncher(self)
+
+
+# strategy names a trainer config may give that mean this module's strategy (config.build.build_trainer)
+STRATEGIES = {"ddp": JobDDPStrategy}
 
 
 def prepare(trainer: Any, cfg: DictConfig) -> None:
