@@ -35,24 +35,33 @@ def _stats(norm: FbNormalizer, name: str, like: torch.Tensor) -> tuple[torch.Ten
             torch.tensor(norm.std[name], dtype=like.dtype, device=like.device))
 
 
-def project_volume(fluid: torch.Tensor, norm: FbNormalizer, volume: torch.Tensor, iterations: int = 6) -> torch.Tensor:
+def project_volume(fluid: torch.Tensor, norm: FbNormalizer, volume: torch.Tensor,
+                   max_passes: int | None = None) -> torch.Tensor:
     """fluid (B, cells, C) model units with its solid fraction projected onto the physical set: 0 <= alpha <=
     the densest value of the training data (`norm.solid_fraction_max`; 0.74 if unknown) and sum over the cells =
-    `volume` (B,) (the input state's: the bed is closed). Clamped at 0, scaled, capped cells held at the cap while
-    the others take up the rest (a few passes). Differentiable, so the loss of a model trained with it sees the
+    `volume` (B,) (the input state's: the bed is closed). Clamped at 0; cells at or above the cap hold it, the
+    others share the rest in proportion (water filling: one scale factor s with sum(min(s alpha, cap)) = the
+    rest): scale, hold the cells the scaling pushes past the cap at the cap, rescale the others to what is left,
+    until no more cells pass the cap (s only grows, each pass caps at least one more cell: at most one pass per
+    cell; `max_passes` stops earlier, for tests). Differentiable, so the loss of a model trained with it sees the
     projected field."""
     mean, std = _stats(norm, "solid_fraction", fluid)
     cap = float(norm.solid_fraction_max) if norm.solid_fraction_max > 0 else 0.74
     alpha = (fluid[..., SOLID_FRACTION_CHANNEL] * std[0] + mean[0]).clamp(min=0.0)
     target = volume.to(alpha.dtype).reshape(-1, 1)
-    for _ in range(iterations):
-        capped = alpha >= cap
-        rest = (target - (cap * capped).sum(dim=1, keepdim=True)).clamp(min=0.0)
+    capped = alpha >= cap
+    scaled = alpha
+    for _ in range(alpha.shape[1] if max_passes is None else max_passes):
+        rest = (target - cap * capped.to(alpha.dtype).sum(dim=1, keepdim=True)).clamp(min=0.0)
         free = torch.where(capped, torch.zeros_like(alpha), alpha).sum(dim=1, keepdim=True)
         n_free = (~capped).sum(dim=1, keepdim=True).clamp(min=1)
         # the uncapped cells take up the rest in proportion (evenly if they hold nothing)
         scaled = torch.where(free > 0, alpha * rest / free.clamp(min=1e-12), rest / n_free)
-        alpha = torch.where(capped, torch.full_like(alpha, cap), scaled).clamp(max=cap)
+        over = ~capped & (scaled > cap)
+        if not bool(over.any()):
+            break
+        capped = capped | over
+    alpha = torch.where(capped, torch.full_like(alpha, cap), scaled).clamp(max=cap)
     out = fluid.clone()
     out[..., SOLID_FRACTION_CHANNEL] = (alpha - mean[0]) / std[0]
     return out
