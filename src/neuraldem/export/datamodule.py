@@ -19,14 +19,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from torch_geometric.loader import DataLoader as GraphLoader
 
 from neuraldem.config import checks
 from neuraldem.data.file_samples import FileSamples
-from neuraldem.data.part_loaders import PartLoaders
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.export.formats import Export, Trajectory, read_export
-from neuraldem.gns.datamodule import CONDITIONING, MAX_HISTORY, MAX_NOISE, SCENES, GnsNormalizer, GnsSamples
+from neuraldem.gns.datamodule import CONDITIONING, SCENES, GnsLoaders, GnsNormalizer, GnsSamples
 
 log = logging.getLogger(__name__)
 
@@ -68,29 +66,15 @@ class ExportSamples(GnsSamples):
         return self.runs[s].traj.conditioning
 
 
-class ExportGnsDataModule(PartLoaders):
+class ExportGnsDataModule(GnsLoaders):
     """Train/val/test loaders of one-step GNS samples from an export folder."""
-
-    loader_class = GraphLoader
 
     def __init__(self, export_dir: str, conditioning: list[str] | None = None, history: int = 5,
                  noise_std: float = 0.0, batch_size: int = 2, num_workers: int = 0, seed: int = 0,
                  eval_time_stride: int = 1):
-        super().__init__()
+        super().__init__(conditioning, history, noise_std, batch_size, num_workers, seed, eval_time_stride)
         self.export_dir = Path(export_dir).expanduser()
-        self._conditioning = None if conditioning is None else checks.names(
-            "data.conditioning", list(conditioning), allowed=sorted({n for v in CONDITIONING.values() for n in v}))
-        self.history = checks.positive_int("data.datamodule.history", history)
-        if self.history > MAX_HISTORY:
-            raise ConfigError(f"config value data.datamodule.history={history} is invalid: must be <= "
-                              f"{MAX_HISTORY} (the GNS paper uses 5) (override it, e.g. data.datamodule.history=5)")
-        self.noise_std = checks.number("data.datamodule.noise_std", noise_std, lo=0.0, hi=MAX_NOISE)
-        self.batch_size = checks.positive_int("data.datamodule.batch_size", batch_size)
-        self.num_workers = checks.positive_int("data.datamodule.num_workers", num_workers, allow_zero=True)
-        self.seed = checks.positive_int("data.datamodule.seed", seed, allow_zero=True)
-        self.eval_time_stride = checks.positive_int("data.datamodule.eval_time_stride", eval_time_stride)
         self.export: Export | None = None
-        self.norm: GnsNormalizer | None = None
         self.datasets: dict[str, ExportSamples] = {}
 
     @property

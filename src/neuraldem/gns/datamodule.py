@@ -276,21 +276,17 @@ class GnsSamples(FileSamples):
         return Data(num_nodes=len(nodes), y=target, mask=torch.from_numpy(mask), **x)
 
 
-class GnsDataModule(PartLoaders):
-    """Train/val/test loaders (torch_geometric batches: one graph per sample) over a hopper or
-    fluidized-bed dataset, for one conditioning list and one split of the manifest."""
+class GnsLoaders(PartLoaders):
+    """What every GNS datamodule shares (from a dataset here, from an export in `neuraldem.export`): graph
+    batches and the sample options, each checked with its config key."""
 
     loader_class = GraphLoader
 
-    def __init__(self, dataset_dir: str, name: str, conditioning: list[str] | None = None, split: str | None = None,
-                 history: int = 5, noise_std: float = 0.0, batch_size: int = 2, num_workers: int = 0, seed: int = 0,
-                 eval_time_stride: int = 1):
+    def __init__(self, conditioning: list[str] | None = None, history: int = 5, noise_std: float = 0.0,
+                 batch_size: int = 2, num_workers: int = 0, seed: int = 0, eval_time_stride: int = 1):
         super().__init__()
-        self.dataset_dir = Path(dataset_dir)
-        self.name = name
         self._conditioning = None if conditioning is None else checks.names(
             "data.conditioning", list(conditioning), allowed=sorted({n for v in CONDITIONING.values() for n in v}))
-        self._split = split
         self.history = checks.positive_int("data.datamodule.history", history)
         if self.history > MAX_HISTORY:
             raise ConfigError(f"config value data.datamodule.history={history} is invalid: must be <= "
@@ -300,8 +296,21 @@ class GnsDataModule(PartLoaders):
         self.num_workers = checks.positive_int("data.datamodule.num_workers", num_workers, allow_zero=True)
         self.seed = checks.positive_int("data.datamodule.seed", seed, allow_zero=True)
         self.eval_time_stride = checks.positive_int("data.datamodule.eval_time_stride", eval_time_stride)
-        self.manifest: Manifest | None = None
         self.norm: GnsNormalizer | None = None
+
+
+class GnsDataModule(GnsLoaders):
+    """Train/val/test loaders (torch_geometric batches: one graph per sample) over a hopper or
+    fluidized-bed dataset, for one conditioning list and one split of the manifest."""
+
+    def __init__(self, dataset_dir: str, name: str, conditioning: list[str] | None = None, split: str | None = None,
+                 history: int = 5, noise_std: float = 0.0, batch_size: int = 2, num_workers: int = 0, seed: int = 0,
+                 eval_time_stride: int = 1):
+        super().__init__(conditioning, history, noise_std, batch_size, num_workers, seed, eval_time_stride)
+        self.dataset_dir = Path(dataset_dir)
+        self.name = name
+        self._split = split
+        self.manifest: Manifest | None = None
         self.datasets: dict[str, GnsSamples] = {}
 
     # ---- facts about the data
