@@ -4,6 +4,7 @@ ground truth never flagged, and bad input (other kind or scene, other grid, extr
 from __future__ import annotations
 
 import json
+import logging
 import re
 import warnings
 from pathlib import Path
@@ -206,9 +207,30 @@ def test_issue_20_options_conserve_to_round_off_and_keep_mixing_bounded(fb_tiny_
         volume = r.solid_fraction.astype(np.float64).reshape(len(r.times), -1).sum(axis=1)
         np.testing.assert_allclose(volume, float(np.sum(state.solid_fraction)), rtol=2e-6)  # float32 round-off
         assert r.mixing.min() >= 0.0 and r.mixing.max() <= 1.0
+        assert r.solid_fraction.max() <= module.norm.solid_fraction_max * (1 + 1e-5)  # the packing cap holds
     assert np.abs(runs[0].solid_fraction - runs[1].solid_fraction).max() > 1e-6  # two members differ
     same = rollout(ModelStepper(module, TRAINED_VELOCITY, 0), state, 40, progress=False)
     np.testing.assert_array_equal(same.solid_fraction, runs[0].solid_fraction)  # a seed reproduces its member
+
+
+def test_a_projection_short_of_the_volume_is_named(fb_tiny_flux_checkpoint: Path, fb_tiny_dataset: Path,
+                                                  monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture):
+    """The rollout restores the volume after the (float32) projection; more than round-off to restore means the
+    projection fell short, and the rescale then moves capped cells past the cap: the step says so."""
+    import neuraldem.scenes.fluidized_bed.autoregressive as ar
+    from neuraldem.scenes.fluidized_bed.rollout import ModelStepper, initial_state, load_fb_checkpoint
+    from neuraldem.scenes.fluidized_bed.store import FbFile
+
+    module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
+    with FbFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
+        state = initial_state(f)
+    with caplog.at_level(logging.WARNING, logger="neuraldem.scenes.fluidized_bed.rollout"):
+        ModelStepper(module, TRAINED_VELOCITY, 0).step(state)
+        assert "off the volume" not in caplog.text
+        project = ar.project_volume
+        monkeypatch.setattr(ar, "project_volume", lambda fluid, norm, volume: project(fluid, norm, 0.9 * volume))
+        ModelStepper(module, TRAINED_VELOCITY, 0).step(state)
+    assert "the projected solid volume is -10 % off the volume to keep" in caplog.text
 
 
 def test_bad_rollout_requests_end_in_one_line(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tmp_path: Path):

@@ -58,6 +58,7 @@ log = logging.getLogger(__name__)
 ROLLOUT_KIND = "fluidized_bed_rollout"
 DEFAULT_MAX_PACKING = 0.74  # densest packing of equal spheres; the kernel field of the data reaches ~0.72
 DEFAULT_TOLERANCE = 0.05
+ROUND_OFF = 1e-4  # relative volume error a float32 projection leaves
 
 
 class ExtrapolationWarning(UserWarning):
@@ -185,7 +186,12 @@ class ModelStepper:
         if self.conserve_solid_volume:  # the step projected in float32: remove its round-off
             total = float(np.sum(solid_fraction))
             if np.isfinite(total) and total > 0:  # a broken field is left for the divergence check
-                solid_fraction = solid_fraction * (self.solid_volume / total)
+                ratio = self.solid_volume / total
+                if abs(ratio - 1.0) > ROUND_OFF:  # more than round-off: the rescale moves capped cells off the cap
+                    log.warning("step to t=%.3f s: the projected solid volume is %.3g %% off the volume to keep; "
+                                "rescaling moves cells at the packing cap by as much", state.time + self.dt,
+                                100 * (1 / ratio - 1))
+                solid_fraction = solid_fraction * ratio
         return FbState(
             time=state.time + self.dt,
             positions=norm.positions_back(nxt.particle_pos[0].double().cpu().numpy()),
