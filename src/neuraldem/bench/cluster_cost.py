@@ -30,6 +30,7 @@ from neuraldem.cli import doc_parser
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest
 from neuraldem.errors import DataError
+from neuraldem.paths import results_dir
 
 NAME = "cluster_cost"
 DEFAULT_PARTICLES = (5000, 50000, 250000)
@@ -138,6 +139,15 @@ def fb_durations() -> tuple[float, dict[str, float]]:
                                          "long test (30 s stored)": float(cfg.parameters.long.duration)}
 
 
+def shown(path: Path) -> str:
+    """A path as the results show it: relative to the results folder's checkout when inside it."""
+    root = results_dir().parent
+    try:
+        return str(Path(path).resolve().relative_to(root.resolve()))
+    except ValueError:
+        return str(path)
+
+
 def markdown(res: dict[str, Any]) -> str:
     n_runs, n_traj = res["hopper_runs"], res["bed_trajectories"]
     lines = [f"# Cluster cost model (`{res['command']}`)", "",
@@ -183,8 +193,8 @@ def build(scaling_path: Path, fb_path: Path, particles: list[int], n_runs: int, 
         r["cpu_hours_per_batch"] = r["run_s"] * n_runs / HOUR
     res: dict[str, Any] = {
         "command": command, "hopper_runs": n_runs, "bed_trajectories": n_traj,
-        "inputs": {"hopper_scaling": str(scaling_path), "hopper_scaling_date": scaling.get("date", ""),
-                   "fb_speed": str(fb_path), "fb_speed_date": fb.get("date", "")},
+        "inputs": {"hopper_scaling": shown(scaling_path), "hopper_scaling_date": scaling.get("date", ""),
+                   "fb_speed": shown(fb_path), "fb_speed_date": fb.get("date", "")},
         "hopper_window_s": float(scaling["results"]["solver"]["drain_profile"]["drain_time_s"]),
         "hopper_measured": points, "hopper": hopper,
     }
