@@ -20,11 +20,16 @@ from pathlib import Path
 STATE_ENV = "FAKE_SLURM_STATE"
 
 
-def install(bin_dir: Path, state_dir: Path) -> dict[str, str]:
-    """Write the commands; returns the environment to run datagen with (PATH first, the state folder)."""
+def install(bin_dir: Path, state_dir: Path, sacct: bool = True) -> dict[str, str]:
+    """Write the commands (`sacct=False`: a cluster without job accounting, whose sacct fails); returns the
+    environment to run datagen with (PATH first, the state folder)."""
     bin_dir.mkdir(parents=True, exist_ok=True)
     state_dir.mkdir(parents=True, exist_ok=True)
-    for cmd in ("sbatch", "srun", "squeue", "sacct"):
+    if not sacct:
+        path = bin_dir / "sacct"
+        path.write_text("#!/bin/sh\necho 'sacct: error: Slurm accounting storage is disabled' >&2\nexit 1\n")
+        path.chmod(0o755)
+    for cmd in ("sbatch", "srun", "squeue") + (("sacct",) if sacct else ()):
         path = bin_dir / cmd
         path.write_text(f"#!/bin/sh\nexec {shlex.quote(sys.executable)} {shlex.quote(__file__)} {cmd} \"$@\"\n")
         path.chmod(0o755)
@@ -102,8 +107,12 @@ def _tasks(job_ids: list[str]) -> list[tuple[str, str]]:
 
 
 def squeue(args: list[str]) -> None:
+    """`--array`: one line per pending or running task (`ID_INDEX`); else the job id while any task is."""
     job_ids = args[args.index("--jobs") + 1].split(",")
-    if any(state in ("PENDING", "RUNNING") for _, state in _tasks(job_ids)):
+    queued = [name for name, state in _tasks(job_ids) if state in ("PENDING", "RUNNING")]
+    if "--array" in args:
+        print("\n".join(queued))
+    elif queued:
         print(job_ids[0])
 
 

@@ -256,3 +256,25 @@ def test_slurm_array_on_a_stand_in_slurm(tmp_path: Path):
         "neuraldem.errors.SolverInterrupted: liggghts-killed in" in more.stderr, more.stderr
     assert [r.status for r in manifest(tmp_path).simulations] == ["ok"] * 4 + ["pending"]
     no_leftovers(tmp_path)
+
+
+def test_a_task_that_dies_is_seen_on_a_cluster_without_sacct(tmp_path: Path):
+    """Without job accounting (sacct fails) submitit never reports a task killed before it could leave a result
+    as done;
+    squeue no longer listing it ends the wait: the simulation stays pending and the datagen says so, instead of
+    waiting forever (the subprocess timeout here would fail the test)."""
+    from tests.datagen import fake_slurm
+
+    env = fake_slurm.install(tmp_path / "bin", tmp_path / "slurm", sacct=False)
+    fake = tmp_path / "liggghts-killed"
+    # the task's own process killed hard (as scancel, the OOM killer or a lost node do): it leaves no result
+    fake.write_text('#!/bin/sh\ncase "$PWD" in *sim_0001*) kill -KILL $PPID; exit 1;; esac\nexec liggghts "$@"\n')
+    fake.chmod(0o755)
+    proc = run_module("neuraldem.datagen", *FAST, "n_sims=2", "executor=slurm", "executor.partition=debug",
+                      "executor.poll_s=0.2", env={"NEURALDEM_DATA": str(tmp_path), **env,
+                                                  "NEURALDEM_LIGGGHTS": str(fake)}, timeout=240)
+    assert proc.returncode == 2 and "1 of 2 simulation(s) ended without a result and stay pending (sim_0001: " \
+        in proc.stderr, proc.stderr
+    assert [r.status for r in manifest(tmp_path).simulations] == ["ok", "pending"]
+    no_leftovers(tmp_path)
+

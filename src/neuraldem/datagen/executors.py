@@ -40,6 +40,7 @@ from neuraldem.datagen.records import (
     ledger_entry,
     read_record,
     remove_from_ledger,
+    slurm_tasks_listed,
     write_record,
 )
 from neuraldem.errors import ConfigError, NeuraldemError
@@ -231,6 +232,7 @@ class SubmititRunner:
 
     settings: ExecutorSettings
     folder: Path  # submitit's folder: pickled tasks, their logs
+    array_id: str = ""  # the Slurm array once submitted
 
     def describe(self) -> str:
         s = self.settings
@@ -264,7 +266,7 @@ class SubmititRunner:
         try:
             if s.kind == "slurm":
                 jobs = ex.map_array(run_task, [task_pipe] * len(queue), queue)
-                array_id = str(jobs[0].job_id).split("_")[0]
+                array_id = self.array_id = str(jobs[0].job_id).split("_")[0]
                 add_to_ledger(pipe.dataset_dir, [ledger_entry("slurm", array_id, list(rows), self.folder)])
                 running = {r.sim_id: job for r, job in zip(queue, jobs, strict=True)}
                 queue = []
@@ -302,6 +304,10 @@ class SubmititRunner:
                  finished: Callable[[SimRecord], None], lost: dict[str, str]) -> bool:
         """Merge the records of tasks that finished; note tasks that ended without one. True if any did."""
         ended = {sim_id for sim_id, job in running.items() if job.done()}  # before the records are read
+        if self.settings.kind == "slurm" and len(ended) < len(running):
+            listed = slurm_tasks_listed(self.array_id)  # done() needs sacct to see a task that left no result
+            if listed is not None:
+                ended |= {sim_id for sim_id, job in running.items() if str(job.job_id) not in listed}
         gone = []
         for sim_id in list(running):
             rec = read_record(pipe.dataset_dir, sim_id, rows[sim_id], discard=True)

@@ -154,6 +154,22 @@ def job_running(entry: dict[str, Any]) -> bool | None:
     return _submitit_process_alive(int(job_id)) if job_id.isdigit() else False
 
 
+def slurm_tasks_listed(array_id: str) -> set[str] | None:
+    """The tasks of a Slurm array that `squeue` still lists (pending or running, `ARRAY_INDEX` ids); None when
+    this machine cannot tell. Without job accounting (`sacct`) submitit never sees a task that died without a
+    result end; a task squeue no longer lists has ended."""
+    if shutil.which("squeue") is None:
+        return None
+    try:
+        out = subprocess.run(["squeue", "--noheader", "--array", "--jobs", array_id, "--format=%i"],
+                             capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    if out.returncode != 0:  # an ended array: listed no more or (older Slurm) refused as an invalid id
+        return set() if "invalid job id" in out.stderr.lower() else None
+    return {line.strip() for line in out.stdout.splitlines() if line.strip()}
+
+
 def _submitit_process_alive(pid: int) -> bool:
     """A submitit local job is its controller process: alive, not a zombie, and still submitit's (not a new
     process that reuses the number)."""
