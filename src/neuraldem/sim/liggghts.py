@@ -9,6 +9,7 @@ import subprocess
 from pathlib import Path
 
 from neuraldem.errors import SolverError
+from neuraldem.sim.serial_env import serial_solver_env
 
 BINARY_ENV = "NEURALDEM_LIGGGHTS"
 INSTALL_HINT = (
@@ -27,12 +28,8 @@ def find_liggghts() -> Path:
 
 
 def solver_env() -> dict[str, str]:
-    """Environment for a serial LIGGGHTS run (the Debian build links OpenMPI, which refuses root by default)."""
-    env = dict(os.environ)
-    env.setdefault("OMPI_ALLOW_RUN_AS_ROOT", "1")
-    env.setdefault("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
-    env.setdefault("OMP_NUM_THREADS", "1")
-    return env
+    """Environment for a serial LIGGGHTS run (`sim.serial_env`: Open MPI as a singleton)."""
+    return serial_solver_env()
 
 
 _VERSION_RE = re.compile(r"LIGGGHTS \(Version ([^,)]+)")

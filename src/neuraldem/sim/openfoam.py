@@ -17,6 +17,7 @@ from pathlib import Path
 
 from neuraldem.errors import SolverError
 from neuraldem.sim.runner import run_process
+from neuraldem.sim.serial_env import serial_solver_env
 
 DEBIAN_PROJECT_DIR = Path("/usr/share/openfoam")
 INSTALL_HINT = "install it with `sudo apt-get install openfoam` (Debian/Ubuntu, OpenFOAM v1912)"
@@ -36,13 +37,10 @@ def foam_env() -> dict[str, str]:
         raise SolverError(f"OpenFOAM environment not found: {pdir}/etc/controlDict is missing",
                           fix=f"set WM_PROJECT_DIR to your OpenFOAM installation (Debian: {DEBIAN_PROJECT_DIR}) "
                               f"or {INSTALL_HINT}")
-    env = dict(os.environ)
+    env = serial_solver_env()  # Open MPI as a singleton (sim.serial_env)
     env["WM_PROJECT_DIR"] = str(pdir)
     env.setdefault("WM_PROJECT", "OpenFOAM")
     env.setdefault("WM_PROJECT_VERSION", "v1912")
-    env.setdefault("OMPI_ALLOW_RUN_AS_ROOT", "1")
-    env.setdefault("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
-    env.setdefault("OMP_NUM_THREADS", "1")
     return env
 
 
