@@ -78,3 +78,17 @@ def test_hopper_training_options_are_overridable(override: str, compose_train_cf
     for part in key.split("."):
         node = node[part]
     assert str(node) == value
+
+
+@pytest.mark.parametrize("trainer,gpus", [("ddp_cpu", None), ("ddp", 4)])
+def test_slurm_ddp_launcher_asks_for_gpus_only_on_gpus(trainer: str, gpus: int | None):
+    """hydra/launcher=slurm_ddp: one task per process on each node, and GPUs per node only for a GPU trainer
+    (sbatch refuses a GPU request on a CPU partition: found on a one-node Slurm, scripts/local_slurm.sh)."""
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(config_dir()), version_base=None):
+        cfg = compose("train", overrides=["hydra/launcher=slurm_ddp", f"trainer={trainer}", "trainer.devices=4",
+                                          "trainer.num_nodes=2", "experiment=hopper_quickstart"],
+                      return_hydra_config=True)
+    launcher = cfg.hydra.launcher
+    assert (launcher.tasks_per_node, launcher.nodes, launcher.gpus_per_node) == (4, 2, gpus)
