@@ -114,20 +114,27 @@ def test_killed_array_resumes_keeping_finished_simulations(tmp_path: Path):
     no_leftovers(tmp_path)
 
 
-def without_sbatch() -> str:
-    """A PATH with the system tools (and LIGGGHTS) but no Slurm commands."""
-    dirs = [os.path.dirname(sys.executable), "/usr/local/bin", "/usr/bin", "/bin"]
-    if solver := shutil.which("liggghts"):
-        dirs.append(os.path.dirname(solver))
-    path = os.pathsep.join(dict.fromkeys(dirs))
-    if shutil.which("sbatch", path=path) or shutil.which("srun", path=path):
-        pytest.skip("Slurm is installed in the system folders here")
+SLURM_COMMANDS = {"sbatch", "srun", "squeue", "sacct", "scancel", "sinfo", "salloc"}
+
+
+def without_sbatch(tmp_path: Path) -> str:
+    """This PATH without the Slurm commands (also on a machine with Slurm installed, as CI's local one): one folder
+    of links to everything else on it (LIGGGHTS and the Open MPI tools its start runs among them)."""
+    bin_dir = tmp_path / "no-slurm-bin"
+    bin_dir.mkdir(exist_ok=True)
+    for folder in os.environ["PATH"].split(os.pathsep):
+        for tool in Path(folder).glob("*") if Path(folder).is_dir() else ():
+            link = bin_dir / tool.name
+            if tool.name not in SLURM_COMMANDS and not link.exists() and not link.is_symlink():
+                link.symlink_to(tool)
+    path = os.pathsep.join([str(bin_dir), os.path.dirname(sys.executable)])
+    assert not shutil.which("sbatch", path=path) and not shutil.which("srun", path=path)
     return path
 
 
 def test_dry_run_writes_the_sbatch_script_and_submits_nothing(tmp_path: Path):
     proc = datagen(tmp_path, "executor=slurm", "executor.partition=short", "executor.array_parallelism=2",
-                   "executor.dry_run=true", "executor.time_min=30", env={"PATH": without_sbatch()})
+                   "executor.dry_run=true", "executor.time_min=30", env={"PATH": without_sbatch(tmp_path)})
     assert proc.returncode == 0, proc.stderr
     assert "3 of 3 simulations of hopper_tiny would run as Slurm array 0-2%2; nothing submitted" in proc.stdout
     script = Path(re.search(r"sbatch script: (\S+)", proc.stdout).group(1))
@@ -152,7 +159,7 @@ def test_slurm_without_submitit_or_sbatch_and_bad_values_end_in_one_line(tmp_pat
         (["executor=slurm", "executor.dry_run=true"], {"PYTHONPATH": pythonpath},
          "executor=slurm needs the submitit package, which is not installed: pip install 'neuraldem[sweep]'"),
         (["executor=submitit_local"], {"PYTHONPATH": pythonpath}, "executor=submitit_local needs the submitit package"),
-        (["executor=slurm", "executor.partition=short"], {"PATH": without_sbatch()},
+        (["executor=slurm", "executor.partition=short"], {"PATH": without_sbatch(tmp_path)},
          "sbatch and srun are not on PATH here: run this on a Slurm login node, or use executor=submitit_local"),
         (["executor=slurm", "executor.array_parallelism=0"], {}, "executor.array_parallelism=0 is invalid"),
     ]
