@@ -52,16 +52,21 @@ EOF
   pgrep -x slurmctld >/dev/null || SLURM_CONF=$CONF slurmctld
   pgrep -x slurmd >/dev/null || SLURM_CONF=$CONF slurmd
   for _ in $(seq 30); do
-    SLURM_CONF=$CONF sinfo -h -o '%t' 2>/dev/null | grep -qE '^(idle|mix|alloc)' && break
+    if SLURM_CONF=$CONF sinfo -h -o '%t' 2>/dev/null | grep -qE '^(idle|mix|alloc)'; then
+      SLURM_CONF=$CONF sinfo
+      say "running; use it with: export SLURM_CONF=$CONF"
+      return 0
+    fi
     sleep 1
   done
-  SLURM_CONF=$CONF sinfo
-  say "running; use it with: export SLURM_CONF=$CONF"
+  say "the node did not come up in 30 s: see $DIR/slurmctld.log and $DIR/slurmd.log"
+  return 1
 }
 
 stop() {
   pkill -x slurmd || true
   pkill -x slurmctld || true
+  for _ in $(seq 20); do pgrep -x slurmd >/dev/null || pgrep -x slurmctld >/dev/null || break; sleep 0.5; done
   say "stopped (munged left running)"
 }
 
