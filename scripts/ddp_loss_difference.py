@@ -12,26 +12,16 @@ agree to 1e-5; this prints the measured difference.
 from __future__ import annotations
 
 import argparse
-import csv
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+from neuraldem.eval.run_results import logged_losses
 from neuraldem.paths import data_dir
 
 LOSSES = {"loss", "occupancy", "transport", "residence", "occupancy_accuracy", "particles", "fluid", "mixing"}
 SCENES = {"hopper": ("experiment=hopper_quickstart", "hopper_tiny"), "bed": ("experiment=fb_quick", "fb_tiny")}
-
-
-def logged(run: Path) -> dict[tuple[int, str], float]:
-    out = {}
-    with open(run / "csv" / "metrics.csv") as fh:
-        for row in csv.DictReader(fh):
-            for name, value in row.items():
-                if value and name.split("/")[0] in ("train", "val"):
-                    out[(int(row["step"]), name)] = float(value)
-    return out
 
 
 def train(run: Path, trainer: str, overrides: list[str]) -> dict[tuple[int, str], float]:
@@ -39,7 +29,7 @@ def train(run: Path, trainer: str, overrides: list[str]) -> dict[tuple[int, str]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed:\n{proc.stderr[-2000:]}")
-    return logged(run)
+    return logged_losses(run)
 
 
 def main(argv: list[str] | None = None) -> int:

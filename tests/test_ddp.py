@@ -12,12 +12,12 @@ were.
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import pytest
 from omegaconf import open_dict
 
+from neuraldem.eval.run_results import logged_losses
 from tests.helpers import compose_cfg, run_module
 
 pytestmark = pytest.mark.solver  # the tiny datasets come from LIGGGHTS and DPMFoam
@@ -29,17 +29,6 @@ COMMON = (f"trainer.max_steps={STEPS}", "trainer.log_every_n_steps=1", f"trainer
           "evaluate=false", "logger=csv", "callbacks.progress=null", "trainer.enable_model_summary=false")
 SCENES = {"hopper": ("hopper_tiny_dataset", "experiment=hopper_quickstart", "HopperModule"),
           "bed": ("fb_tiny_dataset", "experiment=fb_quick", "FluidizedBedModule")}
-
-
-def logged(run: Path) -> dict[tuple[int, str], float]:
-    """(step, name) -> value of every loss the CSV logger wrote (rank 0's, i.e. the mean over the processes)."""
-    out = {}
-    with open(run / "csv" / "metrics.csv") as fh:
-        for row in csv.DictReader(fh):
-            for name, value in row.items():
-                if value and name.split("/")[0] in ("train", "val"):
-                    out[(int(row["step"]), name)] = float(value)
-    return out
 
 
 @pytest.mark.parametrize("scene", list(SCENES))
@@ -60,7 +49,7 @@ def test_two_processes_train_as_one(scene: str, request: pytest.FixtureRequest, 
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "Starting with 2 processes" in proc.stdout + proc.stderr
 
-    a, b = logged(one), logged(run)
+    a, b = logged_losses(one), logged_losses(run)
     assert {s for s, name in a if name == "train/loss"} == set(range(STEPS)) and a.keys() == b.keys()
     if scene == "hopper":  # validated once, at the end, the validation batches dealt out between the processes
         assert (STEPS - 1, "val/loss") in a and (STEPS - 1, "val/practitioner_score") in a

@@ -3,6 +3,7 @@ evaluate=true writes), for the tables that compare runs."""
 
 from __future__ import annotations
 
+import csv
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -68,3 +69,16 @@ def table_main(argv: list[str] | None, prog: str, doc: str | None, collect: Call
     atomic_write_json(a.out.with_suffix(".json"), [summary(r) for r in results])
     print(text)
     return 0
+
+
+def logged_losses(run: Path) -> dict[tuple[int, str], float]:
+    """(step, name) -> value of every train/ and val/ value the CSV logger wrote in a run folder (under DDP
+    rank 0's: the mean over the processes)."""
+    out = {}
+    with open(run / "csv" / "metrics.csv") as fh:
+        for row in csv.DictReader(fh):
+            for name, value in row.items():
+                if value and name.split("/")[0] in ("train", "val"):
+                    out[(int(row["step"]), name)] = float(value)
+    return out
+
