@@ -15,6 +15,7 @@ from typing import Any
 
 from neuraldem.data.schema import SCHEMA_VERSION, atomic_write_json, check_version
 from neuraldem.errors import DataError
+from neuraldem.paths import data_dir
 
 MANIFEST_NAME = "manifest.json"
 STATUSES = ("pending", "ok", "clogged", "failed")
@@ -110,6 +111,16 @@ class Manifest:
                 raise DataError(f"{path}: simulation {r.sim_id} has unknown status {r.status!r}",
                                 f"set it to one of {list(STATUSES)} (pending reruns it with datagen)")
         return m
+
+
+def find_dataset(text: str) -> Path:
+    """A dataset given on a command line: the folder as given when it holds a manifest, else the dataset of that
+    name under <data dir>/datasets when that does, else the folder as given (for the caller's error)."""
+    path = Path(text).expanduser()
+    named = data_dir() / "datasets" / text
+    if not (path / MANIFEST_NAME).is_file() and (named / MANIFEST_NAME).is_file():
+        return named
+    return path
 
 
 def require_dataset(dataset_dir: Path, data_name: str) -> Manifest:

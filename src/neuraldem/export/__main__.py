@@ -36,7 +36,7 @@ import numpy as np
 from neuraldem import __version__
 from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.config import checks
-from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
+from neuraldem.data.manifest import Manifest, SimRecord, find_dataset, require_dataset
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.export.formats import (
     EXIT_RULES,
@@ -56,7 +56,6 @@ from neuraldem.export.formats import (
     tool_metadata,
 )
 from neuraldem.gns.datamodule import CONDITIONING, SCENES, SPLITS, ParticleRun
-from neuraldem.paths import data_dir
 
 TOOL = {"gns": "GNS", "lagrangebench": "LagrangeBench"}
 CASE = {"hopper": "HOPPER", "fluidized_bed": "FLUIDIZED_BED"}
@@ -100,15 +99,6 @@ class ExportPlan:
     @property
     def all_runs(self) -> list[RunSurvey]:
         return [r for part in PARTS for r in self.runs[part]]
-
-
-def dataset_path(text: str) -> Path:
-    """A dataset dir as given, or the dataset of that name under <data dir>/datasets."""
-    path = Path(text).expanduser()
-    named = data_dir() / "datasets" / text
-    if not path.exists() and os.sep not in text and named.is_dir():
-        return named
-    return path
 
 
 def check_kind(m: Manifest, dataset_dir: Path, fmt: str) -> None:
@@ -320,7 +310,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
-    meta = export_dataset(a.format, dataset_path(a.dataset), a.out, a.split, a.exits, a.radius_d,
+    meta = export_dataset(a.format, find_dataset(a.dataset), a.out, a.split, a.exits, a.radius_d,
                           a.material_property, a.force)
     print(summary(meta, a.out))
     return 0

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from neuraldem.cli import doc_parser, report_user_errors
-from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
+from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord, find_dataset
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.machine import machine_info
@@ -34,12 +34,10 @@ DEFAULT_METRICS = {"lacey_block": [2, 1, 2], "lacey_min_count": 5.0, "bed_quanti
 
 
 def resolve_dataset(arg: str) -> Path:
-    path = Path(arg).expanduser()
+    path = find_dataset(arg)
     if (path / MANIFEST_NAME).is_file():
         return path
     named = data_dir() / "datasets" / arg
-    if (named / MANIFEST_NAME).is_file():
-        return named
     raise DataError(f"no fluidized-bed dataset at {path} (nor {named})",
                     fix="pass a dataset folder, or generate one with `python -m neuraldem.datagen data=fb_small`")
 
