@@ -21,8 +21,12 @@ start() {
   mkdir -p "$DIR/state" "$DIR/spool"
   local host cpus mem
   host=$(hostname -s)
-  cpus=$(nproc)
+  # the machine's cores: plain nproc answers $OMP_NUM_THREADS when that is set (.ci/run sets it to 1), and a
+  # one-CPU node never starts the two-task DDP job
+  cpus=$(env -u OMP_NUM_THREADS -u OMP_THREAD_LIMIT nproc)
   mem=$(( $(awk '/MemTotal/ {print $2}' /proc/meminfo) / 1024 * 8 / 10 ))
+  local old=""
+  [ -f "$CONF" ] && old=$(cat "$CONF")
   cat > "$CONF" <<EOF
 ClusterName=neuraldem-local
 SlurmctldHost=$host
@@ -47,9 +51,15 @@ AccountingStorageType=accounting_storage/none
 NodeName=$host CPUs=$cpus RealMemory=$mem State=UNKNOWN
 PartitionName=debug Nodes=$host Default=YES MaxTime=INFINITE State=UP
 EOF
+  # daemons left running with another configuration (other core count, memory, host) would keep it: restart them
+  if [ "$old" != "$(cat "$CONF")" ] && { pgrep -x slurmctld >/dev/null || pgrep -x slurmd >/dev/null; }; then
+    say "the configuration changed: restarting slurmctld and slurmd"
+    stop
+  fi
   pgrep -x munged >/dev/null || { mkdir -p /run/munge && chown munge:munge /run/munge 2>/dev/null || true
                                   su -s /bin/sh munge -c munged 2>/dev/null || munged --force; }
-  pgrep -x slurmctld >/dev/null || SLURM_CONF=$CONF slurmctld
+  # -c: forget jobs a stopped cluster still holds (their slurmd is gone; a stale pending one blocks the node)
+  pgrep -x slurmctld >/dev/null || SLURM_CONF=$CONF slurmctld -c
   pgrep -x slurmd >/dev/null || SLURM_CONF=$CONF slurmd
   for _ in $(seq 30); do
     if SLURM_CONF=$CONF sinfo -h -o '%t' 2>/dev/null | grep -qE '^(idle|mix|alloc)'; then
