@@ -103,3 +103,40 @@ def test_the_shipped_bed_files_reproduce_their_stored_probe_answers(fb_tiny_pret
     # the tiny model's 19 steps reproduce to round-off; fb_small's 299 chaotic steps are allowed a few %, since
     # another CPU's float kernels may differ in the last bits (a wrong model file misses by far more)
     assert f.summary == pytest.approx(probe["field_summary"], rel=0.05 if shipped else 1e-4, abs=1e-6)
+
+
+def test_refresh_field_reruns_the_field_answers_and_keeps_the_rest(fb_tiny_pretrained: Path, tmp_path: Path):
+    """After a change of the rollout code: the field answers of the test rows and the probe are rerun from the
+    shipped states (stale values are replaced, errors recomputed against the stored CFD-DEM answers), the
+    files, the GP answers and CFD-DEM's stay as they were, and the refresh is recorded."""
+    import shutil
+
+    from neuraldem.pretrained.build_fb import errors
+
+    folder = tmp_path / "fb_tiny_test"
+    shutil.copytree(fb_tiny_pretrained / "fb_tiny_test", folder)
+    meta = json.loads((folder / "meta.json").read_text())
+    fresh = meta["test_errors"]["runs"][0]["field model"]
+    stale = json.loads(json.dumps(meta))
+    stale["test_errors"]["runs"][0]["field model"] = {k: v + 1.0 for k, v in fresh.items()}
+    next(p for p in stale["probes"] if "field_summary" in p)["field_summary"]["lacey"] = 9.0
+    (folder / "meta.json").write_text(json.dumps(stale))
+    proc = run_module("neuraldem.pretrained.build", "--name", "fb_tiny_test", "--out", str(tmp_path),
+                      "--refresh-field")
+    assert proc.returncode == 0, proc.stderr
+    new = json.loads((folder / "meta.json").read_text())
+    assert new["test_errors"]["runs"][0]["field model"] == pytest.approx(fresh, rel=1e-4, abs=1e-6)
+    assert next(p for p in new["probes"] if "field_summary" in p)["field_summary"]["lacey"] != 9.0
+    runs = new["test_errors"]["runs"]
+    assert new["test_errors"]["field model"] == errors([r["field model"] for r in runs], [r["cfd_dem"] for r in runs])
+    assert new["files"] == meta["files"] and new["training_data"] == meta["training_data"]
+    assert [p["gp_mean"] for p in new["probes"]] == [p["gp_mean"] for p in meta["probes"]]
+    assert [r["cfd_dem"] for r in runs] == [r["cfd_dem"] for r in meta["test_errors"]["runs"]]
+    assert new["refreshed"][-1]["field_model_errors_before"] == stale["test_errors"]["field model"]
+
+
+@pytest.mark.parametrize("flags,message", [(["--refresh-field"], "meta.json is missing"),
+                                           ([], "--ckpt is required")])
+def test_refresh_bad_input_ends_in_one_line(tmp_path: Path, flags: list[str], message: str):
+    proc = run_module("neuraldem.pretrained.build", "--name", "nothing_here", "--out", str(tmp_path), *flags)
+    assert proc.returncode != 0 and message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr

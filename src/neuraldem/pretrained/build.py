@@ -2,6 +2,7 @@
 
     python -m neuraldem.pretrained.build --ckpt RUN/checkpoints/last.ckpt --name hopper_small
     python -m neuraldem.pretrained.build --ckpt FB_RUN/checkpoints/best.ckpt --name fb_small
+    python -m neuraldem.pretrained.build --name fb_small --refresh-field   # after a change of the bed rollouts
 
 Writes `<out>/<name>/` (default: the package's pretrained folder): `field.pt` (the checkpoint without optimizer
 state), `gp.npz` (the scalar Gaussian process fitted on the runs the field model trained and validated on, as
@@ -152,14 +153,29 @@ def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) ->
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
     p: argparse.ArgumentParser = doc_parser("neuraldem.pretrained.build", __doc__)
-    p.add_argument("--ckpt", type=Path, required=True,
+    p.add_argument("--ckpt", type=Path, default=None,
                    help="a hopper or fluidized-bed checkpoint written by neuraldem train")
     p.add_argument("--name", required=True, help="the model's name (its folder)")
+    p.add_argument("--refresh-field", action="store_true",
+                   help="fluidized bed, no --ckpt: rerun the shipped model's field answers (test rows, probe) "
+                        "after a change of the rollout code, keeping its files and the stored CFD-DEM answers")
     p.add_argument("--out", type=Path, default=Path(__file__).parent, help="folder of shipped models")
     p.add_argument("--dataset", type=Path, default=None, help="dataset dir (default: the checkpoint's)")
     p.add_argument("--lacey-time", type=float, default=1.0,
                    help="fluidized bed: the time [s] of the Lacey-index answer (default 1)")
     args = p.parse_args(argv)
+    if args.refresh_field:
+        if args.ckpt is not None:
+            p.error("--refresh-field reruns a shipped model's answers: give --name only, not --ckpt")
+        from neuraldem.pretrained.build_fb import refresh_field_answers
+
+        meta = refresh_field_answers(args.out / args.name)
+        change = meta["refreshed"][-1]["field_model_errors_before"]
+        print(f"refreshed {args.out / args.name}/meta.json: field-model test errors {change} -> "
+              f"{meta['test_errors']['field model']}")
+        return 0
+    if args.ckpt is None:
+        p.error("--ckpt is required (or --refresh-field for a shipped fluidized-bed model)")
     from neuraldem.eval.checkpoints import read_checkpoint
 
     kind = read_checkpoint(args.ckpt).metadata.get("kind")

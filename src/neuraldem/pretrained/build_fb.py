@@ -148,3 +148,46 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
         build_flags=f"--lacey-time {lacey_time:g}")
     atomic_write_json(folder / "meta.json", info)
     return folder
+
+
+def refresh_field_answers(folder: Path, progress: bool = True) -> dict[str, Any]:
+    """Re-run a shipped bed model's field answers (its test rows and the probe) after the rollout code changed,
+    keeping its files, the GP and the CFD-DEM answers stored with each test row: the rollouts start from the
+    shipped states, so no dataset is needed. The field model's test errors are recomputed against the stored
+    CFD-DEM answers and the refresh is recorded in meta.json (`refreshed`)."""
+    import json
+    from datetime import UTC, datetime
+
+    from tqdm import tqdm
+
+    from neuraldem.data.schema import atomic_write_json
+    from neuraldem.eval.checkpoints import read_checkpoint
+    from neuraldem.pretrained.build import commit
+    from neuraldem.scenes.fluidized_bed.datagen import FbMetricSettings
+    from neuraldem.scenes.fluidized_bed.whatif import AnswerWindow, InitialStates, field_answer
+
+    path = folder / "meta.json"
+    if not path.is_file():
+        raise DataError(f"{path} is missing: {folder} is not a shipped model (build it with --ckpt)")
+    meta = json.loads(path.read_text())
+    if meta.get("kind") != "fluidized_bed":
+        raise DataError(f"{path}: kind {meta.get('kind')!r}; --refresh-field is for fluidized-bed models")
+    module = read_checkpoint(folder / meta["files"]["field"]["file"]).module("fluidized_bed", "cpu", "refresh")
+    states = InitialStates.load_npz(folder / meta["files"]["states"]["file"])
+    settings = FbMetricSettings.from_config(meta["metric_settings"], f"{path} metric_settings")
+    window = AnswerWindow.from_dict(meta["answer_window"])
+    before = dict(meta["test_errors"]["field model"])
+    rows = meta["test_errors"]["runs"]
+    for row in tqdm(rows, desc="test rollouts", unit="run", disable=not progress):
+        f = field_answer(module, states, float(row["inlet_velocity"]), settings, window)
+        row.update({"field model": f.summary, "field_start": f.start, "rollout_seconds": f.seconds})
+    meta["test_errors"]["field model"] = errors([r["field model"] for r in rows], [r["cfd_dem"] for r in rows])
+    probe = next(p for p in meta["probes"] if "field_summary" in p)
+    probe["field_summary"] = field_answer(module, states, float(probe["parameters"]["inlet_velocity"]), settings,
+                                          window).summary
+    meta.setdefault("refreshed", []).append({
+        "what": "field-model answers (test rows and probe) rerun with the rollout code of this commit",
+        "field_model_errors_before": before, "commit": commit(),
+        "date_utc": datetime.now(UTC).isoformat(timespec="seconds")})
+    atomic_write_json(path, meta)
+    return meta

@@ -53,6 +53,10 @@ def test_the_fb_experiment_uses_the_issue_20_options(compose_train_cfg):
     ({"input_noise": "big"}, r"model\.stability\.input_noise='big' is invalid"),
     ({"conserve_volume": "yes"}, r"model\.stability\.conserve_volume='yes' is invalid"),
     ({"advection_scheme": "weno"}, r"model\.stability\.advection_scheme='weno' is invalid"),
+    ({"advection_flux": "smooth"}, r"model\.stability\.advection_flux='smooth' is invalid: must be one of "
+                                   r"\['predicted', 'consistent'\]"),
+    ({"advection_flux": "consistent", "mixing": "advect"},
+     r"advection_flux=consistent needs model\.stability\.conserve_volume=true"),
 ])
 def test_bad_stability_options_end_in_one_line(cfg: dict, message: str):
     with pytest.raises(ConfigError, match=message) as err:
@@ -77,3 +81,7 @@ def test_rollout_overrides_are_validated_and_keep_the_rest():
     assert rollout_overrides(base) == base
     with pytest.raises(ConfigError, match="mixing='both'"):
         rollout_overrides(base, mixing="both")
+    r = rollout_overrides(base, mixing="advect", advection_flux="consistent")
+    assert r.advection_flux == "consistent" and r.conserve_volume
+    with pytest.raises(ConfigError, match="advection_flux=consistent needs"):  # the projection switched off
+        rollout_overrides(r, conserve_volume=False)

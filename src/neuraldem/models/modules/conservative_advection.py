@@ -17,6 +17,14 @@ so c' = beta' / alpha' is a convex combination of the c values around (inside [0
 beta' = sum beta to round-off (walls are closed: no flux through the box faces). Where there is (almost) no
 solid, c' tends to the global share p_B through the same prior as the data's mixing field
 (c = (beta + a0 p_B) / (alpha + a0), `neuraldem.scenes.fluidized_bed.fields`). Sub-steps keep the Courant number <= 0.5.
+
+Consistent fluxes (`target`): the step's concentration is paired with the next solid fraction of whoever made the
+fluxes (CFD-DEM's kernel field, a model's projected prediction). When the fluxes do not carry the solid there
+(a model's flux and solid fraction are two outputs, and they disagree), the tagged volume is not conserved from
+step to step: a cell the fluxes left empty but the model fills gets the global share, which is mixing. Given
+`target`, the face fluxes first get the smallest gradient correction j - grad(psi) whose divergence carries the
+solid fraction to `target` (a Neumann Poisson problem, solved exactly with a cosine transform; solvable when both
+hold the same volume, as the volume projection guarantees).
 """
 
 from __future__ import annotations
@@ -24,6 +32,8 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
+import scipy.fft
 import torch
 
 DEFAULT_PRIOR = 1e-3
@@ -51,9 +61,67 @@ def substeps(flux: torch.Tensor, dt: float, spacing: Sequence[float], solid_frac
     return int(min(MAX_SUBSTEPS, max(1, math.ceil(worst / MAX_COURANT))))
 
 
+def face_fluxes(flux: torch.Tensor) -> dict[int, torch.Tensor]:
+    """Face averages (m/s) of a cell-centred flux (B, 3, nx, ny, nz) on the interior faces of every axis with
+    more than one cell: axis a -> (B, ...) with n_a - 1 faces along a, >0 from the lower cell to the upper."""
+    return {a: _face_flux(flux[:, a], a + 1) for a in range(3) if flux.shape[a + 2] > 1}
+
+
+def net_outflow(faces: dict[int, torch.Tensor], dt: float, spacing: Sequence[float],
+                like: torch.Tensor) -> torch.Tensor:
+    """(B, nx, ny, nz) solid fraction each cell loses over `dt` through the faces (signed, no limiter)."""
+    out = torch.zeros_like(like)
+    for a, jf in faces.items():
+        t = jf * (dt / spacing[a])
+        m = t.shape[a + 1]
+        out.narrow(a + 1, 0, m).add_(t)
+        out.narrow(a + 1, 1, m).sub_(t)
+    return out
+
+
+def _neumann_eigenvalues(shape: Sequence[int], spacing: Sequence[float]) -> np.ndarray:
+    """Eigenvalues (<= 0) of the cell-centred Neumann Laplacian in the DCT-II basis."""
+    lam = np.zeros(tuple(shape))
+    for a, n in enumerate(shape):
+        k = np.arange(n).reshape([-1 if b == a else 1 for b in range(len(shape))])
+        lam = lam + (2.0 * np.cos(np.pi * k / n) - 2.0) / spacing[a] ** 2
+    return lam
+
+
+def consistent_faces(solid_fraction: torch.Tensor, target: torch.Tensor, faces: dict[int, torch.Tensor],
+                     dt: float, spacing: Sequence[float]) -> dict[int, torch.Tensor]:
+    """The face fluxes plus the smallest gradient correction, -grad(psi), that makes their divergence carry
+    `solid_fraction` to `target` over `dt` (module docstring). Lap(psi) = -(alpha - target - net outflow) / dt
+    with closed walls; the part of the mismatch with a nonzero mean (unequal volumes) cannot be carried and
+    is left out."""
+    mismatch = solid_fraction - target - net_outflow(faces, dt, spacing, solid_fraction)
+    axes = (1, 2, 3)
+    lam = _neumann_eigenvalues(solid_fraction.shape[1:], spacing)
+    lam[(0,) * lam.ndim] = 1.0  # the mean: no correction can move it
+    rhs = scipy.fft.dctn((-mismatch / dt).detach().cpu().numpy(), type=2, axes=axes, norm="ortho") / lam
+    rhs[(slice(None),) + (0,) * lam.ndim] = 0.0
+    psi = torch.from_numpy(scipy.fft.idctn(rhs, type=2, axes=axes, norm="ortho")).to(solid_fraction)
+    out = {}
+    for a, jf in faces.items():
+        m = jf.shape[a + 1]
+        out[a] = jf - (psi.narrow(a + 1, 1, m) - psi.narrow(a + 1, 0, m)) / spacing[a]
+    return out
+
+
+def _cell_speed_flux(faces: dict[int, torch.Tensor], like: torch.Tensor) -> torch.Tensor:
+    """(B, 3, nx, ny, nz) per-axis cell flux magnitude: the mean |face flux| of its two faces (0 at walls)."""
+    out = torch.zeros((like.shape[0], 3, *like.shape[1:]), dtype=like.dtype, device=like.device)
+    for a, jf in faces.items():
+        m = jf.shape[a + 1]
+        out[:, a].narrow(a + 1, 0, m).add_(0.5 * jf.abs())
+        out[:, a].narrow(a + 1, 1, m).add_(0.5 * jf.abs())
+    return out
+
+
 def advect_tagged(solid_fraction: torch.Tensor, concentration: torch.Tensor, flux: torch.Tensor, dt: float,
                   spacing: Sequence[float], prior: float = DEFAULT_PRIOR, n_substeps: int | None = None,
-                  scheme: str = "fct", correction: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
+                  scheme: str = "fct", correction: float = 1.0,
+                  target: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Move the tagged solid over one step of `dt` seconds.
 
     solid_fraction (B, nx, ny, nz) >= 0 and concentration (B, nx, ny, nz) in [0, 1] at the start of the step;
@@ -64,6 +132,8 @@ def advect_tagged(solid_fraction: torch.Tensor, concentration: torch.Tensor, flu
     the flux correction before limiting: 1 = full FCT, 0 = upwind; in between keeps part of the upwind
     scheme's numerical mixing, which stands in for the sub-cell dispersion of the particles (calibrated on
     training trajectories: `neuraldem.scenes.fluidized_bed.advection_oracle`).
+    target (B, nx, ny, nz): the solid fraction at the end of the step; the fluxes are made consistent with it
+    first (`consistent_faces`), so the carried solid fraction equals it wherever the limiter does not act.
     Returns (concentration after the step, solid fraction the fluxes carried there). Non-finite fluxes count
     as zero (a diverging model is caught by the rollout's checks, not here)."""
     if scheme not in SCHEMES:
@@ -75,9 +145,14 @@ def advect_tagged(solid_fraction: torch.Tensor, concentration: torch.Tensor, flu
     share = prior_share(alpha, conc, prior)
     beta = torch.minimum(torch.clamp(conc * (alpha + prior) - prior * share, min=0.0), alpha)  # undo the prior
     j = torch.nan_to_num(flux.double(), nan=0.0, posinf=0.0, neginf=0.0)
+    faces = face_fluxes(j)
+    if target is not None:
+        goal = torch.nan_to_num(target.double(), nan=0.0, posinf=0.0, neginf=0.0).clamp(min=0.0)
+        faces = consistent_faces(alpha, goal, faces, dt, spacing)
+        j = _cell_speed_flux(faces, alpha)
     n = n_substeps or substeps(j, dt, spacing, alpha)
     for _ in range(n):
-        alpha, beta = _substep(alpha, beta, share, j, dt / n, spacing, correction if scheme == "fct" else 0.0)
+        alpha, beta = _substep(alpha, beta, share, faces, dt / n, spacing, correction if scheme == "fct" else 0.0)
     conc = ((beta + prior * share) / (alpha + prior)).clamp(0.0, 1.0)
     return conc.to(concentration.dtype), alpha.to(solid_fraction.dtype)
 
@@ -85,14 +160,14 @@ def advect_tagged(solid_fraction: torch.Tensor, concentration: torch.Tensor, flu
 SCHEMES = ("fct", "upwind")
 
 
-def _substep(alpha: torch.Tensor, beta: torch.Tensor, share: torch.Tensor, j: torch.Tensor, h: float,
-             spacing: Sequence[float], correction: float) -> tuple[torch.Tensor, torch.Tensor]:
+def _substep(alpha: torch.Tensor, beta: torch.Tensor, share: torch.Tensor, face_flux: dict[int, torch.Tensor],
+             h: float, spacing: Sequence[float], correction: float) -> tuple[torch.Tensor, torch.Tensor]:
     c = torch.where(alpha > 0, beta / alpha.clamp(min=1e-300), share).clamp(0.0, 1.0)
-    axes = [a for a in range(3) if alpha.shape[a + 1] > 1]
+    axes = list(face_flux)
     outflow = torch.zeros_like(alpha)
     raw = {}
     for a in axes:
-        jf = _face_flux(j[:, a], a + 1) * (h / spacing[a])  # >0: from the lower cell to the upper one
+        jf = face_flux[a] * (h / spacing[a])  # >0: from the lower cell to the upper one
         raw[a] = (jf.clamp(min=0.0), (-jf).clamp(min=0.0))
         m = jf.shape[a + 1]
         outflow.narrow(a + 1, 0, m).add_(raw[a][0])

@@ -21,7 +21,7 @@ def pipeline(data_cfg: DictConfig) -> Any:
 def evaluate(cfg: DictConfig) -> None:
     from neuraldem.scenes.fluidized_bed.evaluation import evaluate_checkpoint
     from neuraldem.scenes.fluidized_bed.rollout import DivergenceLimits
-    from neuraldem.scenes.fluidized_bed.stability import MIXING_MODES
+    from neuraldem.scenes.fluidized_bed.stability import ADVECTION_FLUXES, MIXING_MODES
 
     fb = cfg.fluidized_bed
     conserve = fb.conserve_solid_volume
@@ -36,7 +36,9 @@ def evaluate(cfg: DictConfig) -> None:
         mixing=None if fb.get("mixing") is None else checks.one_of("fluidized_bed.mixing", fb.mixing, MIXING_MODES),
         init_snapshot=checks.positive_int("fluidized_bed.init_snapshot", fb.get("init_snapshot", 1), allow_zero=True),
         advection_correction=None if correction is None else checks.number(
-            "fluidized_bed.advection_correction", correction, lo=0.0, hi=1.0))
+            "fluidized_bed.advection_correction", correction, lo=0.0, hi=1.0),
+        advection_flux=None if fb.get("advection_flux") is None else checks.one_of(
+            "fluidized_bed.advection_flux", fb.advection_flux, ADVECTION_FLUXES))
     agg = result["aggregate"]
     print((Path(cfg.paths.output_dir) / "report.md").read_text())
     which = "held-out velocities" if cfg.part == "test" else f"{cfg.part} trajectories"

@@ -3,12 +3,14 @@ solids flux (an oracle: no model in the loop), scored like a rollout against CFD
 
     python -m neuraldem.scenes.fluidized_bed.advection_oracle DATASET_DIR [--sims sim_0003 ...] [--out DIR]
     python -m neuraldem.scenes.fluidized_bed.advection_oracle DATASET_DIR --ckpt CKPT --part train+val [--steps 300]
+    ... [--flux consistent]   # the flux corrected to carry the solid to the next solid fraction
 
 For each trajectory and flux-correction weight (1 = flux-corrected transport, 0 = upwind) the concentration
 starts from the stored one at snapshot 0 and is advected step by step with the stored solid fraction at t and
 the solids flux of the step t -> t+1 (deposited at the particles' positions at t + 1, as the model's next state
 carries it). Output: Lacey curves and their MAE against CFD-DEM's field Lacey index (the evaluation's
-definition), JSON + a markdown table. It bounds what `model.stability.mixing=advect` can reach: a model's flux
+definition) and the largest swing of the tagged solid volume (0 when nothing is mixed in or lost from step to
+step), JSON + a markdown table. It bounds what `model.stability.mixing=advect` can reach: a model's flux
 is at best this one.
 
 With `--ckpt` the fields come from the model instead: one rollout per trajectory and correction weight
@@ -31,14 +33,16 @@ from neuraldem.cli import tool_prog
 from neuraldem.data.manifest import Manifest
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.machine import machine_info
-from neuraldem.models.modules.conservative_advection import advect_tagged
+from neuraldem.models.modules.conservative_advection import advect_tagged, tagged_volume
 from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings
 from neuraldem.scenes.fluidized_bed.metrics import lacey_from_fields
+from neuraldem.scenes.fluidized_bed.stability import ADVECTION_FLUXES
 from neuraldem.scenes.fluidized_bed.store import FbFile
 
 
-def advected_mixing(f: FbFile, scheme: str, correction: float = 1.0) -> np.ndarray:
-    """(T, nx, ny, nz) concentration advected with the stored fields (module docstring)."""
+def advected_mixing(f: FbFile, scheme: str, correction: float = 1.0, flux_mode: str = "predicted") -> np.ndarray:
+    """(T, nx, ny, nz) concentration advected with the stored fields (module docstring); `flux_mode`
+    "consistent": the flux corrected to carry the solid fraction at t to the stored one at t + 1."""
     g = f.grid
     spacing = [(g.hi[a] - g.lo[a]) / g.shape[a] for a in range(3)]
     alpha, flux = f.solid_fraction(), f.solids_flux()
@@ -46,27 +50,39 @@ def advected_mixing(f: FbFile, scheme: str, correction: float = 1.0) -> np.ndarr
     out = [f.mixing(0)]
     for t in range(f.n_snapshots - 1):
         j = torch.tensor(np.moveaxis(flux[t + 1], -1, 0))[None]
+        target = torch.tensor(alpha[t + 1])[None] if flux_mode == "consistent" else None
         conc, _ = advect_tagged(torch.tensor(alpha[t])[None], conc, j, f.dt, spacing, scheme=scheme,
-                                correction=correction)
+                                correction=correction, target=target)
         out.append(conc[0].numpy())
     return np.stack(out)
 
 
-def oracle(path: Path, settings: dict[str, Any], corrections: list[float]) -> dict[str, Any]:
+def tagged_swing(solid_fraction: np.ndarray, mixing: np.ndarray) -> float:
+    """Largest relative change [%] of the tagged (group-B) solid volume over a (T, ...) series: 0 for a scheme
+    that conserves it from step to step."""
+    series = tagged_volume(torch.from_numpy(np.asarray(solid_fraction, dtype=np.float64)),
+                           torch.from_numpy(np.asarray(mixing, dtype=np.float64))).numpy()
+    return float(100 * np.max(np.abs(series / series[0] - 1.0)))
+
+
+def oracle(path: Path, settings: dict[str, Any], corrections: list[float],
+           flux_mode: str = "predicted") -> dict[str, Any]:
     block, min_count = tuple(settings["lacey_block"]), float(settings["lacey_min_count"])
     with FbFile(path) as f:
         alpha, vp = f.solid_fraction(), float(np.mean(f.particle_volumes))
         truth = lacey_from_fields(alpha, f.mixing(), f.grid.cell_volume, vp, block, min_count)
         row: dict[str, Any] = {"sim_id": f.sim_id, "inlet_velocity": f.inlet_velocity, "lacey_truth": truth.tolist()}
         for c in corrections:
-            lacey = lacey_from_fields(alpha, advected_mixing(f, "fct", c), f.grid.cell_volume, vp, block, min_count)
+            mixing = advected_mixing(f, "fct", c, flux_mode)
+            lacey = lacey_from_fields(alpha, mixing, f.grid.cell_volume, vp, block, min_count)
             row[f"lacey_{c:g}"] = lacey.tolist()
             row[f"mae_{c:g}"] = float(np.nanmean(np.abs(lacey - truth)))
+            row[f"tagged_swing_pct_{c:g}"] = tagged_swing(alpha, mixing)
     return row
 
 
 def model_rows(ckpt: Path, paths: list[Path], settings: dict[str, Any], corrections: list[float],
-               steps: int) -> list[dict[str, Any]]:
+               steps: int, flux_mode: str | None = None) -> list[dict[str, Any]]:
     from neuraldem.scenes.fluidized_bed.evaluation import FieldSeries
     from neuraldem.scenes.fluidized_bed.rollout import (
         DEFAULT_INIT_SNAPSHOT,
@@ -90,7 +106,8 @@ def model_rows(ckpt: Path, paths: list[Path], settings: dict[str, Any], correcti
                                    "lacey_truth": lacey_truth.tolist()}
             state = initial_state(f)
             for c in corrections:
-                stepper = ModelStepper(module, f.inlet_velocity, 0, mixing="advect", advection_correction=c)
+                stepper = ModelStepper(module, f.inlet_velocity, 0, mixing="advect", advection_correction=c,
+                                       advection_flux=flux_mode)
                 r = rollout(stepper, state, n, progress=False)
                 if r.diverged_at is not None:  # a few steps say nothing about mixing: not scored
                     row[f"lacey_{c:g}"], row[f"mae_{c:g}"] = [], float("nan")
@@ -100,28 +117,32 @@ def model_rows(ckpt: Path, paths: list[Path], settings: dict[str, Any], correcti
                                           f.grid.cell_volume, vp, block, min_count)
                 row[f"lacey_{c:g}"] = lacey.tolist()
                 row[f"mae_{c:g}"] = float(np.nanmean(np.abs(lacey - lacey_truth[: len(lacey)])))
+                row[f"tagged_swing_pct_{c:g}"] = tagged_swing(r.solid_fraction, r.mixing)
         rows.append(row)
     return rows
 
 
 def markdown(rows: list[dict[str, Any]], corrections: list[float], command: str) -> str:
-    head = " | ".join(f"correction {c:g}: 1 s / end | MAE" for c in corrections)
+    head = " | ".join(f"correction {c:g}: 1 s / end | MAE | tagged swing [%]" for c in corrections)
     lines = ["# Mixing by advection (CFD-DEM's own solid fraction and solids flux, or with --ckpt a model's)", "",
              f"`{command}`", "", "correction 1 = flux-corrected transport, 0 = first-order upwind.", "",
              f"| trajectory | U0 [m/s] | Lacey CFD-DEM at 1 s / end | {head} |",
-             "|---|---|---|" + "---|---|" * len(corrections)]
+             "|---|---|---|" + "---|---|---|" * len(corrections)]
     for r in rows:
         k = min(100, len(r["lacey_truth"]) - 1)
         cells = [f"{r['lacey_truth'][k]:.2f} / {r['lacey_truth'][-1]:.2f}"]
         for c in corrections:
             curve = r[f"lacey_{c:g}"]
             if not curve:
-                cells += [f"diverged at step {r.get(f'diverged_{c:g}')}", "n/a"]
+                cells += [f"diverged at step {r.get(f'diverged_{c:g}')}", "n/a", "n/a"]
                 continue
-            cells += [f"{curve[min(k, len(curve) - 1)]:.2f} / {curve[-1]:.2f}", f"{r[f'mae_{c:g}']:.3f}"]
+            cells += [f"{curve[min(k, len(curve) - 1)]:.2f} / {curve[-1]:.2f}", f"{r[f'mae_{c:g}']:.3f}",
+                      f"{r[f'tagged_swing_pct_{c:g}']:.1f}"]
         lines.append(f"| {r['sim_id']} | {r['inlet_velocity']:.3f} | " + " | ".join(cells) + " |")
     means = [f"{np.nanmean([r[f'mae_{c:g}'] for r in rows]):.3f}" for c in corrections]
-    lines.append("| mean MAE | | | " + " | ".join(f"| {m}" for m in means) + " |")
+    swings = [f"{np.nanmax([r.get(f'tagged_swing_pct_{c:g}', np.nan) for r in rows]):.1f}" for c in corrections]
+    lines.append("| mean MAE, largest swing | | | " + " | ".join(f"| {m} | {w}" for m, w in zip(means, swings,
+                                                                                          strict=True)) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -137,6 +158,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--ckpt", type=Path, default=None,
                    help="score a model's rollouts (its own solid fraction and flux) instead of the oracle")
     p.add_argument("--steps", type=int, default=300, help="rollout steps with --ckpt")
+    p.add_argument("--flux", choices=list(ADVECTION_FLUXES), default=None,
+                   help="predicted: the stored (or the model's) flux as it is; consistent: corrected to carry the "
+                        "solid to the next solid fraction (default: predicted for the oracle, the checkpoint's "
+                        "option with --ckpt)")
     p.add_argument("--out", type=Path, default=None, help="folder for oracle.json and oracle.md")
     a = p.parse_args(argv)
     m = Manifest.load(a.dataset)
@@ -154,9 +179,9 @@ def main(argv: list[str] | None = None) -> int:
     if a.ckpt is not None:
         if a.steps < 1:
             p.error(f"--steps {a.steps}: must be >= 1")
-        rows = model_rows(a.ckpt, paths, settings, a.corrections, a.steps)
+        rows = model_rows(a.ckpt, paths, settings, a.corrections, a.steps, a.flux)
     else:
-        rows = [oracle(path, settings, a.corrections) for path in paths]
+        rows = [oracle(path, settings, a.corrections, a.flux or "predicted") for path in paths]
     command = "python -m neuraldem.scenes.fluidized_bed.advection_oracle " + " ".join(
         sys.argv[1:] if argv is None else argv)
     text = markdown(rows, a.corrections, command)

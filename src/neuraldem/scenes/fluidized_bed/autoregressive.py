@@ -35,33 +35,46 @@ def _stats(norm: FbNormalizer, name: str, like: torch.Tensor) -> tuple[torch.Ten
             torch.tensor(norm.std[name], dtype=like.dtype, device=like.device))
 
 
-def project_volume(fluid: torch.Tensor, norm: FbNormalizer, volume: torch.Tensor,
-                   max_passes: int | None = None) -> torch.Tensor:
+def water_fill(alpha: torch.Tensor, volume: torch.Tensor, cap: float) -> torch.Tensor:
+    """min(s alpha, cap) per row of alpha (B, N) >= 0, with the one s >= 0 per row that makes the row sum
+    `volume` (B, 1): the field scaled as a whole, the cells it pushes past the cap held there. Exact (sorted:
+    with the k largest cells capped, s = (volume - k cap) / (sum of the others); the answer is the smallest k
+    whose largest free cell stays under the cap). Cells over the cap before scaling are not held by themselves:
+    a prediction that piles more than the volume into them is scaled down as a whole. A row with no solid
+    outside its capped cells spreads the rest evenly over the empty ones; a volume past n * cap fills every
+    cell to the cap. Differentiable through s."""
+    b, n = alpha.shape
+    work = alpha.double()
+    target = volume.double().reshape(b, 1)
+    srt = work.sort(dim=1, descending=True).values
+    zero = srt.new_zeros(b, 1)
+    taken = torch.cat([zero, srt.cumsum(dim=1)], dim=1)  # (B, n + 1): sum of the k largest
+    tail = taken[:, -1:] - taken  # sum of the others
+    k = torch.arange(n + 1, dtype=work.dtype, device=work.device)
+    rest = target - cap * k
+    scale = rest / tail.clamp(min=1e-300)
+    largest_free = torch.cat([srt, zero], dim=1)
+    ok = (rest >= 0) & (tail > 1e-12 * taken[:, -1:].clamp(min=1e-300)) & (scale * largest_free <= cap)
+    found = ok.any(dim=1, keepdim=True)
+    first = ok.to(torch.int8).argmax(dim=1, keepdim=True)  # the smallest such k
+    s = scale.gather(1, first)
+    filled = torch.minimum(s.clamp(min=0.0) * work, torch.full_like(work, cap))
+    # no k works: every cell holding solid is at the cap; the rest goes evenly to the empty ones
+    held = (work > 0).sum(dim=1, keepdim=True)
+    even = ((target - cap * held) / (n - held).clamp(min=1)).clamp(0.0, cap)
+    fallback = torch.where(work > 0, torch.full_like(work, cap), even.expand_as(work))
+    return torch.where(found, filled, fallback).to(alpha.dtype)
+
+
+def project_volume(fluid: torch.Tensor, norm: FbNormalizer, volume: torch.Tensor) -> torch.Tensor:
     """fluid (B, cells, C) model units with its solid fraction projected onto the physical set: 0 <= alpha <=
     the densest value of the training data (`norm.solid_fraction_max`; 0.74 if unknown) and sum over the cells =
-    `volume` (B,) (the input state's: the bed is closed). Clamped at 0; cells at or above the cap hold it, the
-    others share the rest in proportion (water filling: one scale factor s with sum(min(s alpha, cap)) = the
-    rest): scale, hold the cells the scaling pushes past the cap at the cap, rescale the others to what is left,
-    until no more cells pass the cap (s only grows, each pass caps at least one more cell: at most one pass per
-    cell; `max_passes` stops earlier, for tests). Differentiable, so the loss of a model trained with it sees the
-    projected field."""
+    `volume` (B,) (the input state's: the bed is closed). Clamped at 0, then `water_fill`. Differentiable, so
+    the loss of a model trained with it sees the projected field."""
     mean, std = _stats(norm, "solid_fraction", fluid)
     cap = float(norm.solid_fraction_max) if norm.solid_fraction_max > 0 else 0.74
     alpha = (fluid[..., SOLID_FRACTION_CHANNEL] * std[0] + mean[0]).clamp(min=0.0)
-    target = volume.to(alpha.dtype).reshape(-1, 1)
-    capped = alpha >= cap
-    scaled = alpha
-    for _ in range(alpha.shape[1] if max_passes is None else max_passes):
-        rest = (target - cap * capped.to(alpha.dtype).sum(dim=1, keepdim=True)).clamp(min=0.0)
-        free = torch.where(capped, torch.zeros_like(alpha), alpha).sum(dim=1, keepdim=True)
-        n_free = (~capped).sum(dim=1, keepdim=True).clamp(min=1)
-        # the uncapped cells take up the rest in proportion (evenly if they hold nothing)
-        scaled = torch.where(free > 0, alpha * rest / free.clamp(min=1e-12), rest / n_free)
-        over = ~capped & (scaled > cap)
-        if not bool(over.any()):
-            break
-        capped = capped | over
-    alpha = torch.where(capped, torch.full_like(alpha, cap), scaled).clamp(max=cap)
+    alpha = water_fill(alpha, volume, cap)
     out = fluid.clone()
     out[..., SOLID_FRACTION_CHANNEL] = (alpha - mean[0]) / std[0]
     return out
@@ -75,9 +88,10 @@ def solid_volume(grid: torch.Tensor, norm: FbNormalizer) -> torch.Tensor:
 
 @torch.no_grad()
 def advect_mixing(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormalizer,
-                  scheme: str = "fct", correction: float = 1.0) -> torch.Tensor:
+                  scheme: str = "fct", correction: float = 1.0, consistent: bool = False) -> torch.Tensor:
     """Next mixing grid (B, cells, 1), model units: the input concentration carried over one step by the
-    predicted solids flux (channels 4-6 of `fluid` (B, cells, 7)), starting from the input solid fraction.
+    predicted solids flux (channels 4-6 of `fluid` (B, cells, 7)), starting from the input solid fraction;
+    `consistent`: the flux corrected to carry the solid to the next solid fraction of `fluid` (channel 3).
     No gradient flows through it: the loss never scores the advected field (the off-branch is trained on its
     own prediction), only the next step reads it."""
     shape = tuple(inputs.grid.shape[2:])
@@ -89,7 +103,11 @@ def advect_mixing(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormalize
     f_mean, f_std = _stats(norm, "solids_flux", fluid)
     flux = (fluid[..., FLUX_CHANNELS] * f_std + f_mean).transpose(1, 2).reshape(batch, 3, *shape)
     spacing = [(hi - lo) / n for lo, hi, n in zip(norm.box_lo, norm.box_hi, norm.grid_shape, strict=True)]
-    new_conc, _ = advect_tagged(alpha, conc, flux, norm.dt, spacing, scheme=scheme, correction=correction)
+    target = None
+    if consistent:
+        target = (fluid[..., SOLID_FRACTION_CHANNEL] * a_std[0] + a_mean[0]).reshape(batch, *shape)
+    new_conc, _ = advect_tagged(alpha, conc, flux, norm.dt, spacing, scheme=scheme, correction=correction,
+                                target=target)
     return ((new_conc - m_mean[0]) / m_std[0]).reshape(batch, -1, 1)
 
 
@@ -163,7 +181,7 @@ def apply_stability(fields: dict[str, torch.Tensor], inputs: OperatorInputs, nor
         out["fluid"] = project_volume(out["fluid"], norm, solid_volume(inputs.grid, norm) if volume is None else volume)
     if stability.mixing == "advect":
         out["mixing"] = advect_mixing(inputs, out["fluid"], norm, stability.advection_scheme,
-                                      stability.advection_correction)
+                                      stability.advection_correction, stability.advection_flux == "consistent")
     return out
 
 

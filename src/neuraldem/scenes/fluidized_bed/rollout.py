@@ -139,9 +139,9 @@ class ModelStepper:
 
     def __init__(self, module: FluidizedBedModule, velocity: float, seed: int = 0, device: str = "cpu",
                  conserve_solid_volume: bool | None = None, mixing: str | None = None,
-                 advection_correction: float | None = None):
+                 advection_correction: float | None = None, advection_flux: str | None = None):
         base = getattr(module, "stability", None) or FbStability()
-        self.stability = rollout_overrides(base, mixing, conserve_solid_volume, advection_correction)
+        self.stability = rollout_overrides(base, mixing, conserve_solid_volume, advection_correction, advection_flux)
         if self.stability.mixing == "advect" and not module.metadata.get("solids_flux", False):
             raise ConfigError("config value mixing=advect needs a model trained with the solids flux "
                               "(data.datamodule.solids_flux=true): use mixing=absolute for this checkpoint")

@@ -20,6 +20,12 @@ advection_correction  weight of the flux correction, 0 (upwind) .. 1 (full FCT);
                   0 / 0.25 / 0.5 / 0.75 / 1 with CFD-DEM's own fields on the training and validation
                   trajectories (`neuraldem.scenes.fluidized_bed.advection_oracle --part train+val`): full FCT
                   under-mixes the bubbling beds, upwind over-mixes the quiet ones.
+advection_flux    "predicted": the scheme moves the solid with the predicted flux as it is; "consistent": the
+                  flux first gets the smallest gradient correction that carries the input solid fraction to the
+                  step's (projected) prediction, so the concentration pairs with the solid it describes and the
+                  tagged volume is kept from step to step, not only within one (needs conserve_volume=true).
+                  With CFD-DEM's own fields on the training and validation trajectories the tagged-volume swing
+                  over 3 s fell from up to ~40 % to < 1 % (`advection_oracle --flux consistent`).
 ensemble          members per training sample: 1 = deterministic (MSE); >= 2 = a stochastic model (net
                   noise_dim > 0) trained with the fair CRPS over its members.
 """
@@ -36,6 +42,7 @@ from neuraldem.models.modules.conservative_advection import SCHEMES
 
 KEY = "model.stability"
 MIXING_MODES = ("absolute", "advect")
+ADVECTION_FLUXES = ("predicted", "consistent")
 LOSS_ON = ("every", "last")
 MAX_ENSEMBLE = 16
 
@@ -49,6 +56,7 @@ class FbStability:
     mixing: str = "absolute"
     advection_scheme: str = "fct"
     advection_correction: float = 0.75
+    advection_flux: str = "predicted"  # checkpoints saved before the option keep their behaviour
     ensemble: int = 1
     noise_ema: float = field(default=0.99, repr=False)
 
@@ -82,6 +90,11 @@ class FbStability:
         checks.one_of(f"{KEY}.mixing", self.mixing, MIXING_MODES)
         checks.one_of(f"{KEY}.advection_scheme", self.advection_scheme, SCHEMES)
         checks.number(f"{KEY}.advection_correction", self.advection_correction, lo=0.0, hi=1.0)
+        checks.one_of(f"{KEY}.advection_flux", self.advection_flux, ADVECTION_FLUXES)
+        if self.advection_flux == "consistent" and self.mixing == "advect" and not self.conserve_volume:
+            raise ConfigError(f"config value {KEY}.advection_flux=consistent needs {KEY}.conserve_volume=true: "
+                              "fluxes can only carry the solid to a field of the same volume (or set "
+                              f"{KEY}.advection_flux=predicted)")
         if isinstance(self.ensemble, bool) or not isinstance(self.ensemble, int) or self.ensemble < 1:
             raise ConfigError(f"config value {KEY}.ensemble={self.ensemble!r} is invalid: must be an integer >= 1 "
                               f"(1 = deterministic; 2 = a stochastic model trained with CRPS, e.g. {KEY}.ensemble=2)")
@@ -114,9 +127,11 @@ class FbStability:
 
 
 def rollout_overrides(base: FbStability, mixing: str | None = None, conserve_volume: bool | None = None,
-                      advection_correction: float | None = None) -> FbStability:
+                      advection_correction: float | None = None, advection_flux: str | None = None) -> FbStability:
     """The options a rollout uses: the checkpoint's, with the rollout-time ones overridden (validated)."""
     d = base.to_dict()
+    if advection_flux is not None:
+        d["advection_flux"] = advection_flux
     if advection_correction is not None:
         d["advection_correction"] = advection_correction
     if mixing is not None:

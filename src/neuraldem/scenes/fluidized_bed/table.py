@@ -41,7 +41,9 @@ def options_label(r: dict) -> str:
     parts.append(f"noise {noise}")
     parts.append("flux" if t.get("solids_flux") else "no flux")
     parts.append(f"mixing {st.get('mixing', 'absolute')}"
-                 + (f" ({st.get('advection_correction', 1.0):g})" if st.get("mixing") == "advect" else ""))
+                 + (f" ({st.get('advection_correction', 1.0):g}"
+                    + (", consistent flux" if st.get("advection_flux") == "consistent" else "") + ")"
+                    if st.get("mixing") == "advect" else ""))
     if st.get("conserve_volume"):
         parts.append("volume projected")
     if st.get("ensemble", 1) > 1:
