@@ -133,7 +133,8 @@ def advect_tagged(solid_fraction: torch.Tensor, concentration: torch.Tensor, flu
     scheme's numerical mixing, which stands in for the sub-cell dispersion of the particles (calibrated on
     training trajectories: `neuraldem.scenes.fluidized_bed.advection_oracle`).
     target (B, nx, ny, nz): the solid fraction at the end of the step; the fluxes are made consistent with it
-    first (`consistent_faces`), so the carried solid fraction equals it wherever the limiter does not act.
+    first (`consistent_faces`), and what the limiter kept them from carrying is settled at the end (`_settle`),
+    so the carried solid fraction is the target and the tagged volume is kept (both volumes equal).
     Returns (concentration after the step, solid fraction the fluxes carried there). Non-finite fluxes count
     as zero (a diverging model is caught by the rollout's checks, not here)."""
     if scheme not in SCHEMES:
@@ -153,11 +154,28 @@ def advect_tagged(solid_fraction: torch.Tensor, concentration: torch.Tensor, flu
     n = n_substeps or substeps(j, dt, spacing, alpha)
     for _ in range(n):
         alpha, beta = _substep(alpha, beta, share, faces, dt / n, spacing, correction if scheme == "fct" else 0.0)
+    if target is not None:
+        alpha, beta = _settle(alpha, beta, share, goal)
     conc = ((beta + prior * share) / (alpha + prior)).clamp(0.0, 1.0)
     return conc.to(concentration.dtype), alpha.to(solid_fraction.dtype)
 
 
 SCHEMES = ("fct", "upwind")
+
+
+def _settle(alpha: torch.Tensor, beta: torch.Tensor, share: torch.Tensor,
+            target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Close the small gap the limiter leaves between the carried solid fraction and `target`: cells above it
+    give the excess at their own concentration, cells below take what they lack at the pooled concentration of
+    what was given. The tagged volume is kept exactly and every concentration stays a convex combination."""
+    cells = tuple(range(1, alpha.ndim))
+    c = torch.where(alpha > 0, beta / alpha.clamp(min=1e-300), share).clamp(0.0, 1.0)
+    gap = target - alpha
+    give, take = (-gap).clamp(min=0.0), gap.clamp(min=0.0)
+    given, wanted = give.sum(dim=cells, keepdim=True), take.sum(dim=cells, keepdim=True)
+    pooled = torch.where(given > 0, (give * c).sum(dim=cells, keepdim=True) / given.clamp(min=1e-300), share)
+    take = take * torch.where(wanted > 0, given / wanted.clamp(min=1e-300), torch.zeros_like(wanted))
+    return alpha - give + take, beta - give * c + take * pooled
 
 
 def _substep(alpha: torch.Tensor, beta: torch.Tensor, share: torch.Tensor, face_flux: dict[int, torch.Tensor],
