@@ -23,9 +23,11 @@ advection_correction  weight of the flux correction, 0 (upwind) .. 1 (full FCT);
 advection_flux    "predicted": the scheme moves the solid with the predicted flux as it is; "consistent": the
                   flux first gets the smallest gradient correction that carries the input solid fraction to the
                   step's (projected) prediction, so the concentration pairs with the solid it describes and the
-                  tagged volume is kept from step to step, not only within one (needs conserve_volume=true).
-                  With CFD-DEM's own fields on the training and validation trajectories the tagged-volume swing
-                  over 3 s fell from up to ~40 % to < 1 % (`advection_oracle --flux consistent`).
+                  tagged volume is kept from step to step, not only within one (needs conserve_volume=true;
+                  what the limiter cannot carry is settled at the pooled concentration). Measured on the
+                  training and validation trajectories (`advection_oracle --flux consistent`,
+                  results/fluidized_bed/surrogate/bubbles.md): with CFD-DEM's own fields the tagged-volume swing
+                  over 3 s fell from up to ~40 % to < 1 % and the Lacey MAE from 0.041 to 0.027.
 ensemble          members per training sample: 1 = deterministic (MSE); >= 2 = a stochastic model (net
                   noise_dim > 0) trained with the fair CRPS over its members.
 """
