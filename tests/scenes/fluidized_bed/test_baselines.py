@@ -72,3 +72,19 @@ def test_excluded_runs_are_not_used(fb_tiny_dataset: Path, tmp_path: Path):
     near = docs["nearest"]["trajectories"][0]  # sim_0000 scored against the other packing, not itself
     assert near["sim_id"] == "sim_0000" and near["rel_l2"]["solid_fraction_mean"] > 0.0
     assert docs["nearest"]["excluded"] == ["sim_0000"]
+
+
+@pytest.mark.solver
+def test_the_other_packing_is_the_seed_spread_where_a_twin_exists(fb_tiny_dataset: Path, tmp_path: Path):
+    """fb_tiny holds two packings of its low (training) velocity and one of its high (test) one: the twin of
+    sim_0000 is the other packing (the same answer as the nearest training run once sim_0000 itself is left
+    out), and the test velocity, with no twin, is not scored."""
+    twin = evaluate_baselines(fb_tiny_dataset, tmp_path / "twin", part="train",
+                              baselines=("other_packing",))["other_packing"]
+    near = evaluate_baselines(fb_tiny_dataset, tmp_path / "near", part="train", exclude=("sim_0000",),
+                              baselines=("nearest",))["nearest"]
+    assert [t["sim_id"] for t in twin["trajectories"]] == ["sim_0000"]
+    assert twin["trajectories"][0]["rel_l2"] == near["trajectories"][0]["rel_l2"]
+    assert twin["trajectories"][0]["rel_l2"]["solid_fraction_mean"] > 0.0
+    alone = evaluate_baselines(fb_tiny_dataset, tmp_path / "test", part="test", baselines=("nearest", "other_packing"))
+    assert set(alone) == {"nearest"} and not (tmp_path / "test" / "baseline_other_packing").exists()

@@ -10,11 +10,13 @@ and scored with the same functions, the same held-out trajectories and the same 
 - `interpolated`: snapshot by snapshot, the linear interpolation in inlet velocity between the two training
   trajectories that bracket the held-out velocity (the nearest one outside the range); a scalar regression on
   the scene parameter, whose averaging of two decorrelated beds damps the bubbles;
-- `constant`: snapshot by snapshot, the mean of all training trajectories (ignores the velocity).
+- `constant`: snapshot by snapshot, the mean of all training trajectories (ignores the velocity);
+- `other_packing`: the solver's own seed spread: CFD-DEM at the same velocity from another initial packing (a
+  held-out trajectory of the same part), replayed; scored only where such a twin exists.
 
 A replayed trajectory is as long as the training runs (e.g. 300 steps), so against a long (30-s) test trajectory
 the statistics cover that many steps only; the column "steps compared" says so. The solver's own seed spread
-(CFD-DEM from another packing) needs two packings per velocity: `python -m neuraldem.bench fb_speed_accuracy`.
+(`other_packing`) needs two packings per velocity; `python -m neuraldem.bench fb_speed_accuracy` charts it against cost.
 
 Each baseline is written as DIR/<baseline>/evaluation/metrics.json in the layout `neuraldem.evaluate` writes,
 so `python -m neuraldem.scenes.fluidized_bed.table` puts them in one table with the models.
@@ -40,8 +42,9 @@ from neuraldem.scenes.fluidized_bed.evaluation import FieldSeries, _jsonable, ag
 from neuraldem.scenes.fluidized_bed.rollout import DEFAULT_INIT_SNAPSHOT
 from neuraldem.scenes.fluidized_bed.store import FbFile
 
-BASELINES = ("nearest", "interpolated", "constant")
+BASELINES = ("nearest", "interpolated", "constant", "other_packing")
 DESCRIPTIONS = {
+    "other_packing": "CFD-DEM at the same velocity from another packing, replayed (the solver's seed spread)",
     "nearest": "CFD-DEM at the nearest training velocity, replayed",
     "interpolated": "CFD-DEM, snapshot-wise linear interpolation in velocity between the bracketing training runs",
     "constant": "CFD-DEM, snapshot-wise mean of all training runs",
@@ -122,11 +125,18 @@ def evaluate_baselines(dataset_dir: Path, out_dir: Path, split: str = "velocity"
     if not records:
         raise DataError(f"no finished {part} trajectories in split {split!r} of {dataset_dir}")
     per_baseline: dict[str, list[dict[str, Any]]] = {b: [] for b in baselines}
+    twins = {r.sim_id: r for r in (m.record(i) for i in m.split_ids(split, part)) if r.usable}
     for rec in records:
         v = velocity(rec)
         truth = load_series(dataset_dir / str(rec.file)).since(init_snapshot)
         for b in baselines:
-            pred = baseline_series(b, train, v)
+            if b == "other_packing":
+                twin = next((r for i, r in sorted(twins.items()) if i != rec.sim_id and velocity(r) == v), None)
+                if twin is None:  # one packing of this velocity so far
+                    continue
+                pred = load_series(dataset_dir / str(twin.file)).since(init_snapshot)
+            else:
+                pred = baseline_series(b, train, v)
             steps = len(pred.times) - 1
             result = {"sim_id": rec.sim_id, "inlet_velocity": v, "steps_requested": steps,
                       "extrapolation": not (train[0][0] <= v <= train[-1][0]),
@@ -137,6 +147,8 @@ def evaluate_baselines(dataset_dir: Path, out_dir: Path, split: str = "velocity"
     horizon = min(len(s.times) for _, s in train) - 1
     out: dict[str, dict[str, Any]] = {}
     for b, results in per_baseline.items():
+        if not results:
+            continue
         doc = {
             "baseline": b, "description": DESCRIPTIONS[b], "dataset": str(dataset_dir), "split": split,
             "part": part, "trained_velocity_range": [train[0][0], train[-1][0]],
