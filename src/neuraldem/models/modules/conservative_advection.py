@@ -163,13 +163,18 @@ def advect_tagged(solid_fraction: torch.Tensor, concentration: torch.Tensor, flu
 SCHEMES = ("fct", "upwind")
 
 
+def _concentration(alpha: torch.Tensor, beta: torch.Tensor, share: torch.Tensor) -> torch.Tensor:
+    """Share of tagged solid in each cell, the global share where a cell holds none."""
+    return torch.where(alpha > 0, beta / alpha.clamp(min=1e-300), share).clamp(0.0, 1.0)
+
+
 def _settle(alpha: torch.Tensor, beta: torch.Tensor, share: torch.Tensor,
             target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Close the small gap the limiter leaves between the carried solid fraction and `target`: cells above it
     give the excess at their own concentration, cells below take what they lack at the pooled concentration of
     what was given. The tagged volume is kept exactly and every concentration stays a convex combination."""
     cells = tuple(range(1, alpha.ndim))
-    c = torch.where(alpha > 0, beta / alpha.clamp(min=1e-300), share).clamp(0.0, 1.0)
+    c = _concentration(alpha, beta, share)
     gap = target - alpha
     give, take = (-gap).clamp(min=0.0), gap.clamp(min=0.0)
     given, wanted = give.sum(dim=cells, keepdim=True), take.sum(dim=cells, keepdim=True)
@@ -180,7 +185,7 @@ def _settle(alpha: torch.Tensor, beta: torch.Tensor, share: torch.Tensor,
 
 def _substep(alpha: torch.Tensor, beta: torch.Tensor, share: torch.Tensor, face_flux: dict[int, torch.Tensor],
              h: float, spacing: Sequence[float], correction: float) -> tuple[torch.Tensor, torch.Tensor]:
-    c = torch.where(alpha > 0, beta / alpha.clamp(min=1e-300), share).clamp(0.0, 1.0)
+    c = _concentration(alpha, beta, share)
     axes = list(face_flux)
     outflow = torch.zeros_like(alpha)
     raw = {}
