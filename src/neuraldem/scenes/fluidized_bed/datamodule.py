@@ -17,6 +17,10 @@ from inputs that carry its own errors; `input_noise` adds Gaussian noise of that
 training inputs for the same purpose. Validation and test always use K = 1 and no noise, so their losses
 compare across these options.
 
+`mirror=true` (training split only) serves the mirror image in x of half the samples, drawn per sample
+(`neuraldem.scenes.fluidized_bed.mirror`: the bed is left-right symmetric, so the image is another trajectory
+of the same physics).
+
 `solids_flux=true` adds three grid channels: the kernel solids flux alpha_p u_s of the last step (a two-fluid
 state: the fluid branch then sees and predicts how the solid moves, which the conservative mixing advection
 uses).
@@ -36,6 +40,7 @@ from neuraldem.data.file_samples import FileSamples
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
 from neuraldem.data.part_loaders import PartLoaders
 from neuraldem.errors import ConfigError, DataError
+from neuraldem.scenes.fluidized_bed.mirror import mirror_grid, mirror_points, mirror_vectors
 from neuraldem.scenes.fluidized_bed.normalization import FbNormalizer
 from neuraldem.scenes.fluidized_bed.store import KIND, FbFile
 
@@ -67,9 +72,10 @@ class FbSamples(FileSamples):
 
     def __init__(self, dataset_dir: Path, records: list[SimRecord], norm: FbNormalizer, steps: int,
                  particles_per_sample: int | None, input_noise: float, random: bool, seed: int = 0,
-                 time_stride: int = 1, solids_flux: bool = False):
+                 time_stride: int = 1, solids_flux: bool = False, mirror: bool = False):
         self.dir = Path(dataset_dir)
         self.solids_flux = solids_flux
+        self.mirror = mirror
         self.records = records
         self.norm = norm
         self.steps = steps
@@ -95,35 +101,52 @@ class FbSamples(FileSamples):
             return present
         return np.sort(rng.choice(present, n, replace=len(present) < n))
 
-    def _grid(self, f: FbFile, t: int) -> np.ndarray:
+    def _grid(self, f: FbFile, t: int, flip: bool = False) -> np.ndarray:
         # the whole trajectory's flux, computed once per open file and kept (not one deposit per sample)
         flux = f.solids_flux()[t] if self.solids_flux else None
-        return grid_input(self.norm, f.fluid_velocity(t), f.solid_fraction(t), flux)
+        velocity, alpha = f.fluid_velocity(t), f.solid_fraction(t)
+        if flip:
+            velocity, alpha = mirror_grid(velocity, vector=True), mirror_grid(alpha, vector=False)
+            flux = None if flux is None else mirror_grid(flux, vector=True)
+        return grid_input(self.norm, velocity, alpha, flux)
+
+    def _mixing(self, f: FbFile, t: int, flip: bool) -> np.ndarray:
+        c = f.mixing(t)
+        return mixing_input(self.norm, mirror_grid(c, vector=False) if flip else c)
 
     def sample(self, i: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
         s, t = self.items[i]
         f = self._open(s)
         norm = self.norm
-        pos = f.positions(t)
-        disp_in = f.displacement(t - 1) if t > 0 else np.zeros_like(pos)
+        flip = self.mirror and bool(rng.random() < 0.5)  # no draw without mirror: the old sample streams stay
+        lo_x, hi_x = f.grid.lo[0], f.grid.hi[0]
+
+        def points(p: np.ndarray) -> np.ndarray:
+            return mirror_points(p, lo_x, hi_x) if flip else p
+
+        def vectors(v: np.ndarray) -> np.ndarray:
+            return mirror_vectors(v) if flip else v
+
+        pos = points(f.positions(t))
+        disp_in = vectors(f.displacement(t - 1)) if t > 0 else np.zeros_like(pos)
         ok_in = np.isfinite(pos).all(axis=1) & np.isfinite(disp_in).all(axis=1)
         n = self.n_particles or int(ok_in.sum())
         p_in = self._pick(rng, ok_in, n)
         features = norm.field("displacement", disp_in[p_in])
-        grid = self._grid(f, t)
-        mixing = mixing_input(norm, f.mixing(t))
+        grid = self._grid(f, t, flip)
+        mixing = self._mixing(f, t, flip)
         solid_volume = float(np.sum(f.solid_fraction(t)))
         if self.noise > 0:
             features, grid, mixing = (x + self.noise * rng.standard_normal(x.shape) for x in (features, grid, mixing))
         targets: dict[str, list[np.ndarray]] = {"pos": [], "particles": [], "fluid": [], "mixing": []}
         for tk in range(t + 1, t + self.steps + 1):
-            pos_k, disp_k = f.positions(tk), f.displacement(tk - 1)
+            pos_k, disp_k = points(f.positions(tk)), vectors(f.displacement(tk - 1))
             p_out = self._pick(rng, np.isfinite(pos_k).all(axis=1) & np.isfinite(disp_k).all(axis=1), n)
             targets["pos"].append(norm.positions(pos_k[p_out]))
             targets["particles"].append(norm.field("displacement", disp_k[p_out]))
-            fluid = np.moveaxis(self._grid(f, tk), 0, -1)
+            fluid = np.moveaxis(self._grid(f, tk, flip), 0, -1)
             targets["fluid"].append(fluid.reshape(-1, fluid.shape[-1]))
-            targets["mixing"].append(np.moveaxis(mixing_input(norm, f.mixing(tk)), 0, -1).reshape(-1, 1))
+            targets["mixing"].append(np.moveaxis(self._mixing(f, tk, flip), 0, -1).reshape(-1, 1))
         velocity = self.records[s].params.get("inlet_velocity", f.inlet_velocity)
 
         def tensor(x: np.ndarray) -> torch.Tensor:
@@ -146,9 +169,10 @@ class FluidizedBedDataModule(PartLoaders):
     def __init__(self, dataset_dir: str, name: str, conditioning: list[str] | None = None,
                  split: str = "velocity", batch_size: int = 8, particles_per_sample: int | None = None,
                  input_noise: float = 0.0, push_forward_steps: int = 1, num_workers: int = 0, seed: int = 0,
-                 eval_time_stride: int = 1, solids_flux: bool = False):
+                 eval_time_stride: int = 1, solids_flux: bool = False, mirror: bool = False):
         super().__init__()
         self.solids_flux = checks.boolean("data.datamodule.solids_flux", solids_flux)
+        self.mirror = checks.boolean("data.datamodule.mirror", mirror)
         self.dataset_dir = Path(dataset_dir)
         self.name = name
         self.conditioning = checks.names("data.conditioning", list(conditioning or CONDITIONING_NAMES),
@@ -213,7 +237,8 @@ class FluidizedBedDataModule(PartLoaders):
             self.datasets[part] = FbSamples(
                 self.dataset_dir, self.records(part), self.norm, self.push_forward_steps if train else 1,
                 self.particles_per_sample, self.input_noise if train else 0.0, random=train, seed=self.seed,
-                time_stride=1 if train else self.eval_time_stride, solids_flux=self.solids_flux)
+                time_stride=1 if train else self.eval_time_stride, solids_flux=self.solids_flux,
+                mirror=self.mirror and train)
 
     def _check_push_forward(self) -> None:
         lengths = []
@@ -235,5 +260,5 @@ class FluidizedBedDataModule(PartLoaders):
                 # the runs of each part when it trained: the dataset may grow later (what a shipped model records)
                 "split_ids": {p: [r.sim_id for r in self.records(p)] for p in ("train", "val", "test")},
                 "push_forward_steps": self.push_forward_steps, "input_noise": self.input_noise,
-                "solids_flux": self.solids_flux, "grid_channels": 7 if self.solids_flux else 4,
+                "solids_flux": self.solids_flux, "mirror": self.mirror, "grid_channels": 7 if self.solids_flux else 4,
                 "particles_per_sample": self.particles_per_sample}
