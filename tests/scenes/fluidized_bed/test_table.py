@@ -48,3 +48,35 @@ def test_folder_without_fluidized_bed_results_is_one_clear_line(tmp_path: Path):
     proc = run_module("neuraldem.scenes.fluidized_bed.table", str(tmp_path), "--out", str(tmp_path / "t.md"))
     assert proc.returncode == 2 and "no fluidized-bed evaluation" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_long_trajectories_get_their_own_table_and_stay_out_of_the_summary(fb_tiny_checkpoint: Path,
+                                                                          fb_tiny_dataset: Path, tmp_path: Path):
+    """A real evaluation of the tiny model, plus (edited in, as a 30-s trajectory would come) a copy of its
+    trajectory compared over 10x the training horizon with other errors, and the options of an EMA, mirrored
+    run: the summary row keeps the short trajectory's numbers, the long one is listed in its own table."""
+    from neuraldem.scenes.fluidized_bed.table import main as table_main
+
+    folder = tmp_path / "runs" / "ema_mirror" / "evaluation"
+    with pytest.warns(UserWarning, match="outside the range"):
+        result = evaluate_checkpoint(fb_tiny_checkpoint, folder, fb_tiny_dataset.parent, horizons=[1],
+                                     vtk=False, progress=False)
+    assert result["training"]["weights"] == "as trained" and result["training"]["mirror"] is False
+    short = result["trajectories"][0]
+    long = json.loads(json.dumps(short))
+    long["window_steps"] = 10 * result["training_horizon_steps"]
+    long["rel_l2"]["solid_fraction_mean"] = 0.777
+    result["trajectories"].append(long)
+    result["training"] |= {"weights": "EMA", "mirror": True}
+    (folder / "metrics.json").write_text(json.dumps(result))
+    out = tmp_path / "table.md"
+    assert table_main([str(tmp_path / "runs"), "--out", str(out)]) == 0
+    lines = out.read_text().splitlines()
+    summary = next(line for line in lines if line.startswith("| ema_mirror | "))
+    cells = [c.strip() for c in summary.strip("|").split("|")]
+    assert "mirror" in cells[2] and "EMA" in cells[2]
+    assert cells[3] == f"{short['rel_l2']['solid_fraction_mean']:.3f}"  # not averaged with the long one
+    assert cells[-1] == "1/1"  # one trajectory counted
+    start = lines.index("Against the long CFD-DEM trajectories (statistics over the whole common window):")
+    long_rows = [line for line in lines[start:] if line.startswith("| ema_mirror |")]
+    assert len(long_rows) == 1 and "| 0.777 |" in long_rows[0]

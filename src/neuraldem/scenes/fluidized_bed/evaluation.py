@@ -30,7 +30,7 @@ from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
-from neuraldem.eval.checkpoints import IMPORTED_SPLIT, checkpoint_dataset, resolve_device
+from neuraldem.eval.checkpoints import IMPORTED_SPLIT, checkpoint_dataset, read_checkpoint, resolve_device
 from neuraldem.machine import machine_info
 from neuraldem.scenes.fluidized_bed import metrics as fm
 from neuraldem.scenes.fluidized_bed import plots as fb_plots
@@ -274,6 +274,9 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
                      "push_forward_steps": meta.get("push_forward_steps", 1),
                      "parameters": sum(p.numel() for p in module.parameters()),
                      "solids_flux": bool(meta.get("solids_flux", False)),
+                     "mirror": bool(meta.get("mirror", False)),
+                     # a checkpoint trained with callbacks.ema holds the averaged weights (neuraldem.lit.ema)
+                     "weights": "EMA" if "current_model_state" in read_checkpoint(ckpt).raw else "as trained",
                      "conserve_volume": module.stability.conserve_volume,
                      "trained_stability": module.stability.to_dict()},
         "training_horizon_steps": norm.horizon_steps, "horizons": horizons, "rollout_steps": steps,
