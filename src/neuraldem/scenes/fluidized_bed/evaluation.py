@@ -146,6 +146,7 @@ def compare(pred: FieldSeries, truth: FieldSeries, settings: dict[str, Any]) -> 
     sum_p, sum_t = summary(p, settings), summary(t, settings)
     return {
         "window_steps": n - 1,
+        "truth_steps": len(truth.times) - 1,  # > window_steps for a short baseline against a long trajectory
         "rel_l2": {k: relative_l2(sp[k], st[k]) for k in STAT_FIELDS},
         # the whole rollout's statistics against the whole CFD-DEM trajectory's (a bed forgets its start, so
         # a 10x rollout should reproduce the statistics of a shorter trajectory at the same velocity)
