@@ -9,7 +9,8 @@
 # Variants of the issue-20 default (experiment=fb), one change left out each: full (the default), no_unroll
 # (one-step training only), fixed_noise (input noise 0.01 instead of the running one-step error), no_flux (no
 # solids-flux channels, mixing re-predicted absolutely), no_conserve (no volume projection), stochastic (+ latent
-# noise, CRPS over 2 members). The options before issue 20 (one-step training, absolute mixing, no projection,
+# noise, CRPS over 2 members), no_ema (the training weights instead of their moving average), mirror (+ half the
+# training samples mirrored in x). The options before issue 20 (one-step training, absolute mixing, no projection,
 # no flux channels): base (no noise), noise (input noise 0.01), grid_only (no particle branch), residual (the grid
 # branches predict the scaled change per step), grid_residual (both). Push-forward scored only at t + k (the old
 # `pf`) is refused since issue 20: it never trains the one-step map from data.
@@ -26,7 +27,7 @@ runs=$1; shift
 mkdir -p "$runs"
 # the options before issue 20 (one-step training, no flux channels, absolute mixing, no projection)
 OLD="model.stability.unroll=[1.0] model.stability.input_noise=0.0 model.stability.conserve_volume=false \
-model.stability.mixing=absolute data.datamodule.solids_flux=false"
+model.stability.mixing=absolute data.datamodule.solids_flux=false callbacks.ema=null"
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 export OMP_WAIT_POLICY=${OMP_WAIT_POLICY:-PASSIVE}
 overrides() {
@@ -47,7 +48,9 @@ overrides() {
     no_flux) echo "data.datamodule.solids_flux=false model.stability.mixing=absolute" ;;
     no_conserve) echo "model.stability.conserve_volume=false" ;;
     stochastic) echo "model.stability.ensemble=2 model.net.noise_dim=8" ;;
-    *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic base noise grid_only residual grid_residual)" >&2; return 2 ;;
+    no_ema) echo "callbacks.ema=null" ;;
+    mirror) echo "data.datamodule.mirror=true" ;;
+    *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror base noise grid_only residual grid_residual)" >&2; return 2 ;;
   esac
 }
 for v in $VARIANTS; do overrides "$v" > /dev/null || exit 2; done
