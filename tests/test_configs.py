@@ -92,3 +92,16 @@ def test_slurm_ddp_launcher_asks_for_gpus_only_on_gpus(trainer: str, gpus: int |
                       return_hydra_config=True)
     launcher = cfg.hydra.launcher
     assert (launcher.tasks_per_node, launcher.nodes, launcher.gpus_per_node) == (4, 2, gpus)
+
+
+def test_fb_averages_the_weights_unless_told_not_to(compose_train_cfg):
+    """experiment=fb trains with the EMA of the weights (chosen on validation rollouts, stop 34); null drops it."""
+    from neuraldem.config.build import build_callbacks
+    from neuraldem.lit.ema import Ema
+
+    with_ema = build_callbacks(compose_train_cfg("experiment=fb").callbacks)
+    assert isinstance(with_ema[-1], Ema)  # last: its validation swap wraps every other callback's
+    without = build_callbacks(compose_train_cfg("experiment=fb", "callbacks.ema=null").callbacks)
+    assert not any(isinstance(cb, Ema) for cb in without)
+    with pytest.raises(Exception, match="callbacks.ema.decay"):
+        build_callbacks(compose_train_cfg("experiment=fb", "callbacks.ema.decay=1.5").callbacks)
