@@ -68,8 +68,7 @@ def main() -> None:
              "|---|---|---|---|---|---|"]
     for sim in args.sims:
         with FbFile(args.dataset / "sims" / f"{sim}.h5") as f:
-            g, n = f.grid, args.steps
-            spacing = [(g.hi[a] - g.lo[a]) / g.shape[a] for a in range(3)]
+            n, spacing = args.steps, [float(h) for h in f.grid.spacing]
             stepper, state = ModelStepper(module, f.inlet_velocity), initial_state(f, 1)
             alpha, flux = [state.solid_fraction], []
             for _ in range(n):

@@ -43,8 +43,7 @@ from neuraldem.scenes.fluidized_bed.store import FbFile
 def advected_mixing(f: FbFile, scheme: str, correction: float = 1.0, flux_mode: str = "predicted") -> np.ndarray:
     """(T, nx, ny, nz) concentration advected with the stored fields (module docstring); `flux_mode`
     "consistent": the flux corrected to carry the solid fraction at t to the stored one at t + 1."""
-    g = f.grid
-    spacing = [(g.hi[a] - g.lo[a]) / g.shape[a] for a in range(3)]
+    spacing = [float(h) for h in f.grid.spacing]
     alpha, flux = f.solid_fraction(), f.solids_flux()
     conc = torch.tensor(f.mixing(0))[None]
     out = [f.mixing(0)]
