@@ -20,7 +20,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from neuraldem.models.modules.conservative_advection import advect_tagged
+from neuraldem.models.modules.conservative_advection import advect_tagged, face_fluxes, net_outflow
 from neuraldem.models.modules.patch_embedding import cell_centres
 from neuraldem.models.multi_branch_operator import MultiBranchOperator, OperatorInputs
 from neuraldem.scenes.fluidized_bed.normalization import FbNormalizer
@@ -109,6 +109,26 @@ def advect_mixing(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormalize
     new_conc, _ = advect_tagged(alpha, conc, flux, norm.dt, spacing, scheme=scheme, correction=correction,
                                 target=target)
     return ((new_conc - m_mean[0]) / m_std[0]).reshape(batch, -1, 1)
+
+
+def continuity_residual(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormalizer) -> torch.Tensor:
+    """(B, cells) how far the step's solids flux (channels 4-6 of `fluid` (B, cells, 7), model units) is from
+    carrying the input solid fraction to the step's next one (channel 3): alpha_in - alpha_next - the flux's net
+    outflow over dt, on the face fluxes `advect_mixing` moves the tagged solid with, in units of the training
+    data's RMS one-step change of the solid fraction, the row mean removed (no flux can carry a change of the
+    total). Zero for a flux that needs no correction under advection_flux=consistent; differentiable."""
+    shape = tuple(inputs.grid.shape[2:])
+    batch = fluid.shape[0]
+    a_mean, a_std = _stats(norm, "solid_fraction", fluid)
+    alpha_in = inputs.grid[:, SOLID_FRACTION_CHANNEL] * a_std[0] + a_mean[0]
+    alpha_next = (fluid[..., SOLID_FRACTION_CHANNEL] * a_std[0] + a_mean[0]).reshape(batch, *shape)
+    f_mean, f_std = _stats(norm, "solids_flux", fluid)
+    flux = (fluid[..., FLUX_CHANNELS] * f_std + f_mean).transpose(1, 2).reshape(batch, 3, *shape)
+    spacing = [(hi - lo) / n for lo, hi, n in zip(norm.box_lo, norm.box_hi, norm.grid_shape, strict=True)]
+    outflow = net_outflow(face_fluxes(flux), norm.dt, spacing, alpha_in)
+    r = (alpha_in - alpha_next - outflow).reshape(batch, -1)
+    r = r - r.mean(dim=1, keepdim=True)
+    return r / float(np.asarray(norm.step_rms["solid_fraction"]).reshape(-1)[0])
 
 
 def grid_queries(inputs: OperatorInputs) -> torch.Tensor:

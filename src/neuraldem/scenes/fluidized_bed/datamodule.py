@@ -28,6 +28,7 @@ uses).
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -169,8 +170,11 @@ class FluidizedBedDataModule(PartLoaders):
     def __init__(self, dataset_dir: str, name: str, conditioning: list[str] | None = None,
                  split: str = "velocity", batch_size: int = 8, particles_per_sample: int | None = None,
                  input_noise: float = 0.0, push_forward_steps: int = 1, num_workers: int = 0, seed: int = 0,
-                 eval_time_stride: int = 1, solids_flux: bool = False, mirror: bool = False):
+                 eval_time_stride: int = 1, solids_flux: bool = False, mirror: bool = False,
+                 runs_from: str | None = None):
         super().__init__()
+        self.runs_from = None if runs_from in (None, "") else Path(str(runs_from))
+        self.run_ids: dict[str, list[str]] | None = None
         self.solids_flux = checks.boolean("data.datamodule.solids_flux", solids_flux)
         self.mirror = checks.boolean("data.datamodule.mirror", mirror)
         self.dataset_dir = Path(dataset_dir)
@@ -202,7 +206,8 @@ class FluidizedBedDataModule(PartLoaders):
 
     def records(self, part: str) -> list[SimRecord]:
         assert self.manifest is not None
-        return [self.manifest.record(i) for i in self.manifest.split_ids(self.split, part)]
+        ids = self.manifest.split_ids(self.split, part) if self.run_ids is None else self.run_ids[part]
+        return [self.manifest.record(i) for i in ids]
 
     def paths(self, part: str) -> list[Path]:
         return [self.dataset_dir / str(r.file) for r in self.records(part)]
@@ -216,6 +221,8 @@ class FluidizedBedDataModule(PartLoaders):
             if not m.splits.get(self.split, {}).get("train"):
                 raise DataError(f"dataset {self.dataset_dir}: split {self.split!r} has no training trajectories; "
                                 f"generate more with python -m neuraldem.datagen data={self.name} n_sims=N")
+            if self.runs_from is not None:
+                self.run_ids = recorded_runs(self.runs_from, m, self.split)
             self.manifest = m
         return self.manifest
 
@@ -262,3 +269,38 @@ class FluidizedBedDataModule(PartLoaders):
                 "push_forward_steps": self.push_forward_steps, "input_noise": self.input_noise,
                 "solids_flux": self.solids_flux, "mirror": self.mirror, "grid_channels": 7 if self.solids_flux else 4,
                 "particles_per_sample": self.particles_per_sample}
+
+
+def recorded_runs(path: Path, manifest: Manifest, split: str) -> dict[str, list[str]]:
+    """The runs of each part that a checkpoint trained on (its metadata's `split_ids`), or of a JSON file
+    {"train": [...], "val": [...], "test": [...]}: so a new run repeats an earlier one's data while the dataset
+    grows (a paired ablation). Every run must be finished in `manifest` and belong to the same part of `split`
+    there (a part never borrows another's runs)."""
+    key = "data.datamodule.runs_from"
+    if not path.is_file():
+        raise ConfigError(f"config value {key}={path} is invalid: no such file (give a checkpoint of the run whose "
+                          "data to repeat, or a JSON file of its train/val/test run ids; or null)")
+    try:
+        if path.suffix == ".json":
+            ids = json.loads(path.read_text())
+        else:
+            raw = torch.load(path, map_location="cpu", weights_only=False, mmap=True)
+            ids = raw["hyper_parameters"]["metadata"]["split_ids"]
+    except Exception as err:  # noqa: BLE001 - any unreadable file or one without the record
+        raise ConfigError(f"config value {key}={path} is invalid: it holds no run ids per part "
+                          f"({type(err).__name__}: {err}); give a checkpoint trained since split_ids were "
+                          'recorded or a JSON file {"train": [...], "val": [...], "test": [...]}') from None
+    out = {}
+    for part in ("train", "val", "test"):
+        wanted = ids.get(part) if isinstance(ids, dict) else None
+        if not isinstance(wanted, list) or (part == "train" and not wanted):
+            raise ConfigError(f"config value {key}={path} is invalid: no list of {part!r} run ids in it")
+        allowed = set(manifest.split_ids(split, part))
+        for sim_id in wanted:
+            if sim_id not in allowed:
+                raise DataError(f"{path}: run {sim_id!r} ({part}) is not a finished {part} run of split {split!r} "
+                                f"in dataset {manifest.name!r}: generate it (python -m neuraldem.datagen "
+                                f"data={manifest.name}) or set {key}=null")
+        out[part] = [str(i) for i in wanted]
+    return out
+

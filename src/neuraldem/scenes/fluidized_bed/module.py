@@ -35,6 +35,7 @@ from neuraldem.models.multi_branch_operator import BRANCHES, OperatorInputs
 from neuraldem.models.schemas import MultiBranchOperatorNet, validate_net
 from neuraldem.scenes.fluidized_bed.autoregressive import (
     apply_stability,
+    continuity_residual,
     decode_grid,
     grid_cells,
     grid_step_scales,
@@ -200,6 +201,9 @@ class FluidizedBedModule(SurrogateModule):
             if self.stability.loss_on == "every" or k == unroll - 1:
                 for name in self.net.branches:
                     totals[name] = totals.get(name, 0.0) + self.branch_loss(out[name], targets[name], members)
+                if self.stability.flux_consistency > 0:  # the flux must carry the solid it predicts
+                    r = continuity_residual(x, fields["fluid"], self.norm)
+                    totals["continuity"] = totals.get("continuity", 0.0) + r.square().mean()
                 scored += 1
             if k < unroll - 1:  # the next step starts from this one's prediction, without its graph
                 with torch.no_grad():
@@ -208,6 +212,8 @@ class FluidizedBedModule(SurrogateModule):
                                     n_particles, generator=generator, chunk_size=self.chunk_size)
         losses = {name: v / scored for name, v in totals.items()}
         losses["loss"] = sum(self.loss_weights[k] * losses[k] for k in self.net.branches)
+        if "continuity" in losses:
+            losses["loss"] = losses["loss"] + self.stability.flux_consistency * losses["continuity"]
         return losses
 
     def stage_losses(self, batch: dict[str, torch.Tensor], stage: str) -> dict[str, torch.Tensor]:

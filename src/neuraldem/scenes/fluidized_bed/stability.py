@@ -29,6 +29,12 @@ advection_flux    "predicted": the scheme moves the solid with the predicted flu
                   results/fluidized_bed/surrogate/bubbles.md): with CFD-DEM's own fields (22 trajectories,
                   correction 0.75) the largest tagged-volume swing over 3 s fell from 26 % to 0 % and the Lacey
                   MAE from 0.038 to 0.023.
+flux_consistency  weight of a loss on the continuity of the predicted step: the predicted solids flux must carry
+                  the input solid fraction to the predicted next one (`autoregressive.continuity_residual`, in
+                  units of the data's RMS one-step change). 0 = off. Why: the gradient correction that
+                  advection_flux=consistent applies was 31-35 % of the model's flux against 15-17 % of CFD-DEM's
+                  own (results/fluidized_bed/surrogate/flux_diagnostic_stop34_ema_seed1.md); that correction,
+                  not the learned flux, then set the model's mixing. Needs data.datamodule.solids_flux=true.
 ensemble          members per training sample: 1 = deterministic (MSE); >= 2 = a stochastic model (net
                   noise_dim > 0) trained with the fair CRPS over its members.
 """
@@ -60,6 +66,7 @@ class FbStability:
     advection_scheme: str = "fct"
     advection_correction: float = 0.75
     advection_flux: str = "predicted"  # checkpoints saved before the option keep their behaviour
+    flux_consistency: float = 0.0
     ensemble: int = 1
     noise_ema: float = field(default=0.99, repr=False)
 
@@ -98,6 +105,7 @@ class FbStability:
             raise ConfigError(f"config value {KEY}.advection_flux=consistent needs {KEY}.conserve_volume=true: "
                               "fluxes can only carry the solid to a field of the same volume (or set "
                               f"{KEY}.advection_flux=predicted)")
+        checks.number(f"{KEY}.flux_consistency", self.flux_consistency, lo=0.0, hi=100.0)
         if isinstance(self.ensemble, bool) or not isinstance(self.ensemble, int) or self.ensemble < 1:
             raise ConfigError(f"config value {KEY}.ensemble={self.ensemble!r} is invalid: must be an integer >= 1 "
                               f"(1 = deterministic; 2 = a stochastic model trained with CRPS, e.g. {KEY}.ensemble=2)")
@@ -124,6 +132,9 @@ class FbStability:
         if self.mixing == "advect" and not solids_flux:
             raise ConfigError(f"config value {KEY}.mixing=advect needs the solids flux in the grid state: set "
                               "data.datamodule.solids_flux=true")
+        if self.flux_consistency > 0 and not solids_flux:
+            raise ConfigError(f"config value {KEY}.flux_consistency={self.flux_consistency} needs the solids flux in "
+                              "the grid state: set data.datamodule.solids_flux=true (or flux_consistency=0)")
         if self.ensemble > 1 and noise_dim < 1:
             raise ConfigError(f"config value {KEY}.ensemble={self.ensemble} needs a stochastic net: set "
                               "model.net.noise_dim=8 (or ensemble=1)")
