@@ -102,3 +102,54 @@ def test_volume_projection_of_a_field_that_overfills_its_dense_cells():
     lone[0, 0, SOLID_FRACTION_CHANNEL] = 5.0
     alpha = project_volume(lone, norm, torch.tensor([2.0], dtype=torch.float64))[0, :, SOLID_FRACTION_CHANNEL]
     assert float(alpha[0]) == pytest.approx(cap) and float(alpha.sum()) == pytest.approx(2.0, rel=1e-6)
+
+
+def test_continuity_residual_is_zero_exactly_when_the_flux_carries_the_solid():
+    """Synthetic fields (no solver data): a next solid fraction made by moving the input with a given flux
+    through the cell faces has no residual; the same flux against another next field (same volume) has one,
+    in units of the RMS one-step change, and its gradient reaches both the flux and the solid fraction."""
+    from types import SimpleNamespace
+
+    from neuraldem.models.modules.conservative_advection import face_fluxes, net_outflow
+    from neuraldem.models.multi_branch_operator import OperatorInputs
+    from neuraldem.scenes.fluidized_bed.autoregressive import continuity_residual
+
+    shape, dt, rms = (6, 1, 8), 0.01, 0.02
+    norm = SimpleNamespace(mean={"solid_fraction": [0.2], "solids_flux": [0.0, 0.0, 0.01]},
+                           std={"solid_fraction": [0.25], "solids_flux": [0.05, 0.05, 0.08]},
+                           step_rms={"solid_fraction": [rms]}, dt=dt, box_lo=[0.0, 0.0, 0.0],
+                           box_hi=[0.024, 0.006, 0.064], grid_shape=list(shape))
+    g = torch.Generator().manual_seed(0)
+    alpha_in = 0.3 * torch.rand(2, *shape, generator=g, dtype=torch.float64)
+    flux = 0.02 * torch.randn(2, 3, *shape, generator=g, dtype=torch.float64)
+    flux[:, 1] = 0.0
+    spacing = [0.004, 0.006, 0.008]
+    alpha_next = alpha_in - net_outflow(face_fluxes(flux), dt, spacing, alpha_in)
+
+    def model_units(alpha, j):
+        a = (alpha - 0.2) / 0.25
+        f = (j - torch.tensor([0.0, 0.0, 0.01], dtype=j.dtype).reshape(1, 3, 1, 1, 1)) / \
+            torch.tensor([0.05, 0.05, 0.08], dtype=j.dtype).reshape(1, 3, 1, 1, 1)
+        return a, f
+
+    a_in, _ = model_units(alpha_in, flux)
+    a_next, f = model_units(alpha_next, flux)
+    grid = torch.zeros(2, 7, *shape, dtype=torch.float64)
+    grid[:, 3] = a_in
+    x = OperatorInputs(particle_pos=torch.zeros(2, 1, 3), particle_features=torch.zeros(2, 1, 3), grid=grid,
+                       mixing_grid=torch.zeros(2, 1, *shape), scalars=torch.zeros(2, 1))
+    fluid = torch.zeros(2, 7, *shape, dtype=torch.float64)
+    fluid[:, 3], fluid[:, 4:7] = a_next, f
+    fluid = fluid.flatten(2).transpose(1, 2)
+    r = continuity_residual(x, fluid, norm)
+    assert r.shape == (2, 48) and r.abs().max() < 1e-9
+    # another next field of the same volume: the residual is its difference, in units of the RMS change
+    bump = torch.zeros(2, *shape, dtype=torch.float64)
+    bump[:, 2, 0, 3], bump[:, 3, 0, 3] = 0.01, -0.01
+    other = fluid.clone().requires_grad_(True)
+    with torch.no_grad():
+        other[..., 3] += (bump / 0.25).reshape(2, -1)
+    r = continuity_residual(x, other, norm)
+    torch.testing.assert_close(r, -bump.reshape(2, -1) / rms)
+    r.square().sum().backward()
+    assert other.grad[..., 3].abs().sum() > 0 and other.grad[..., [4, 6]].abs().sum() > 0  # flux and field

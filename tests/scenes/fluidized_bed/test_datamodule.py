@@ -178,3 +178,26 @@ def test_nan_in_a_dataset_file_is_named(fb_tiny_dataset: Path, tmp_path: Path, s
     rerecord_checksum(ds, ds / "sims" / f"{sim}.h5")
     with pytest.raises(DataError, match=rf"{sim}\.h5: /snapshots/fluid_velocity has NaN or inf values"):
         _dm(ds)
+
+
+def test_runs_from_repeats_a_checkpoints_runs(fb_tiny_dataset: Path, fb_tiny_checkpoint: Path, tmp_path: Path):
+    """A run can train on the runs an earlier one had (the checkpoint's split_ids, or a JSON of them), so an
+    ablation stays paired while datagen adds trajectories; runs that are not finished in that part are refused."""
+    recorded = torch.load(fb_tiny_checkpoint, weights_only=False)["hyper_parameters"]["metadata"]["split_ids"]
+    dm = _dm(fb_tiny_dataset, runs_from=str(fb_tiny_checkpoint))
+    assert {p: [r.sim_id for r in dm.records(p)] for p in recorded} == recorded
+    assert dm.checkpoint_metadata()["split_ids"] == recorded
+    fewer = dict(recorded, train=recorded["train"][:1])
+    (tmp_path / "ids.json").write_text(json.dumps(fewer))
+    dm = _dm(fb_tiny_dataset, runs_from=str(tmp_path / "ids.json"))
+    assert [r.sim_id for r in dm.records("train")] == recorded["train"][:1]
+    assert len(dm.datasets["train"].records) == 1
+    stolen = dict(recorded, train=recorded["train"] + recorded["test"])
+    (tmp_path / "stolen.json").write_text(json.dumps(stolen))
+    with pytest.raises(DataError, match=r"stolen\.json: run 'sim_\d+' \(train\) is not a finished train run"):
+        _dm(fb_tiny_dataset, runs_from=str(tmp_path / "stolen.json"))
+    with pytest.raises(ConfigError, match=r"data\.datamodule\.runs_from=.*nothing\.ckpt is invalid: no such file"):
+        _dm(fb_tiny_dataset, runs_from=str(tmp_path / "nothing.ckpt"))
+    (tmp_path / "empty.json").write_text(json.dumps({"val": []}))
+    with pytest.raises(ConfigError, match=r"runs_from=.*empty\.json is invalid: no list of 'train' run ids"):
+        _dm(fb_tiny_dataset, runs_from=str(tmp_path / "empty.json"))

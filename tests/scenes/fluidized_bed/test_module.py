@@ -211,3 +211,31 @@ def test_bad_optimisation_values(fb_tiny_dataset: Path):
         FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, loss_weights={"pressure": 1.0})
     with pytest.raises(ConfigError, match=r"model\.optimizer\.betas=\[0\.9\] is invalid: must be a pair"):
         FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, optimizer={"betas": [0.9]})
+
+
+def test_flux_consistency_adds_the_continuity_loss(fb_tiny_dataset: Path):
+    """Off, no continuity term; on, the total is the branch losses plus the weight times the mean square of the
+    continuity residual of the (projected) step, and its gradient reaches the net."""
+    from neuraldem.scenes.fluidized_bed.autoregressive import apply_stability, continuity_residual, decode_grid
+
+    stability = {"conserve_volume": True, "mixing": "advect", "advection_flux": "consistent"}
+    torch.manual_seed(0)
+    off, dm = _module(fb_tiny_dataset, stability=stability, solids_flux=True)
+    dm.setup("fit")
+    batch = next(iter(dm.train_dataloader()))
+    assert "continuity" not in off.losses(batch)
+    torch.manual_seed(0)
+    on, _ = _module(fb_tiny_dataset, stability=stability | {"flux_consistency": 2.0}, solids_flux=True)
+    on.load_state_dict(off.state_dict())
+    losses = on.losses(batch)
+    branches = sum(on.loss_weights[k] * losses[k] for k in on.net.branches)
+    torch.testing.assert_close(losses["loss"], branches + 2.0 * losses["continuity"])
+    x = on.inputs(batch)
+    with torch.no_grad():
+        tokens, cond = on.net.latents(x)
+        fields = apply_stability(decode_grid(on.net, tokens, cond, x), x, on.norm, on.stability, batch["solid_volume"])
+        expected = continuity_residual(x, fields["fluid"], on.norm).square().mean()
+    torch.testing.assert_close(losses["continuity"], expected, rtol=1e-4, atol=1e-6)
+    assert losses["continuity"] > 0
+    losses["continuity"].backward()
+    assert sum(p.grad.abs().sum() for p in on.net.parameters() if p.grad is not None) > 0

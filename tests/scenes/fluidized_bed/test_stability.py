@@ -57,6 +57,8 @@ def test_the_fb_experiment_uses_the_issue_20_options(compose_train_cfg):
                                    r"\['predicted', 'consistent'\]"),
     ({"advection_flux": "consistent", "mixing": "advect"},
      r"advection_flux=consistent needs model\.stability\.conserve_volume=true"),
+    ({"flux_consistency": -0.5}, r"model\.stability\.flux_consistency=-0\.5 is invalid: must be >= 0"),
+    ({"flux_consistency": "strong"}, r"model\.stability\.flux_consistency='strong' is invalid"),
 ])
 def test_bad_stability_options_end_in_one_line(cfg: dict, message: str):
     with pytest.raises(ConfigError, match=message) as err:
@@ -71,6 +73,8 @@ def test_options_must_fit_the_data_and_the_net():
         FbStability(mixing="advect").check_fits(1, False, 0)
     with pytest.raises(ConfigError, match=r"ensemble=2 needs a stochastic net.*noise_dim"):
         FbStability(ensemble=2).check_fits(1, False, 0)
+    with pytest.raises(ConfigError, match=r"flux_consistency=0\.5 needs the solids flux.*solids_flux=true"):
+        FbStability(flux_consistency=0.5).check_fits(1, False, 0)
     FbStability(unroll=(0.5, 0.5), mixing="advect", ensemble=2).check_fits(2, True, 8)  # fits
 
 
