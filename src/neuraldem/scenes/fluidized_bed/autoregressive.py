@@ -116,12 +116,14 @@ def continuity_residual(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNor
     carrying the input solid fraction to the step's next one (channel 3): alpha_in - alpha_next - the flux's net
     outflow over dt, on the face fluxes `advect_mixing` moves the tagged solid with, in units of the training
     data's RMS one-step change of the solid fraction, the row mean removed (no flux can carry a change of the
-    total). Zero for a flux that needs no correction under advection_flux=consistent; differentiable."""
+    total). Zero for a flux that needs no correction under advection_flux=consistent. The gradient reaches only
+    the flux: the solid fractions are held as given (the loss teaches the flux to carry the predicted solid; the
+    solid fraction is taught by the data alone, as before)."""
     shape = tuple(inputs.grid.shape[2:])
     batch = fluid.shape[0]
     a_mean, a_std = _stats(norm, "solid_fraction", fluid)
-    alpha_in = inputs.grid[:, SOLID_FRACTION_CHANNEL] * a_std[0] + a_mean[0]
-    alpha_next = (fluid[..., SOLID_FRACTION_CHANNEL] * a_std[0] + a_mean[0]).reshape(batch, *shape)
+    alpha_in = (inputs.grid[:, SOLID_FRACTION_CHANNEL] * a_std[0] + a_mean[0]).detach()
+    alpha_next = (fluid[..., SOLID_FRACTION_CHANNEL] * a_std[0] + a_mean[0]).reshape(batch, *shape).detach()
     f_mean, f_std = _stats(norm, "solids_flux", fluid)
     flux = (fluid[..., FLUX_CHANNELS] * f_std + f_mean).transpose(1, 2).reshape(batch, 3, *shape)
     spacing = [(hi - lo) / n for lo, hi, n in zip(norm.box_lo, norm.box_hi, norm.grid_shape, strict=True)]
