@@ -11,7 +11,7 @@
 # solids-flux channels, mixing re-predicted absolutely), no_conserve (no volume projection), stochastic (+ latent
 # noise, CRPS over 2 members), no_ema (the training weights instead of their moving average), mirror (+ half the
 # training samples mirrored in x), continuity (+ the continuity loss on the predicted solids flux, weight 0.2),
-# long (8000 training steps instead of 4000). The options before issue 20 (one-step training, absolute mixing, no projection,
+# long (16000 training steps, twice the default 8000). The options before issue 20 (one-step training, absolute mixing, no projection,
 # no flux channels): base (no noise), noise (input noise 0.01), grid_only (no particle branch), residual (the grid
 # branches predict the scaled change per step), grid_residual (both). Push-forward scored only at t + k (the old
 # `pf`) is refused since issue 20: it never trains the one-step map from data.
@@ -52,7 +52,7 @@ overrides() {
     no_ema) echo "callbacks.ema=null" ;;
     mirror) echo "data.datamodule.mirror=true" ;;
     continuity) echo "model.stability.flux_consistency=0.2" ;;
-    long) echo "trainer.max_steps=8000" ;;
+    long) echo "trainer.max_steps=16000" ;;
     *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror continuity long base noise grid_only residual grid_residual)" >&2; return 2 ;;
   esac
 }

@@ -39,7 +39,7 @@ def test_each_variant_is_one_training_command(tmp_path: Path):
     assert "data.datamodule.solids_flux=false" in no_flux and "model.stability.mixing=absolute" in no_flux
     assert "model.stability.ensemble=2" in stochastic and "model.net.noise_dim=8" in stochastic
     assert "callbacks.ema=null" in no_ema and "data.datamodule.mirror=true" in mirror
-    assert "model.stability.flux_consistency=0.2" in continuity and "trainer.max_steps=8000" in long
+    assert "model.stability.flux_consistency=0.2" in continuity and "trainer.max_steps=16000" in long
     assert calls[-1][:2] == ["-m", "neuraldem.scenes.fluidized_bed.table"]  # then the table of all runs
 
 
