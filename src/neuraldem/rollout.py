@@ -36,7 +36,9 @@ def main(cfg: DictConfig) -> None:
         device=resolve_device(cfg.device), progress=bool(cfg.progress),
         conserve_solid_volume=None if cfg.conserve_solid_volume is None else checks.boolean(
             "conserve_solid_volume", cfg.conserve_solid_volume),
-        mixing=None if cfg.get("mixing") is None else checks.one_of("mixing", cfg.mixing, MIXING_MODES))
+        mixing=None if cfg.get("mixing") is None else checks.one_of("mixing", cfg.mixing, MIXING_MODES),
+        mirror_alternate=None if cfg.get("mirror_alternate") is None else checks.boolean(
+            "mirror_alternate", cfg.mirror_alternate))
     print(summary["message"])
     if summary["extrapolation"]:
         lo, hi = summary["trained_velocity_range"]

@@ -237,7 +237,8 @@ def test_bad_rollout_requests_end_in_one_line(fb_tiny_checkpoint: Path, fb_tiny_
     env = {"NEURALDEM_DATA": str(fb_tiny_dataset.parent.parent)}
     cases = [("init_snapshot=999", "init_snapshot=999 is invalid:", "e.g. init_snapshot=1"),
              ("mixing=advect", "mixing=advect needs a model trained with the solids flux", "mixing=absolute"),
-             ("mixing=stir", "mixing='stir' is invalid", "must be one of")]
+             ("mixing=stir", "mixing='stir' is invalid", "must be one of"),
+             ("mirror_alternate=maybe", "mirror_alternate='maybe' is invalid", "must be true or false")]
     for i, (override, message, fix) in enumerate(cases):
         proc = run_module("neuraldem.rollout", f"ckpt={fb_tiny_checkpoint}", f"velocity={TRAINED_VELOCITY}", "steps=3",
                           override,
@@ -245,3 +246,33 @@ def test_bad_rollout_requests_end_in_one_line(fb_tiny_checkpoint: Path, fb_tiny_
         assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
         assert message in proc.stderr and fix in proc.stderr
         assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+
+
+def test_mirror_alternation_steps_every_second_state_in_the_mirror_image(fb_tiny_flux_checkpoint: Path,
+                                                                           fb_tiny_dataset: Path):
+    """With mirror_alternate the 1st, 3rd, ... steps are the net's plain step and the 2nd, 4th, ... the mirror
+    image of the net's step from the mirrored state; the solid volume still holds to round-off and the mixing
+    stays in [0, 1]. The untrained tiny net is not mirror-symmetric, so the alternation must change step 2."""
+    from neuraldem.scenes.fluidized_bed.rollout import mirror_state
+
+    module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
+    lo_x, hi_x = module.norm.box_lo[0], module.norm.box_hi[0]
+    with FbFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
+        state = initial_state(f)
+    twice = mirror_state(mirror_state(state, lo_x, hi_x), lo_x, hi_x)
+    for name in ("positions", "displacement", "fluid_velocity", "solid_fraction", "mixing", "solids_flux"):
+        np.testing.assert_allclose(getattr(twice, name), getattr(state, name), atol=1e-12)
+    alt = ModelStepper(module, TRAINED_VELOCITY, 0, mirror_alternate=True)
+    plain, by_hand = ModelStepper(module, TRAINED_VELOCITY, 0), ModelStepper(module, TRAINED_VELOCITY, 0)
+    first = alt.step(state)
+    np.testing.assert_array_equal(first.solid_fraction, plain.step(state).solid_fraction)
+    second = alt.step(first)
+    by_hand.step(state)  # the same draws of latent noise and particle samples as the alternating stepper's
+    expected = mirror_state(by_hand.step(mirror_state(first, lo_x, hi_x)), lo_x, hi_x)
+    for name in ("solid_fraction", "fluid_velocity", "mixing", "solids_flux", "positions"):
+        np.testing.assert_allclose(getattr(second, name), getattr(expected, name), rtol=1e-6, atol=1e-9)
+    assert np.abs(second.solid_fraction - plain.step(first).solid_fraction).max() > 1e-6
+    r = rollout(ModelStepper(module, TRAINED_VELOCITY, 0, mirror_alternate=True), state, 30, progress=False)
+    volume = r.solid_fraction.astype(np.float64).reshape(len(r.times), -1).sum(axis=1)
+    np.testing.assert_allclose(volume, float(np.sum(state.solid_fraction)), rtol=2e-6)
+    assert r.diverged_at is None and r.mixing.min() >= 0.0 and r.mixing.max() <= 1.0

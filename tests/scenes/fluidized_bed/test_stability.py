@@ -59,6 +59,7 @@ def test_the_fb_experiment_uses_the_issue_20_options(compose_train_cfg):
      r"advection_flux=consistent needs model\.stability\.conserve_volume=true"),
     ({"flux_consistency": -0.5}, r"model\.stability\.flux_consistency=-0\.5 is invalid: must be >= 0"),
     ({"flux_consistency": "strong"}, r"model\.stability\.flux_consistency='strong' is invalid"),
+    ({"mirror_alternate": "yes"}, r"model\.stability\.mirror_alternate='yes' is invalid: must be true or false"),
 ])
 def test_bad_stability_options_end_in_one_line(cfg: dict, message: str):
     with pytest.raises(ConfigError, match=message) as err:
@@ -89,3 +90,6 @@ def test_rollout_overrides_are_validated_and_keep_the_rest():
     assert r.advection_flux == "consistent" and r.conserve_volume
     with pytest.raises(ConfigError, match="advection_flux=consistent needs"):  # the projection switched off
         rollout_overrides(r, conserve_volume=False)
+    assert rollout_overrides(base, mirror_alternate=True).mirror_alternate and not base.mirror_alternate
+    with pytest.raises(ConfigError, match="mirror_alternate=1 is invalid"):
+        rollout_overrides(base, mirror_alternate=1)

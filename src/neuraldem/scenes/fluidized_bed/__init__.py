@@ -38,7 +38,9 @@ def evaluate(cfg: DictConfig) -> None:
         advection_correction=None if correction is None else checks.number(
             "fluidized_bed.advection_correction", correction, lo=0.0, hi=1.0),
         advection_flux=None if fb.get("advection_flux") is None else checks.one_of(
-            "fluidized_bed.advection_flux", fb.advection_flux, ADVECTION_FLUXES))
+            "fluidized_bed.advection_flux", fb.advection_flux, ADVECTION_FLUXES),
+        mirror_alternate=None if fb.get("mirror_alternate") is None else checks.boolean(
+            "fluidized_bed.mirror_alternate", fb.mirror_alternate))
     agg = result["aggregate"]
     print((Path(cfg.paths.output_dir) / "report.md").read_text())
     which = "held-out velocities" if cfg.part == "test" else f"{cfg.part} trajectories"

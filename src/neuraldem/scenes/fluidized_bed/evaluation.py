@@ -227,7 +227,8 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
                         conserve_solid_volume: bool | None = None, mixing: str | None = None,
                         init_snapshot: int = DEFAULT_INIT_SNAPSHOT,
                         advection_correction: float | None = None,
-                        advection_flux: str | None = None) -> dict[str, Any]:
+                        advection_flux: str | None = None,
+                        mirror_alternate: bool | None = None) -> dict[str, Any]:
     """Evaluate a fluidized-bed checkpoint on the held-out velocities; write and return metrics.json."""
     horizons = [checks.positive_int(f"fluidized_bed.horizons[{i}]", h) for i, h in enumerate(horizons)]
     if not horizons:
@@ -246,9 +247,10 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     settings = metric_settings(m)
     steps = max(horizons) * norm.horizon_steps
     make_stepper = make_stepper or (lambda mod, v: ModelStepper(mod, v, seed, device, conserve_solid_volume, mixing,
-                                                                advection_correction, advection_flux))
+                                                                advection_correction, advection_flux,
+                                                                mirror_alternate))
     options = rollout_overrides(module.stability, mixing, conserve_solid_volume, advection_correction,
-                                advection_flux)
+                                advection_flux, mirror_alternate)
     out_dir = Path(out_dir)
     (out_dir / "rollouts").mkdir(parents=True, exist_ok=True)
     results, volumes = [], {}

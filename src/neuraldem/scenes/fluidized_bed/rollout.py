@@ -47,6 +47,7 @@ from neuraldem.eval.vtk_export import write_grid_series, write_point_series
 from neuraldem.models.multi_branch_operator import OperatorInputs
 from neuraldem.scenes.fluidized_bed.autoregressive import advance
 from neuraldem.scenes.fluidized_bed.datamodule import grid_input, mixing_input
+from neuraldem.scenes.fluidized_bed.mirror import mirror_grid, mirror_points, mirror_vectors
 from neuraldem.scenes.fluidized_bed.module import FluidizedBedModule
 from neuraldem.scenes.fluidized_bed.normalization import FbNormalizer
 from neuraldem.scenes.fluidized_bed.stability import FbStability, rollout_overrides
@@ -94,6 +95,16 @@ def initial_state(f: FbFile, snapshot: int = DEFAULT_INIT_SNAPSHOT, key: str = "
                    mixing=f.mixing(snapshot), solids_flux=f.solids_flux(snapshot))
 
 
+def mirror_state(s: FbState, lo_x: float, hi_x: float) -> FbState:
+    """The state of the bed mirrored at its mid-plane in x (an involution: applied twice, the state itself)."""
+    return FbState(time=s.time, positions=mirror_points(s.positions, lo_x, hi_x),
+                   displacement=mirror_vectors(s.displacement),
+                   fluid_velocity=mirror_grid(s.fluid_velocity, vector=True),
+                   solid_fraction=mirror_grid(s.solid_fraction, vector=False),
+                   mixing=mirror_grid(s.mixing, vector=False),
+                   solids_flux=None if s.solids_flux is None else mirror_grid(s.solids_flux, vector=True))
+
+
 @dataclass
 class DivergenceLimits:
     max_packing: float = DEFAULT_MAX_PACKING
@@ -135,13 +146,17 @@ class ModelStepper:
     fraction is clamped >= 0 and scaled to the solid volume of the first state it was given (the bed is closed:
     CFD-DEM loses no particle), so the rollout holds it to round-off. A model trained without it and rolled
     out with it is a projection on top of the model: its drift is then 0 by construction and says nothing of
-    the model's own conservation. A stochastic model draws its latent noise from this stepper's generator."""
+    the model's own conservation. A stochastic model draws its latent noise from this stepper's generator.
+    With `mirror_alternate` every second step is taken in the mirror image of the bed (`FbStability`)."""
 
     def __init__(self, module: FluidizedBedModule, velocity: float, seed: int = 0, device: str = "cpu",
                  conserve_solid_volume: bool | None = None, mixing: str | None = None,
-                 advection_correction: float | None = None, advection_flux: str | None = None):
+                 advection_correction: float | None = None, advection_flux: str | None = None,
+                 mirror_alternate: bool | None = None):
         base = getattr(module, "stability", None) or FbStability()
-        self.stability = rollout_overrides(base, mixing, conserve_solid_volume, advection_correction, advection_flux)
+        self.stability = rollout_overrides(base, mixing, conserve_solid_volume, advection_correction, advection_flux,
+                                           mirror_alternate)
+        self.steps_taken = 0
         if self.stability.mixing == "advect" and not module.metadata.get("solids_flux", False):
             raise ConfigError("config value mixing=advect needs a model trained with the solids flux "
                               "(data.datamodule.solids_flux=true): use mixing=absolute for this checkpoint")
@@ -160,8 +175,16 @@ class ModelStepper:
     def _tensor(self, x: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))[None].to(self.device)
 
-    @torch.no_grad()
     def step(self, state: FbState) -> FbState:
+        mirrored = self.stability.mirror_alternate and self.steps_taken % 2 == 1
+        self.steps_taken += 1
+        if not mirrored:
+            return self._step(state)
+        lo_x, hi_x = self.norm.box_lo[0], self.norm.box_hi[0]
+        return mirror_state(self._step(mirror_state(state, lo_x, hi_x)), lo_x, hi_x)
+
+    @torch.no_grad()
+    def _step(self, state: FbState) -> FbState:
         norm = self.norm
         if self.solid_volume is None:
             self.solid_volume = float(np.sum(state.solid_fraction))
@@ -411,7 +434,7 @@ def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets
                 init_snapshot: int = DEFAULT_INIT_SNAPSHOT, seed: int = 0, limits: DivergenceLimits | None = None,
                 particles_every: int = 10, vtk: bool = True, vtk_every: int = 10, device: str = "cpu",
                 progress: bool = True, conserve_solid_volume: bool | None = None,
-                mixing: str | None = None) -> dict[str, Any]:
+                mixing: str | None = None, mirror_alternate: bool | None = None) -> dict[str, Any]:
     """Load, roll out, write rollout.h5 (+ vtk/, rollout.json) into `out_dir`; return the summary."""
     checks.positive_int("steps", steps)
     limits = limits or DivergenceLimits()
@@ -425,7 +448,8 @@ def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets
         present = np.isfinite(f.positions(init_snapshot)).all(axis=1)
         volumes = f.particle_volumes[present]
         grid = f.grid
-    stepper = ModelStepper(module, velocity, seed, device, conserve_solid_volume, mixing)
+    stepper = ModelStepper(module, velocity, seed, device, conserve_solid_volume, mixing,
+                           mirror_alternate=mirror_alternate)
     r = rollout(stepper, state, steps, limits, particles_every, progress)
     summary = {
         "checkpoint": str(Path(ckpt).resolve()), "data_name": meta["data_name"], "inlet_velocity": float(velocity),
@@ -433,6 +457,7 @@ def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets
         "initial_state": f"{source} snapshot {init_snapshot}", "seed": seed, "max_packing": limits.max_packing,
         "tolerance": limits.tolerance, "dt": norm.dt, "training_horizon_steps": norm.horizon_steps,
         "conserve_solid_volume": stepper.stability.conserve_volume, "mixing": stepper.stability.mixing,
+        "mirror_alternate": stepper.stability.mirror_alternate,
     }
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
