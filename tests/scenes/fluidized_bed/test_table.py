@@ -69,13 +69,14 @@ def test_long_trajectories_get_their_own_table_and_stay_out_of_the_summary(fb_ti
     long["rel_l2_full"]["solid_fraction_mean"] = 0.777  # the long table: each whole series against the other
     result["trajectories"].append(long)
     result["training"] |= {"weights": "EMA", "mirror": True}
+    result["stability"]["mirror_alternate"] = True
     (folder / "metrics.json").write_text(json.dumps(result))
     out = tmp_path / "table.md"
     assert table_main([str(tmp_path / "runs"), "--out", str(out)]) == 0
     lines = out.read_text().splitlines()
     summary = next(line for line in lines if line.startswith("| ema_mirror | "))
     cells = [c.strip() for c in summary.strip("|").split("|")]
-    assert "mirror" in cells[2] and "EMA" in cells[2]
+    assert "mirror" in cells[2] and "EMA" in cells[2] and "mirror-alternating rollout" in cells[2]
     assert cells[3] == f"{short['rel_l2']['solid_fraction_mean']:.3f}"  # not averaged with the long one
     assert cells[-1] == "1/1"  # one trajectory counted
     start = next(i for i, line in enumerate(lines) if line.startswith("Against the long CFD-DEM trajectories"))

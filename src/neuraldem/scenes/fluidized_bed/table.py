@@ -51,6 +51,8 @@ def options_label(r: dict) -> str:
         parts.append(f"stochastic, CRPS x{st['ensemble']}")
     if t.get("mirror"):
         parts.append("mirror")
+    if st.get("mirror_alternate"):
+        parts.append("mirror-alternating rollout")
     if t.get("weights") == "EMA":
         parts.append("EMA")
     return ", ".join(parts)
