@@ -261,7 +261,8 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
             check_grid(norm, f)
         attrs = {"extrapolation": check_velocity(norm, v), "checkpoint": str(Path(ckpt).resolve()),
                  "initial_state": f"{m.name}/{rec.sim_id} snapshot {init_snapshot}", "seed": seed,
-                 "conserve_solid_volume": options.conserve_volume, "mixing": options.mixing}
+                 "conserve_solid_volume": options.conserve_volume, "mixing": options.mixing,
+                 "mirror_alternate": options.mirror_alternate}
         e = evaluate_trajectory(path, rec.sim_id, v, make_stepper(module, v), steps, norm.horizon_steps, horizons,
                                 settings, limits, out_dir / "rollouts" / f"{rec.sim_id}.h5", attrs, progress,
                                 init_snapshot)
