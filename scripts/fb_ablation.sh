@@ -11,7 +11,9 @@
 # solids-flux channels, mixing re-predicted absolutely), no_conserve (no volume projection), stochastic (+ latent
 # noise, CRPS over 2 members), no_ema (the training weights instead of their moving average), mirror (+ half the
 # training samples mirrored in x), continuity (+ the continuity loss on the predicted solids flux, weight 0.2),
-# long (16000 training steps, twice the default 8000). The options before issue 20 (one-step training, absolute mixing, no projection,
+# long (16000 training steps, twice the default 8000), mirror_alt (rollouts alternate with the mirror image,
+# model.stability.mirror_alternate, in the run's rollout validation and evaluation too), mirror_both (mirrored
+# training samples + alternating rollouts). The options before issue 20 (one-step training, absolute mixing, no projection,
 # no flux channels): base (no noise), noise (input noise 0.01), grid_only (no particle branch), residual (the grid
 # branches predict the scaled change per step), grid_residual (both). Push-forward scored only at t + k (the old
 # `pf`) is refused since issue 20: it never trains the one-step map from data.
@@ -19,6 +21,9 @@
 # right-sizing: VARIANTS="fb_tiny/full fb_base/full fb_small/full").
 # Runs land in RUNS_DIR/<variant>/ (logs beside them), the table in RUNS_DIR/table.md (+ .json). A run whose
 # folder already holds evaluation/metrics.json is skipped, so a killed sweep resumes.
+# VAL=1 also scores each run's kept checkpoint (checkpoints/last.ckpt) on the validation part into
+# RUNS_DIR-val/<variant>/evaluation (3000-step rollouts, against each validation trajectory and pooled over every
+# run at its velocity) with its own table RUNS_DIR-val/table.md: choose between variants there, not on the test.
 set -uo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 PY=${PYTHON:-python}
@@ -53,7 +58,9 @@ overrides() {
     mirror) echo "data.datamodule.mirror=true" ;;
     continuity) echo "model.stability.flux_consistency=0.2" ;;
     long) echo "trainer.max_steps=16000" ;;
-    *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror continuity long base noise grid_only residual grid_residual)" >&2; return 2 ;;
+    mirror_alt) echo "model.stability.mirror_alternate=true" ;;
+    mirror_both) echo "data.datamodule.mirror=true model.stability.mirror_alternate=true" ;;
+    *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror continuity long mirror_alt mirror_both base noise grid_only residual grid_residual)" >&2; return 2 ;;
   esac
 }
 for v in $VARIANTS; do overrides "$v" > /dev/null || exit 2; done
@@ -67,11 +74,17 @@ for v in $VARIANTS; do
   rm -rf "$run"
   mkdir -p "$(dirname "$run")"
   # shellcheck disable=SC2046
-  "$PY" -m neuraldem.train experiment=fb $(overrides "$v") hydra.run.dir="$run" callbacks.progress=null "$@" \
-    > "$run.log" 2>&1 &
+  (
+    "$PY" -m neuraldem.train experiment=fb $(overrides "$v") hydra.run.dir="$run" callbacks.progress=null "$@" || exit 1
+    if [ "${VAL:-0}" = 1 ]; then
+      "$PY" -m neuraldem.evaluate ckpt="$run/checkpoints/last.ckpt" part=val vtk=false \
+        hydra.run.dir="$runs-val/$v/evaluation"
+    fi
+  ) > "$run.log" 2>&1 &
   running=$((running + 1))
 done
 while [ "$running" -gt 0 ]; do wait -n || failed=$((failed + 1)); running=$((running - 1)); done
 [ "$failed" -eq 0 ] || echo "fb_ablation: $failed run(s) failed; see $runs/*.log" >&2
 "$PY" -m neuraldem.scenes.fluidized_bed.table "$runs" --out "$runs/table.md"
+if [ "${VAL:-0}" = 1 ]; then "$PY" -m neuraldem.scenes.fluidized_bed.table "$runs-val" --out "$runs-val/table.md"; fi
 exit "$failed"

@@ -10,12 +10,12 @@ from pathlib import Path
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "fb_ablation.sh"
 
 
-def _run(tmp_path: Path, variants: str) -> tuple[subprocess.CompletedProcess, list[list[str]]]:
+def _run(tmp_path: Path, variants: str, **extra: str) -> tuple[subprocess.CompletedProcess, list[list[str]]]:
     calls = tmp_path / "calls.txt"
     fake = tmp_path / "python"
     fake.write_text(f'#!/bin/sh\necho "$@" >> {calls}\n')  # records every command instead of running it
     fake.chmod(0o755)
-    env = {**os.environ, "PYTHON": str(fake), "VARIANTS": variants, "JOBS": "1"}
+    env = {**os.environ, "PYTHON": str(fake), "VARIANTS": variants, "JOBS": "1", **extra}
     proc = subprocess.run(["bash", str(SCRIPT), str(tmp_path / "runs"), "trainer.max_steps=7"], env=env,
                           capture_output=True, text=True, timeout=60, check=False)
     lines = calls.read_text().splitlines() if calls.exists() else []
@@ -41,6 +41,24 @@ def test_each_variant_is_one_training_command(tmp_path: Path):
     assert "callbacks.ema=null" in no_ema and "data.datamodule.mirror=true" in mirror
     assert "model.stability.flux_consistency=0.2" in continuity and "trainer.max_steps=16000" in long
     assert calls[-1][:2] == ["-m", "neuraldem.scenes.fluidized_bed.table"]  # then the table of all runs
+
+
+def test_val_scores_each_kept_checkpoint_on_the_validation_part(tmp_path: Path):
+    proc, calls = _run(tmp_path, "mirror_alt mirror_both", VAL="1")
+    assert proc.returncode == 0, proc.stderr
+    modules = [c[1] for c in calls]
+    assert modules == ["neuraldem.train", "neuraldem.evaluate", "neuraldem.train", "neuraldem.evaluate",
+                       "neuraldem.scenes.fluidized_bed.table", "neuraldem.scenes.fluidized_bed.table"]
+    alt, alt_val, both, both_val = calls[:4]
+    assert "model.stability.mirror_alternate=true" in alt and "data.datamodule.mirror=true" not in alt
+    assert {"data.datamodule.mirror=true", "model.stability.mirror_alternate=true"} <= set(both)
+    runs = tmp_path / "runs"
+    assert f"ckpt={runs / 'mirror_alt' / 'checkpoints' / 'last.ckpt'}" in alt_val and "part=val" in alt_val
+    assert f"hydra.run.dir={runs}-val/mirror_both/evaluation" in both_val
+    assert calls[-1][2:] == [f"{runs}-val", "--out", f"{runs}-val/table.md"]
+    (tmp_path / "plain").mkdir()
+    _, plain = _run(tmp_path / "plain", "mirror_alt")  # without VAL: no validation scoring
+    assert [c[1] for c in plain] == ["neuraldem.train", "neuraldem.scenes.fluidized_bed.table"]
 
 
 def test_unknown_variant_or_model_runs_nothing(tmp_path: Path):

@@ -64,6 +64,15 @@ def test_bad_input_names_the_fix(fb_tiny_dataset: Path, tmp_path: Path):
         evaluate_baselines(fb_tiny_dataset, tmp_path, part="val")
     with pytest.raises(DataError, match="--exclude sim_0002: not training trajectories"):
         evaluate_baselines(fb_tiny_dataset, tmp_path, exclude=("sim_0002",))
+    with pytest.raises(DataError, match="--only sim_0000: not test trajectories"):
+        evaluate_baselines(fb_tiny_dataset, tmp_path, only=("sim_0000",))
+
+
+@pytest.mark.solver
+def test_only_scores_the_named_held_out_trajectories(fb_tiny_dataset: Path, tmp_path: Path):
+    """By default one trajectory per velocity (the first by id); --only sim_0001 scores the second packing."""
+    docs = evaluate_baselines(fb_tiny_dataset, tmp_path, part="train", baselines=("constant",), only=("sim_0001",))
+    assert [t["sim_id"] for t in docs["constant"]["trajectories"]] == ["sim_0001"]
 
 
 @pytest.mark.solver
@@ -85,6 +94,10 @@ def test_the_other_packing_is_the_seed_spread_where_a_twin_exists(fb_tiny_datase
                               baselines=("nearest",))["nearest"]
     assert [t["sim_id"] for t in twin["trajectories"]] == ["sim_0000"]
     assert twin["trajectories"][0]["rel_l2"] == near["trajectories"][0]["rel_l2"]
+    # the replayed twin is left out of the pooled reference (a run compared with itself would score 0)
+    assert twin["trajectories"][0]["pooled"]["sims"] == ["sim_0000"]
+    assert twin["trajectories"][0]["pooled"]["rel_l2"] == twin["trajectories"][0]["rel_l2_full"]
+    assert near["trajectories"][0]["pooled"]["sims"] == ["sim_0000", "sim_0001"]
     assert twin["trajectories"][0]["rel_l2"]["solid_fraction_mean"] > 0.0
     alone = evaluate_baselines(fb_tiny_dataset, tmp_path / "test", part="test", baselines=("nearest", "other_packing"))
     assert set(alone) == {"nearest"} and not (tmp_path / "test" / "baseline_other_packing").exists()

@@ -13,7 +13,13 @@ import pytest
 from neuraldem.data.manifest import Manifest
 from neuraldem.scenes.fluidized_bed import metrics as fm
 from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings
-from neuraldem.scenes.fluidized_bed.evaluation import evaluate_checkpoint, evaluate_trajectory
+from neuraldem.scenes.fluidized_bed.evaluation import (
+    compare_pooled,
+    curves,
+    evaluate_checkpoint,
+    evaluate_trajectory,
+    pooled_reference,
+)
 from neuraldem.scenes.fluidized_bed.rollout import DataStepper, ModelStepper
 from neuraldem.scenes.fluidized_bed.store import FbFile
 from tests.helpers import run_module
@@ -52,6 +58,33 @@ def test_ground_truth_through_the_prediction_path_gives_its_own_metrics(fb_tiny_
     assert [h["stable"] for h in r["stability"]["horizons"]] == [True, False]  # 3x is beyond the data
 
 
+def test_pooled_reference_holds_every_packing_of_the_velocity_together(fb_tiny_dataset: Path):
+    """Known answers: the per-cell statistics over both packings' snapshots (numpy on the concatenation), the
+    Lacey MAE against the mean of the two curves, zero against the run itself alone."""
+    m = Manifest.load(fb_tiny_dataset)
+    settings = metric_settings(m)
+    ids, series = pooled_reference(m, fb_tiny_dataset, m.record("sim_0000"), 0)
+    assert ids == ["sim_0000", "sim_0001"]
+    alpha = np.concatenate([s.solid_fraction for s in series])
+    q = compare_pooled(series[0], series, settings, ids)
+    mean0, mean_all = series[0].solid_fraction.mean(0), alpha.mean(0)
+    std0, std_all = series[0].solid_fraction.std(0), alpha.std(0)
+    assert q["rel_l2"]["solid_fraction_mean"] == pytest.approx(np.linalg.norm(mean0 - mean_all)
+                                                               / np.linalg.norm(mean_all), rel=1e-12)
+    assert q["rel_l2"]["solid_fraction_std"] == pytest.approx(np.linalg.norm(std0 - std_all)
+                                                              / np.linalg.norm(std_all), rel=1e-12)
+    assert q["rel_l2"]["solid_fraction_mean"] > 0 and q["snapshots"] == len(alpha)
+    l0, l1 = (curves(s, settings)["lacey_field"] for s in series)
+    half_gap = np.abs(l0 - l1) / 2  # |L0 - (L0 + L1) / 2|
+    assert q["lacey_mae"] == pytest.approx(float(np.nanmean(half_gap)), rel=1e-12) and q["lacey_mae"] > 0
+    alone = compare_pooled(series[0], series[:1], settings, ids[:1])
+    assert all(v == 0.0 for v in alone["rel_l2"].values()) and alone["lacey_mae"] == 0.0
+    rest, _ = pooled_reference(m, fb_tiny_dataset, m.record("sim_0000"), 0, leave_out="sim_0000")
+    assert rest == ["sim_0001"]
+    single, _ = pooled_reference(m, fb_tiny_dataset, m.record("sim_0002"), 0)  # the test velocity: one run
+    assert single == ["sim_0002"]
+
+
 def test_evaluation_of_a_model_writes_metrics_report_and_plots(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path,
                                                                tmp_path: Path):
     env = {"NEURALDEM_DATA": str(fb_tiny_dataset.parent.parent)}
@@ -65,6 +98,11 @@ def test_evaluation_of_a_model_writes_metrics_report_and_plots(fb_tiny_checkpoin
     alternated = json.loads((tmp_path / "train" / "metrics.json").read_text())  # the override is recorded
     assert alternated["stability"]["mirror_alternate"] is True
     assert all(x["mirror_alternate"] is True for x in alternated["trajectories"])
+    # the pooled reference of the training velocity: both of its packings, from snapshot 1 on (20 + 20)
+    pooled = alternated["trajectories"][0]["pooled"]
+    assert pooled["sims"] == ["sim_0000", "sim_0001"] and pooled["snapshots"] == 40
+    assert pooled["pred_snapshots"] == 21 and pooled["rel_l2"]["solid_fraction_mean"] > 0
+    assert alternated["aggregate"]["pooled_solid_fraction_std_rel_l2"] == pooled["rel_l2"]["solid_fraction_std"]
     result = json.loads((tmp_path / "metrics.json").read_text())
     assert result["training_horizon_steps"] == 20 and result["rollout_steps"] == 60
     (t,) = result["trajectories"]  # fb_tiny holds out one velocity
@@ -75,7 +113,10 @@ def test_evaluation_of_a_model_writes_metrics_report_and_plots(fb_tiny_checkpoin
     assert 0 < t["rel_l2"]["solid_fraction_mean"] < 10 and math.isfinite(t["mass"]["drift_pct"])
     assert t["rel_l2_full"]["solid_fraction_mean"] != t["rel_l2"]["solid_fraction_mean"]  # 60 vs 20 steps
     assert result["aggregate"]["n_trajectories"] == 1 and result["aggregate"]["n_extrapolation"] == 1
+    # one CFD-DEM run at the test velocity: the pooled reference is that run, whole rollout against it all
+    assert t["pooled"]["sims"] == ["sim_0002"] and t["pooled"]["rel_l2"] == t["rel_l2_full"]
     report = (tmp_path / "report.md").read_text()
+    assert "## Against every CFD-DEM trajectory at the velocity (pooled)" in report
     assert "| 2.042 | yes | 19 |" in report and "## Stability" in report and "3x (60 steps)" in report
     for name in ("time_averages_sim_0002.png", "curves_sim_0002.png", "solid_volume.png", "rollouts/sim_0002.h5",
                  "vtk/sim_0002_grid.pvd"):

@@ -18,7 +18,12 @@ from neuraldem.scenes.fluidized_bed.datamodule import FluidizedBedDataModule
 from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings
 from neuraldem.scenes.fluidized_bed.evaluation import FieldSeries
 from neuraldem.scenes.fluidized_bed.module import FluidizedBedModule
-from neuraldem.scenes.fluidized_bed.rollout_validation import DIVERGENCE_PENALTY, RolloutValidation, score_rollout
+from neuraldem.scenes.fluidized_bed.rollout_validation import (
+    DIVERGENCE_PENALTY,
+    RolloutValidation,
+    score_pooled,
+    score_rollout,
+)
 from neuraldem.scenes.fluidized_bed.store import FbFile
 from tests.helpers import with_split
 
@@ -42,6 +47,12 @@ def test_ground_truth_scores_zero_and_a_changed_field_does_not(fb_tiny_dataset: 
     assert worse["score"] == pytest.approx(sum(worse[k] for k in ("sf_mean_rel_l2", "sf_std_rel_l2", "lacey_mae",
                                                                   "mass_drift")))
     assert score_rollout(truth, truth, settings, diverged=True)["score"] >= DIVERGENCE_PENALTY
+    # the pooled reference of one run is that run; of both packings it differs from either
+    assert score_pooled(truth, [truth], settings, ["sim_0000"], diverged=False) == exact
+    with FbFile(fb_tiny_dataset / str(m.record("sim_0001").file)) as f:
+        twin = FieldSeries.from_dataset_file(f)
+    both = score_pooled(truth, [truth, twin], settings, ["sim_0000", "sim_0001"], diverged=False)
+    assert both["sf_std_rel_l2"] > 0 and both["mass_drift"] == exact["mass_drift"]
 
 
 @pytest.fixture
@@ -73,7 +84,23 @@ def test_callback_logs_at_every_validation_and_picks_the_checkpoint(fb_tiny_with
     assert module.training  # the rollouts put the net in eval mode; training goes on in train mode
 
 
+def test_pooled_reference_rolls_out_beyond_the_trajectory(fb_tiny_with_val: Path, caplog):
+    """reference=pooled: 30 steps from an fb_tiny trajectory of 20, scored against the velocity's runs."""
+    torch.manual_seed(0)
+    dm = FluidizedBedDataModule(str(fb_tiny_with_val), "fb_tiny", batch_size=2)
+    module = FluidizedBedModule(net_config("fb_tiny"), datamodule=dm)
+    trainer = L.Trainer(max_steps=2, val_check_interval=2, check_val_every_n_epoch=None, accelerator="cpu",
+                        logger=False, enable_progress_bar=False, enable_model_summary=False, num_sanity_val_steps=0,
+                        enable_checkpointing=False, callbacks=[RolloutValidation(steps=30, reference="pooled")])
+    with caplog.at_level("INFO", logger="neuraldem.scenes.fluidized_bed.rollout_validation"):
+        trainer.fit(module, datamodule=dm)
+    assert "(1 velocities, 30 steps)" in caplog.text
+    assert math.isfinite(float(trainer.callback_metrics["val/rollout_score"]))
+
+
 def test_bad_settings_and_the_wrong_datamodule_say_so():
+    with pytest.raises(ConfigError, match="callbacks.rollout_validation.reference"):
+        RolloutValidation(reference="long")
     with pytest.raises(ConfigError, match="callbacks.rollout_validation.steps"):
         RolloutValidation(steps=0)
     with pytest.raises(ConfigError, match="callbacks.rollout_validation.part"):

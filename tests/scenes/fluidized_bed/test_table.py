@@ -29,11 +29,15 @@ def test_one_row_per_run_and_per_velocity_with_stability(fb_tiny_checkpoint: Pat
     proc = run_module("neuraldem.scenes.fluidized_bed.table", str(tmp_path / "runs"), "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     rows = {line.split(" | ")[0].lstrip("| "): line for line in out.read_text().splitlines()
-            if line.startswith("| steady |")}  # the last one: the per-velocity row
+            if line.startswith("| steady | 2.042 (extrapolated)")}  # the per-velocity row
     summary = [line for line in out.read_text().splitlines() if line.startswith("| broken |")]
-    assert len(summary) == 2  # one summary row, one per-velocity row
+    assert len(summary) == 4  # one summary row, one per-velocity row, the same two against the pooled reference
     assert summary[0].endswith("| 1/1 | 0/1 |")  # stable for 1x (20 steps), not 3x
     assert summary[1].endswith("| 30 |") and "2.042 (extrapolated)" in summary[1]
+    # pooled: the one CFD-DEM run of the test velocity (20 steps from snapshot 1), the 30 steps rolled out
+    assert summary[2].startswith("| broken | 2.042 | 1 (20) | 30 |")
+    tm, sd, lacey, total = (float(c) for c in summary[2].strip("| ").split(" | ")[4:8])
+    assert total == pytest.approx(tm + sd + lacey, abs=2e-3) and summary[3].startswith("| broken | 1 |")
     saved = json.loads(out.with_suffix(".json").read_text())
     steady = next(r for r in saved if r["run"] == "steady")["trajectories"][0]["stability"]["steps_to_divergence"]
     assert rows["steady"].endswith(f"| {'none' if steady is None else steady} |")
@@ -80,5 +84,6 @@ def test_long_trajectories_get_their_own_table_and_stay_out_of_the_summary(fb_ti
     assert cells[3] == f"{short['rel_l2']['solid_fraction_mean']:.3f}"  # not averaged with the long one
     assert cells[-1] == "1/1"  # one trajectory counted
     start = next(i for i, line in enumerate(lines) if line.startswith("Against the long CFD-DEM trajectories"))
-    long_rows = [line for line in lines[start:] if line.startswith("| ema_mirror |")]
+    end = next(i for i, line in enumerate(lines) if line.startswith("Against every CFD-DEM trajectory"))
+    long_rows = [line for line in lines[start:end] if line.startswith("| ema_mirror |")]
     assert len(long_rows) == 1 and "| 0.777 |" in long_rows[0]

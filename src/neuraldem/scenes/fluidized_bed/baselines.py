@@ -18,6 +18,10 @@ A replayed trajectory is as long as the training runs (e.g. 300 steps), so again
 the statistics cover that many steps only; the column "steps compared" says so. The solver's own seed spread
 (`other_packing`) needs two packings per velocity; `python -m neuraldem.bench fb_speed_accuracy` charts it against cost.
 
+Every result also holds `pooled` (`evaluation.compare_pooled`): the replayed series against all CFD-DEM runs at
+the held-out velocity together, leaving out the one replayed (`other_packing`: 3 s of one packing against the
+other two). `--only SIM_ID...` scores just the named held-out trajectories (those a paired model was scored on).
+
 Each baseline is written as DIR/<baseline>/evaluation/metrics.json in the layout `neuraldem.evaluate` writes,
 so `python -m neuraldem.scenes.fluidized_bed.table` puts them in one table with the models.
 """
@@ -38,7 +42,15 @@ from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.machine import machine_info
 from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings, resolve_dataset
-from neuraldem.scenes.fluidized_bed.evaluation import FieldSeries, _jsonable, aggregate, compare, held_out
+from neuraldem.scenes.fluidized_bed.evaluation import (
+    FieldSeries,
+    _jsonable,
+    aggregate,
+    compare,
+    compare_pooled,
+    held_out,
+    pooled_reference,
+)
 from neuraldem.scenes.fluidized_bed.rollout import DEFAULT_INIT_SNAPSHOT
 from neuraldem.scenes.fluidized_bed.store import FbFile
 
@@ -110,10 +122,27 @@ def training_series(m: Manifest, dataset_dir: Path, split: str,
     return sorted(((velocity(r), load_series(dataset_dir / str(r.file))) for r in records), key=lambda t: t[0])
 
 
+def held_out_ids(m: Manifest, split: str, part: str, only: tuple[str, ...], dataset_dir: Path) -> list[SimRecord]:
+    """The named held-out trajectories (of `part`, finished), in held_out's order; anything else is refused."""
+    allowed = {r.sim_id for r in held_out(m, split, part, None)} | set(m.split_ids(split, part))
+    wrong = sorted(set(only) - allowed)
+    if wrong:
+        raise DataError(f"--only {' '.join(wrong)}: not {part} trajectories of split {split!r} of {dataset_dir}",
+                        fix=f"choose from {', '.join(sorted(allowed))}")
+    records = [m.record(i) for i in sorted(set(only))]
+    unfinished = [r.sim_id for r in records if not r.usable]
+    if unfinished:
+        raise DataError(f"--only {' '.join(unfinished)}: not finished in {dataset_dir}",
+                        fix="generate them first: python -m neuraldem.datagen data=<dataset>")
+    return sorted(records, key=lambda r: (r.params.get("duration", 0.0), r.params["inlet_velocity"], r.sim_id))
+
+
 def evaluate_baselines(dataset_dir: Path, out_dir: Path, split: str = "velocity", part: str = "test",
                        baselines: tuple[str, ...] = BASELINES, init_snapshot: int = DEFAULT_INIT_SNAPSHOT,
-                       max_sims: int | None = None, exclude: tuple[str, ...] = ()) -> dict[str, dict[str, Any]]:
-    """Score every baseline on the held-out trajectories; write <out>/<baseline>/evaluation/metrics.json."""
+                       max_sims: int | None = None, exclude: tuple[str, ...] = (),
+                       only: tuple[str, ...] = ()) -> dict[str, dict[str, Any]]:
+    """Score every baseline on the held-out trajectories (`only`: just these, e.g. the ones a paired model was
+    scored on); write <out>/<baseline>/evaluation/metrics.json."""
     for b in baselines:
         if b not in BASELINES:
             raise DataError(f"unknown fluidized-bed baseline {b!r}", fix=f"choose from {', '.join(BASELINES)}")
@@ -121,7 +150,7 @@ def evaluate_baselines(dataset_dir: Path, out_dir: Path, split: str = "velocity"
     settings = metric_settings(m)
     train = training_series(m, dataset_dir, split, exclude)
     train = [(v, s.since(init_snapshot)) for v, s in train]
-    records = held_out(m, split, part, max_sims)
+    records = held_out(m, split, part, max_sims) if not only else held_out_ids(m, split, part, only, dataset_dir)
     if not records:
         raise DataError(f"no finished {part} trajectories in split {split!r} of {dataset_dir}")
     per_baseline: dict[str, list[dict[str, Any]]] = {b: [] for b in baselines}
@@ -137,12 +166,16 @@ def evaluate_baselines(dataset_dir: Path, out_dir: Path, split: str = "velocity"
                 pred = load_series(dataset_dir / str(twin.file)).since(init_snapshot)
             else:
                 pred = baseline_series(b, train, v)
+            # pooled reference: every CFD-DEM run at the velocity, but the one replayed as the answer
+            ids, reference = pooled_reference(m, dataset_dir, rec, init_snapshot,
+                                              leave_out=twin.sim_id if b == "other_packing" else None)
             steps = len(pred.times) - 1
             result = {"sim_id": rec.sim_id, "inlet_velocity": v, "steps_requested": steps,
                       "extrapolation": not (train[0][0] <= v <= train[-1][0]),
                       "stability": {"steps_to_divergence": None, "divergence": None, "steps_done": steps,
                                     "horizons": []},
-                      **compare(pred, truth, settings)}
+                      **compare(pred, truth, settings),
+                      "pooled": compare_pooled(pred, reference, settings, ids)}
             per_baseline[b].append(result)
     horizon = min(len(s.times) for _, s in train) - 1
     out: dict[str, dict[str, Any]] = {}
@@ -178,9 +211,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--init-snapshot", type=int, default=DEFAULT_INIT_SNAPSHOT)
     p.add_argument("--exclude", nargs="+", default=[], metavar="SIM_ID",
                    help="training trajectories to leave out (e.g. those a compared model was not trained on)")
+    p.add_argument("--only", nargs="+", default=[], metavar="SIM_ID",
+                   help="score just these held-out trajectories of --part (e.g. those a paired model was scored on; "
+                        "default: the first of every held-out velocity)")
     a = p.parse_args(argv)
     docs = evaluate_baselines(resolve_dataset(a.dataset), a.out, a.split, a.part, tuple(a.baselines),
-                              a.init_snapshot, exclude=tuple(a.exclude))
+                              a.init_snapshot, exclude=tuple(a.exclude), only=tuple(a.only))
     for b, d in docs.items():
         g = d["aggregate"]
         print(f"{b:13s} mean rel L2 {g['solid_fraction_mean_rel_l2']:.3f}  Lacey MAE {g['lacey_mae']:.3f}  "

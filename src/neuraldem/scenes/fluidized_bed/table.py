@@ -144,9 +144,43 @@ def render(results: list[dict]) -> str:
                          f"| {_f(full['solid_fraction_std'], '.3f')} | {_f(x['lacey']['mae'], '.3f')} "
                          f"| {_f(1000 * bh['mean_pred'], '.1f')} / {_f(1000 * bh['mean_truth'], '.1f')} "
                          f"| {_f(bf['mean_pred'], '.3f')} / {_f(bf['mean_truth'], '.3f')} |")
+    lines += pooled_table(results)
     m = first["machine"]
     lines += ["", f"Machine: {m.get('cpu_model', '')}; evaluated {first['date_utc']}.", ""]
     return "\n".join(lines)
+
+
+def pooled_table(results: list[dict]) -> list[str]:
+    """Each run's whole series against every CFD-DEM trajectory at the velocity (`evaluation.compare_pooled`),
+    per velocity and summed; runs evaluated before the pooled reference existed are left out."""
+    rows = [(r, x) for r in results for x in r["trajectories"] if "pooled" in x]
+    if not rows:
+        return []
+    lines = ["", ("Against every CFD-DEM trajectory at the velocity, pooled (the whole series' per-cell statistics "
+                  "against all packings' together; Lacey against their mean curve; a replayed baseline leaves its "
+                  "own trajectory out of the reference, a model's rollout keeps the one it started from; "
+                  "sum = mean + std + Lacey)."), "",
+             "| run | U0 [m/s] | CFD-DEM runs (snapshots) | series snapshots | rel. L2 mean solid fraction "
+             "| rel. L2 std solid fraction | Lacey MAE | sum |", "|---|---|---|---|---|---|---|---|"]
+    for r, x in rows:
+        q = x["pooled"]
+        tm, sd, lm = q["rel_l2"]["solid_fraction_mean"], q["rel_l2"]["solid_fraction_std"], q["lacey_mae"]
+        total = None if None in (tm, sd, lm) else tm + sd + lm
+        lines.append(f"| {run_name(r)} | {x['inlet_velocity']:.3f} | {len(q['sims'])} ({q['snapshots']}) "
+                     f"| {q['pred_snapshots']} | {_f(tm, '.3f')} | {_f(sd, '.3f')} | {_f(lm, '.3f')} "
+                     f"| {_f(total, '.3f')} |")
+    lines += ["", "| run | velocities | mean rel. L2 mean solid fraction | std | Lacey MAE | sum |",
+              "|---|---|---|---|---|---|"]
+    for r in results:
+        qs = [x["pooled"] for x in r["trajectories"] if "pooled" in x]
+        if not qs:
+            continue
+        means = [float(np.nanmean([np.nan if v is None else v for v in vals])) for vals in (
+            [q["rel_l2"]["solid_fraction_mean"] for q in qs], [q["rel_l2"]["solid_fraction_std"] for q in qs],
+            [q["lacey_mae"] for q in qs])]
+        lines.append(f"| {run_name(r)} | {len(qs)} | " + " | ".join(f"{v:.3f}" for v in means)
+                     + f" | {sum(means):.3f} |")
+    return lines
 
 
 def fb_results(folders: list[Path]) -> list[dict]:
