@@ -38,6 +38,9 @@ def test_windows_and_the_pooled_floor_match_numpy(fb_tiny_dataset: Path):
     both = np.concatenate([alpha[0:5], alpha[15:20]])
     assert r["pooled"]["solid_fraction_mean"] == pytest.approx(_rel(both.mean(0), whole_mean), rel=1e-12)
     assert r["first_window"] == r["single"][0] and r["pooled"]["solid_fraction_mean"] > 0
+    halves = _rel(alpha[:10].mean(0), alpha[10:].mean(0))  # the two halves, one against the other
+    assert r["halves"]["solid_fraction_mean"] == pytest.approx(halves, rel=1e-12)
+    assert r["perfect_model_estimate"]["solid_fraction_mean"] == pytest.approx(halves / np.sqrt(2), rel=1e-12)
     # all four windows pooled are the whole series: no error
     everything = measure(fb_tiny_dataset, window=5, pool=4, sims=("sim_0000",))["trajectories"][0]
     assert all(v == pytest.approx(0.0, abs=1e-12) for v in everything["pooled"].values())

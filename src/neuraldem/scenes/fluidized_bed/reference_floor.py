@@ -12,6 +12,12 @@ run (as far apart as it allows, like independent packings), are compared with th
 been bubbling for seconds, unlike a fresh 3-s run, so the pooled floor is a slight underestimate for the
 first window's transient. The Lacey index is not measured: mixing starts once, at t = 0.
 
+The same run also bounds what a perfect model can score against it: its two halves are two (nearly)
+independent samples of the bed, so rel. L2(first half, second half) is about sqrt(2) x the error of one half
+against the infinite-time statistics, and a whole run's own error about half the halves' number (errors
+falling as 1/sqrt(duration)). A rollout as long as the run, statistically exact, would then score about
+sqrt(2) x that against it (`perfect_model_estimate`): the floor under the targets for the long test trajectories.
+
 Writes FILE.md and FILE.json (per trajectory: every window's numbers, the pooled ones, which windows).
 """
 
@@ -60,7 +66,14 @@ def trajectory_floor(s: FieldSeries, window: int, pool: int) -> dict[str, Any]:
     single = [{k: relative_l2(v, whole[k]) for k, v in time_statistics(w).items() if k in FIELDS} for w in parts]
     chosen = spread(len(parts), pool)
     pooled_stats = time_statistics(concatenate([parts[i] for i in chosen]))
+    half = len(s.times) // 2
+    first, second = (time_statistics(FieldSeries(s.times[a:b], s.solid_fraction[a:b], s.fluid_velocity[a:b],
+                                                 s.mixing[a:b], s.grid, s.particle_volume, s.total_particle_volume))
+                     for a, b in ((0, half), (half, 2 * half)))
+    halves = {k: relative_l2(first[k], second[k]) for k in FIELDS}
     return {"snapshots": len(s.times), "window": window, "n_windows": len(parts), "single": single,
+            "halves": halves, "whole_run_error_estimate": {k: v / 2 for k, v in halves.items()},
+            "perfect_model_estimate": {k: v / np.sqrt(2) for k, v in halves.items()},
             "single_mean": {k: float(np.mean([x[k] for x in single])) for k in FIELDS},
             "single_max": {k: float(np.max([x[k] for x in single])) for k in FIELDS},
             "first_window": single[0], "pooled_windows": chosen,
@@ -127,7 +140,9 @@ def render(doc: dict[str, Any]) -> str:
         head = f"| {r['inlet_velocity']:.3f} | {r['sim_id']} ({r['snapshots']}, {r['n_windows']})"
         for label, x in ((f"one window, mean over {r['n_windows']}", r["single_mean"]),
                          ("one window, largest", r["single_max"]), ("first window", r["first_window"]),
-                         (f"{k} windows pooled ({', '.join(str(i) for i in r['pooled_windows'])})", r["pooled"])):
+                         (f"{k} windows pooled ({', '.join(str(i) for i in r['pooled_windows'])})", r["pooled"]),
+                         ("first half against second half", r["halves"]),
+                         ("perfect model of the run's length against it (estimate)", r["perfect_model_estimate"])):
             lines.append(f"{head} | {label} | " + " | ".join(f"{x[f]:.3f}" for f in FIELDS) + " |")
     lines += ["", f"Command: `{doc['command']}`; {doc['date_utc']}; machine: {doc['machine'].get('cpu_model', '')}.",
               ""]
