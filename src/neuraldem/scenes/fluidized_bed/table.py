@@ -2,8 +2,10 @@
 
 Finds every `evaluation/metrics.json` of a fluidized-bed model under the given folders (e.g. the runs of
 `scripts/fb_ablation.sh`) and writes one summary row per run (its stability options, size, accuracy, mass
-drift and stability at each horizon) and one row per run and held-out velocity, plus a JSON file with the same
-numbers next to the markdown.
+drift and stability at each horizon) and one row per run and held-out velocity, the long test trajectories in a
+table of their own, and the scores against every CFD-DEM run at each velocity pooled (per velocity and summed:
+the numbers to choose between runs on, see `reference_floor`), plus a JSON file with the same numbers next to
+the markdown.
 """
 
 from __future__ import annotations
