@@ -158,6 +158,7 @@ def evaluate_baselines(dataset_dir: Path, out_dir: Path, split: str = "velocity"
     for rec in records:
         v = velocity(rec)
         truth = load_series(dataset_dir / str(rec.file)).since(init_snapshot)
+        pooled_ids, pooled_series = pooled_reference(m, dataset_dir, rec, init_snapshot)  # read once per run
         for b in baselines:
             if b == "other_packing":
                 twin = next((r for i, r in sorted(twins.items()) if i != rec.sim_id and velocity(r) == v), None)
@@ -167,8 +168,9 @@ def evaluate_baselines(dataset_dir: Path, out_dir: Path, split: str = "velocity"
             else:
                 pred = baseline_series(b, train, v)
             # pooled reference: every CFD-DEM run at the velocity, but the one replayed as the answer
-            ids, reference = pooled_reference(m, dataset_dir, rec, init_snapshot,
-                                              leave_out=twin.sim_id if b == "other_packing" else None)
+            replayed = twin.sim_id if b == "other_packing" else None
+            kept = [(i, x) for i, x in zip(pooled_ids, pooled_series, strict=True) if i != replayed]
+            ids, reference = [i for i, _ in kept], [x for _, x in kept]
             steps = len(pred.times) - 1
             result = {"sim_id": rec.sim_id, "inlet_velocity": v, "steps_requested": steps,
                       "extrapolation": not (train[0][0] <= v <= train[-1][0]),

@@ -45,10 +45,7 @@ FIELDS = ("solid_fraction_mean", "solid_fraction_std", "fluid_speed_mean")
 
 def windows(s: FieldSeries, length: int) -> list[FieldSeries]:
     """Consecutive, non-overlapping windows of `length` snapshots (a shorter rest is dropped)."""
-    n = len(s.times) // length
-    return [FieldSeries(s.times[i * length:(i + 1) * length], s.solid_fraction[i * length:(i + 1) * length],
-                        s.fluid_velocity[i * length:(i + 1) * length], s.mixing[i * length:(i + 1) * length],
-                        s.grid, s.particle_volume, s.total_particle_volume) for i in range(n)]
+    return [s.since(i * length).window(length) for i in range(len(s.times) // length)]
 
 
 def spread(n: int, k: int) -> list[int]:
@@ -67,9 +64,7 @@ def trajectory_floor(s: FieldSeries, window: int, pool: int) -> dict[str, Any]:
     chosen = spread(len(parts), pool)
     pooled_stats = time_statistics(concatenate([parts[i] for i in chosen]))
     half = len(s.times) // 2
-    first, second = (time_statistics(FieldSeries(s.times[a:b], s.solid_fraction[a:b], s.fluid_velocity[a:b],
-                                                 s.mixing[a:b], s.grid, s.particle_volume, s.total_particle_volume))
-                     for a, b in ((0, half), (half, 2 * half)))
+    first, second = time_statistics(s.window(half)), time_statistics(s.since(half).window(half))
     halves = {k: relative_l2(first[k], second[k]) for k in FIELDS}
     return {"snapshots": len(s.times), "window": window, "n_windows": len(parts), "single": single,
             "halves": halves, "whole_run_error_estimate": {k: v / 2 for k, v in halves.items()},

@@ -174,14 +174,13 @@ def pooled_table(results: list[dict]) -> list[str]:
     lines += ["", "| run | velocities | mean rel. L2 mean solid fraction | std | Lacey MAE | sum |",
               "|---|---|---|---|---|---|"]
     for r in results:
-        qs = [x["pooled"] for x in r["trajectories"] if "pooled" in x]
-        if not qs:
+        a = r["aggregate"]  # the evaluation's own means (`evaluation.aggregate`: pooled_* when every run has it)
+        if "pooled_lacey_mae" not in a:
             continue
-        means = [float(np.nanmean([np.nan if v is None else v for v in vals])) for vals in (
-            [q["rel_l2"]["solid_fraction_mean"] for q in qs], [q["rel_l2"]["solid_fraction_std"] for q in qs],
-            [q["lacey_mae"] for q in qs])]
-        lines.append(f"| {run_name(r)} | {len(qs)} | " + " | ".join(f"{v:.3f}" for v in means)
-                     + f" | {sum(means):.3f} |")
+        means = [a["pooled_solid_fraction_mean_rel_l2"], a["pooled_solid_fraction_std_rel_l2"], a["pooled_lacey_mae"]]
+        total = None if None in means else sum(means)
+        lines.append(f"| {run_name(r)} | {len(r['trajectories'])} | " + " | ".join(_f(v, ".3f") for v in means)
+                     + f" | {_f(total, '.3f')} |")
     return lines
 
 
