@@ -6,6 +6,7 @@ Resolution order: $NEURALDEM_DATA, then $XDG_DATA_HOME/neuraldem, then ~/.local/
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 ENV_VAR = "NEURALDEM_DATA"
@@ -43,3 +44,24 @@ def results_dir() -> Path:
     """Figures and tables that the README quotes: `results/` in the checkout, else under the data dir."""
     root = repo_root()
     return (root / "results") if root is not None else data_dir() / "results"
+
+
+def portable(text: str) -> str:
+    """`text` (a recorded command) with this machine's data dir written as $NEURALDEM_DATA and the checkout's
+    root dropped, so that a command stored with a result reads the same on every machine."""
+    text = text.replace(str(data_dir()), "$" + ENV_VAR)
+    root = repo_root()
+    return text.replace(str(root) + "/", "") if root is not None else text
+
+
+def invocation(argv: list[str] | None = None) -> str:
+    """The command line that ran this process, portable: a script of this package (Hydra apps run as
+    `python -m neuraldem.train`, whose argv[0] is the file) is written as `python -m neuraldem.<module>`."""
+    argv = list(sys.argv if argv is None else argv)
+    if argv and argv[0].endswith(".py"):
+        package = Path(__file__).resolve().parent
+        script = Path(argv[0]).resolve()
+        if script.is_relative_to(package):
+            module = ".".join(("neuraldem", *script.relative_to(package).with_suffix("").parts))
+            argv[:1] = ["python", "-m", module.removesuffix(".__main__")]
+    return portable(" ".join(argv))

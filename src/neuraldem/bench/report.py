@@ -12,7 +12,7 @@ from typing import Any
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.machine import machine_info
-from neuraldem.paths import results_dir
+from neuraldem.paths import portable, results_dir
 
 
 def default_path(name: str) -> Path:
@@ -30,7 +30,7 @@ def write_results(name: str, results: Any, *, command: str, path: Path | None = 
     payload = {
         "benchmark": name,
         "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-        "command": command,
+        "command": portable(command),
         "machine": machine or machine_info(),
         "results": results,
     }
@@ -63,7 +63,7 @@ def resolve_out(out: Path | None, name: str) -> Path:
 
 def command_line(name: str, argv: list[str]) -> str:
     """The command that reproduces a result, recorded with it."""
-    return shlex.join(["python", "-m", "neuraldem.bench", name, *argv])
+    return portable(shlex.join(["python", "-m", "neuraldem.bench", name, *argv]))
 
 
 def read_results(path: Path, name: str) -> dict[str, Any]:

@@ -22,6 +22,7 @@ from neuraldem.cli import report_user_errors, tool_prog
 from neuraldem.data.manifest import Manifest
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.machine import machine_info
+from neuraldem.paths import portable
 
 METRICS = {"drainage_time": "drainage time [s]", "residual_fraction": "residual fraction",
            "outflow_rate": "outflow rate [N0/s]", "mass_flow_index": "mass-flow index"}
@@ -106,7 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     m = Manifest.load(a.dataset)
     a.out.mkdir(parents=True, exist_ok=True)
     summary = summarise(m)
-    summary.update(machine=machine_info(), command=" ".join(["python -m neuraldem.eval.dataset_report", *sys.argv[1:]]),
+    command = portable(" ".join(["python -m neuraldem.eval.dataset_report", *sys.argv[1:]]))
+    summary.update(machine=machine_info(), command=command,
                    date_utc=datetime.now(UTC).isoformat(timespec="seconds"))
     atomic_write_json(a.out / "summary.json", summary)
     plot_parameter_space(m, a.out / "metrics_over_parameters.png")

@@ -41,6 +41,7 @@ from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.machine import machine_info
+from neuraldem.paths import invocation
 from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings, resolve_dataset
 from neuraldem.scenes.fluidized_bed.evaluation import (
     FieldSeries,
@@ -192,7 +193,7 @@ def evaluate_baselines(dataset_dir: Path, out_dir: Path, split: str = "velocity"
             "training_horizon_steps": horizon, "horizons": [], "rollout_steps": horizon,
             "init_snapshot": init_snapshot, "metric_settings": settings,
             "aggregate": aggregate(results), "trajectories": results,
-            "machine": machine_info(), "command": " ".join(sys.argv),
+            "machine": machine_info(), "command": invocation(),
             "date_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         }
         folder = Path(out_dir) / f"baseline_{b}" / "evaluation"

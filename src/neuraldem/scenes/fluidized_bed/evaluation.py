@@ -17,7 +17,6 @@ rollouts/<sim>.h5 (same layout as `python -m neuraldem.rollout` writes) and, wit
 
 from __future__ import annotations
 
-import sys
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -33,6 +32,7 @@ from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.eval.checkpoints import IMPORTED_SPLIT, checkpoint_dataset, read_checkpoint, resolve_device
 from neuraldem.machine import machine_info
+from neuraldem.paths import invocation
 from neuraldem.scenes.fluidized_bed import metrics as fm
 from neuraldem.scenes.fluidized_bed import plots as fb_plots
 from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings
@@ -348,7 +348,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         "init_snapshot": init_snapshot,
         "limits": vars(limits or DivergenceLimits()), "metric_settings": settings,
         "aggregate": aggregate(results), "trajectories": results,
-        "machine": machine_info(), "command": " ".join(sys.argv),
+        "machine": machine_info(), "command": invocation(),
         "date_utc": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     atomic_write_json(out_dir / "metrics.json", _jsonable(result))

@@ -35,6 +35,7 @@ from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.machine import machine_info
+from neuraldem.paths import invocation
 from neuraldem.scenes.fluidized_bed.dataset_report import resolve_dataset
 from neuraldem.scenes.fluidized_bed.evaluation import FieldSeries, _jsonable, concatenate, relative_l2, time_statistics
 from neuraldem.scenes.fluidized_bed.rollout import DEFAULT_INIT_SNAPSHOT
@@ -117,7 +118,7 @@ def measure(dataset_dir: Path, window: int | None = None, pool: int = 3, sims: t
         rows.append({"sim_id": rec.sim_id, "inlet_velocity": float(rec.params["inlet_velocity"]),
                      **trajectory_floor(s, window, pool)})
     return {"dataset": str(dataset_dir), "window": window, "pool": pool, "init_snapshot": init_snapshot,
-            "trajectories": rows, "machine": machine_info(), "command": " ".join(sys.argv),
+            "trajectories": rows, "machine": machine_info(), "command": invocation(),
             "date_utc": datetime.now(UTC).isoformat(timespec="seconds")}
 
 

@@ -22,6 +22,7 @@ from neuraldem.eval.checkpoints import (
 )
 from neuraldem.eval.vtk_export import write_point_series
 from neuraldem.machine import machine_info
+from neuraldem.paths import invocation
 from neuraldem.scenes.hopper import plots as hopper_plots
 from neuraldem.scenes.hopper.baselines import score_baseline
 from neuraldem.scenes.hopper.metrics import layer_edges
@@ -117,7 +118,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         "conditioning": meta["conditioning"], "aggregate": agg, "table_row": rows[0], "table_rows": rows,
         "baselines": baselines,
         "simulations": [e.as_dict() for e in evals], "skipped": skipped, "machine": machine_info(),
-        "command": " ".join(sys.argv), "date_utc": datetime.now(UTC).isoformat(timespec="seconds"),
+        "command": invocation(), "date_utc": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     atomic_write_json(out_dir / "metrics.json", result)
     (out_dir / "table.md").write_text(TABLE_HEADER + "\n" + "\n".join(rows) + "\n")

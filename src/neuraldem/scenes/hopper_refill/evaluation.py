@@ -14,7 +14,6 @@ same way, so the model's errors have a floor to be read against.
 
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -34,6 +33,7 @@ from neuraldem.eval.checkpoints import (
     read_checkpoint,
     split_records,
 )
+from neuraldem.paths import invocation
 from neuraldem.scenes.hopper.fields import nearest_particle
 from neuraldem.scenes.hopper_refill import metrics as rm
 from neuraldem.scenes.hopper_refill.datamodule import reference_scalars
@@ -326,7 +326,7 @@ def evaluate_refill_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, da
               "conditioning": meta["conditioning"], "window": window, "horizon": horizon,
               "new_tolerance_s": new_tolerance, "aggregate": agg,
               "persistence": aggregate_refill(baselines), "simulations": [e.as_dict() for e in evals],
-              "persistence_simulations": [e.as_dict() for e in baselines], "command": " ".join(sys.argv),
+              "persistence_simulations": [e.as_dict() for e in baselines], "command": invocation(),
               "date_utc": datetime.now(UTC).isoformat(timespec="seconds")}
     atomic_write_json(out_dir / "metrics.json", result)
     for e in evals:  # one pair of figures per simulation, the first also under the plain names
