@@ -14,6 +14,8 @@ from neuraldem.data.manifest import Manifest
 from neuraldem.scenes.fluidized_bed import metrics as fm
 from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings
 from neuraldem.scenes.fluidized_bed.evaluation import (
+    FieldSeries,
+    compare,
     compare_pooled,
     curves,
     evaluate_checkpoint,
@@ -54,6 +56,9 @@ def test_ground_truth_through_the_prediction_path_gives_its_own_metrics(fb_tiny_
         assert (math.isnan(value) and math.isnan(stored)) or value == stored, (key, value, stored)
     assert r["bed_height"]["mean_pred"] == r["bed_height"]["mean_truth"] == rec.metrics["bed_height_mean"]
     assert np.array_equal(e.pred.solid_fraction, truth_alpha)
+    lr = r["structure"]  # the same fields: no error, the rollout's asymmetry and lean are CFD-DEM's
+    assert lr["mean_profile_rel_l2"] == lr["mean_lateral_rel_l2"] == 0.0
+    assert lr["mean_asymmetry_pred"] == lr["mean_asymmetry_truth"] > 0 and lr["std_lean_pred"] == lr["std_lean_truth"]
     assert r["stability"]["steps_to_divergence"] is None
     assert [h["stable"] for h in r["stability"]["horizons"]] == [True, False]  # 3x is beyond the data
 
@@ -83,6 +88,23 @@ def test_pooled_reference_holds_every_packing_of_the_velocity_together(fb_tiny_d
     assert rest == ["sim_0001"]
     single, _ = pooled_reference(m, fb_tiny_dataset, m.record("sim_0002"), 0)  # the test velocity: one run
     assert single == ["sim_0002"]
+
+
+def test_a_mirrored_bed_is_scored_as_all_lateral_error_with_the_lean_reversed(fb_tiny_dataset: Path):
+    """Known answer on real CFD-DEM fields: the bed's mirror image in x has the same height profile (all of its
+    time-mean error is lateral), the same asymmetry and the opposite lean."""
+    m = Manifest.load(fb_tiny_dataset)
+    with FbFile(fb_tiny_dataset / str(m.record("sim_0000").file)) as f:
+        truth = FieldSeries.from_dataset_file(f)
+    mirrored = FieldSeries(truth.times, truth.solid_fraction[:, ::-1], truth.fluid_velocity[:, ::-1],
+                           truth.mixing[:, ::-1], truth.grid, truth.particle_volume, truth.total_particle_volume)
+    r = compare(mirrored, truth, metric_settings(m))
+    lr = r["structure"]
+    assert r["rel_l2"]["solid_fraction_mean"] > 0.01
+    assert lr["mean_profile_rel_l2"] == pytest.approx(0.0, abs=1e-12)
+    assert lr["mean_lateral_rel_l2"] == pytest.approx(r["rel_l2"]["solid_fraction_mean"], rel=1e-12)
+    assert lr["mean_asymmetry_pred"] == pytest.approx(lr["mean_asymmetry_truth"], rel=1e-12)
+    assert lr["std_lean_pred"] == pytest.approx(-lr["std_lean_truth"], rel=1e-12) and lr["std_lean_truth"] != 0
 
 
 def test_evaluation_of_a_model_writes_metrics_report_and_plots(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path,
@@ -117,6 +139,7 @@ def test_evaluation_of_a_model_writes_metrics_report_and_plots(fb_tiny_checkpoin
     assert t["pooled"]["sims"] == ["sim_0002"] and t["pooled"]["rel_l2"] == t["rel_l2_full"]
     report = (tmp_path / "report.md").read_text()
     assert "## Against every CFD-DEM trajectory at the velocity (pooled)" in report
+    assert "## Left-right structure of the solid fraction" in report and "| 2.042 | pooled |" in report
     assert "| 2.042 | yes | 19 |" in report and "## Stability" in report and "3x (60 steps)" in report
     for name in ("time_averages_sim_0002.png", "curves_sim_0002.png", "solid_volume.png", "rollouts/sim_0002.h5",
                  "vtk/sim_0002_grid.pvd"):

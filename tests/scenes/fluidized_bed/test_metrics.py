@@ -140,3 +140,27 @@ def test_report_command_writes_plots_and_json(fb_tiny_dataset: Path, tmp_path: P
     bad = run_module("neuraldem.scenes.fluidized_bed.dataset_report", str(tmp_path / "none"),
                      "--out", str(tmp_path / "x"))
     assert bad.returncode == 2 and "no fluidized-bed dataset" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_left_right_structure_known_answers():
+    rng = np.random.default_rng(0)
+    half = rng.random((6, 1, 10))
+    symmetric = np.concatenate([half, half[::-1]])  # nx = 12, mirror image of itself
+    assert fm.mirror_asymmetry(symmetric) == 0.0 and fm.lean(symmetric) == pytest.approx(0.0, abs=1e-15)
+    one_column = np.zeros((4, 1, 3))
+    one_column[0] = 1.0  # f - mirror(f) has two columns of the same norm
+    assert fm.mirror_asymmetry(one_column) == pytest.approx(np.sqrt(2))
+    assert fm.lean(one_column) == -1.0 and fm.lean(one_column[::-1]) == 1.0
+    odd = np.zeros((3, 1, 2))
+    odd[1] = 1.0  # the middle column of an odd grid is in neither half
+    assert fm.lean(odd) == 0.0
+    truth = rng.random((12, 1, 10)) + 0.1
+    # an error that is the same across x at each height is all profile; a mirror-antisymmetric one all lateral
+    shift = fm.profile_lateral_error(truth + rng.random((1, 1, 10)), truth)
+    assert shift["lateral"] == pytest.approx(0.0, abs=1e-14) and shift["profile"] == pytest.approx(shift["total"])
+    anti = rng.random((6, 1, 10))
+    tilt = fm.profile_lateral_error(truth + np.concatenate([anti, -anti[::-1]]), truth)
+    assert tilt["profile"] == pytest.approx(0.0, abs=1e-14) and tilt["lateral"] == pytest.approx(tilt["total"])
+    mixed = fm.profile_lateral_error(truth + rng.normal(size=truth.shape), truth)
+    assert mixed["profile"] ** 2 + mixed["lateral"] ** 2 == pytest.approx(mixed["total"] ** 2)
+    assert min(mixed["profile"], mixed["lateral"]) > 0

@@ -161,6 +161,9 @@ def compare(pred: FieldSeries, truth: FieldSeries, settings: dict[str, Any]) -> 
         "bubble_fraction": {"mean_pred": sum_p["bubble_fraction_mean"], "mean_truth": sum_t["bubble_fraction_mean"],
                             "max_pred": sum_p["bubble_fraction_max"], "max_truth": sum_t["bubble_fraction_max"]},
         "summary_pred": sum_p, "summary_truth": sum_t,
+        # a lean / one-sided bubble channel of the solid fraction's statistics, and the error's lateral part
+        "structure": fm.left_right_structure(sp["solid_fraction_mean"], sp["solid_fraction_std"],
+                                             st["solid_fraction_mean"], st["solid_fraction_std"]),
     }
 
 
@@ -197,7 +200,9 @@ def compare_pooled(pred: FieldSeries, pooled: Sequence[FieldSeries], settings: d
     return {"sims": list(sims), "snapshots": int(sum(len(s.times) for s in pooled)),
             "pred_snapshots": len(pred.times), "lacey_steps": n - 1,
             "rel_l2": {k: relative_l2(sp[k], st[k]) for k in STAT_FIELDS},
-            "lacey_mae": float(np.nanmean(diff)) if np.isfinite(diff).any() else float("nan")}
+            "lacey_mae": float(np.nanmean(diff)) if np.isfinite(diff).any() else float("nan"),
+            "structure": fm.left_right_structure(sp["solid_fraction_mean"], sp["solid_fraction_std"],
+                                                 st["solid_fraction_mean"], st["solid_fraction_std"])}
 
 
 def velocity_twins(m: Manifest, rec: SimRecord) -> list[SimRecord]:
@@ -417,6 +422,7 @@ def markdown_report(result: dict[str, Any]) -> str:
             lines.append(f"| {r['inlet_velocity']:.3f} | {len(q['sims'])} ({q['snapshots']}) | {q['pred_snapshots']} "
                          f"| {q['rel_l2']['solid_fraction_mean']:.3f} | {q['rel_l2']['solid_fraction_std']:.3f} | "
                          f"{q['rel_l2']['mixing_mean']:.3f} | {q['lacey_mae']:.3f} ({q['lacey_steps']}) |")
+    lines += structure_section(result["trajectories"])
     mults = [x["multiple"] for x in result["trajectories"][0]["stability"]["horizons"]]
     lines += ["", "## Stability", "",
               "| U0 [m/s] | steps until divergence | " + " | ".join(f"{k}x ({k * h} steps)" for k in mults) + " |",
@@ -431,6 +437,28 @@ def markdown_report(result: dict[str, Any]) -> str:
               f"command: `{result['command']}`; {result['date_utc']}")
     lines += ["", footer, ""]
     return "\n".join(lines)
+
+
+def structure_section(trajectories: list[dict[str, Any]]) -> list[str]:
+    """The left-right table of the report (metrics.left_right_structure), against the run and, where
+    scored, against the pooled runs."""
+    rows = [(r["inlet_velocity"], ref, q["structure"]) for r in trajectories
+            for ref, q in (("run", r), ("pooled", r.get("pooled"))) if q is not None and "structure" in q]
+    if not rows:
+        return []
+    lines = ["", "## Left-right structure of the solid fraction", "",
+             "The time-mean error split into the height profile (x-mean per height) and the lateral rest "
+             "(profile^2 + lateral^2 = rel. L2^2); mirror asymmetry ||f - f mirrored|| / ||f|| of the time-mean "
+             "and std fields and the std field's lean (right - left) / total, rollout / CFD-DEM (the box is "
+             "symmetric: CFD-DEM's values are sampling noise).", "",
+             "| U0 [m/s] | reference | time-mean error: profile / lateral | asymmetry of the time mean "
+             "| asymmetry of the std field | lean of the std field |", "|---|---|---|---|---|---|"]
+    for v, ref, q in rows:
+        lines.append(f"| {v:.3f} | {ref} | {q['mean_profile_rel_l2']:.3f} / {q['mean_lateral_rel_l2']:.3f} | "
+                     f"{q['mean_asymmetry_pred']:.3f} / {q['mean_asymmetry_truth']:.3f} | "
+                     f"{q['std_asymmetry_pred']:.3f} / {q['std_asymmetry_truth']:.3f} | "
+                     f"{q['std_lean_pred']:+.3f} / {q['std_lean_truth']:+.3f} |")
+    return lines
 
 
 def write_trajectory_figures(e: TrajectoryEvaluation, settings: dict[str, Any], out_dir: Path) -> dict[str, Any]:

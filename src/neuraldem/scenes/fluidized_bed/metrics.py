@@ -17,6 +17,10 @@ Definitions (docs/fluidized-bed.md has the same, with the reasoning):
   the particle centres' heights.
 - bubble fraction: share of the bed volume (grid cells below H(t), the top one partially) whose solid
   fraction is below `threshold` (default 0.15: nearly particle-free voids, vs ~0.5 in the dense phase).
+- left-right structure of a per-cell statistic f (nx, ny, nz), the box being mirror-symmetric in x: mirror
+  asymmetry ||f - f mirrored in x|| / ||f||; lean (right half - left half) / total (the middle column, for odd
+  nx, in neither half); and the error of a prediction split into its height profile (the x-mean at each
+  height) and the lateral rest, profile^2 + lateral^2 = rel. L2^2 (orthogonal parts).
 """
 
 from __future__ import annotations
@@ -44,6 +48,42 @@ def mass_conservation_error(volume: np.ndarray, reference: float | None = None) 
     """max_t |V(t) / V_ref - 1|, V_ref = V(0) unless given (e.g. the particles' total volume)."""
     ref = float(volume[0]) if reference is None else float(reference)
     return float(np.max(np.abs(volume / ref - 1.0)))
+
+
+def mirror_asymmetry(field: np.ndarray) -> float:
+    """||f - f mirrored in x|| / ||f|| of a per-cell field (nx, ny, nz): 0 for a left-right symmetric one."""
+    norm = float(np.linalg.norm(field))
+    return float(np.linalg.norm(field - field[::-1]) / norm) if norm > 0 else float("nan")
+
+
+def lean(field: np.ndarray) -> float:
+    """(right half - left half) / total of a per-cell field (nx, ny, nz): where, e.g., the bubbles pass."""
+    half = field.shape[0] // 2
+    total = float(field.sum())
+    return float((field[-half:].sum() - field[:half].sum()) / total) if total != 0 else float("nan")
+
+
+def profile_lateral_error(pred: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    """rel. L2 of pred vs truth (nx, ny, nz) split into the height profile's part (the x-mean at each height
+    and y) and the lateral rest; profile**2 + lateral**2 == total**2. Tells a bed that expands wrongly from
+    one whose bubbles take other paths across it."""
+    norm = float(np.linalg.norm(truth))
+    if norm == 0:
+        return {"total": float("nan"), "profile": float("nan"), "lateral": float("nan")}
+    err = pred - truth
+    profile = np.broadcast_to(err.mean(axis=0, keepdims=True), err.shape)
+    return {"total": float(np.linalg.norm(err) / norm), "profile": float(np.linalg.norm(profile) / norm),
+            "lateral": float(np.linalg.norm(err - profile) / norm)}
+
+
+def left_right_structure(pred_mean: np.ndarray, pred_std: np.ndarray, truth_mean: np.ndarray,
+                         truth_std: np.ndarray) -> dict[str, float]:
+    """The left-right diagnostics of a prediction's time-mean and std fields beside the reference's."""
+    split = profile_lateral_error(pred_mean, truth_mean)
+    return {"mean_profile_rel_l2": split["profile"], "mean_lateral_rel_l2": split["lateral"],
+            "mean_asymmetry_pred": mirror_asymmetry(pred_mean), "mean_asymmetry_truth": mirror_asymmetry(truth_mean),
+            "std_asymmetry_pred": mirror_asymmetry(pred_std), "std_asymmetry_truth": mirror_asymmetry(truth_std),
+            "std_lean_pred": lean(pred_std), "std_lean_truth": lean(truth_std)}
 
 
 def block_sums(field: np.ndarray, block: Sequence[int]) -> np.ndarray:
