@@ -87,3 +87,6 @@ def test_long_trajectories_get_their_own_table_and_stay_out_of_the_summary(fb_ti
     end = next(i for i, line in enumerate(lines) if line.startswith("Against every CFD-DEM trajectory"))
     long_rows = [line for line in lines[start:end] if line.startswith("| ema_mirror |")]
     assert len(long_rows) == 1 and "| 0.777 |" in long_rows[0]
+    lr = long["structure"]  # the left-right columns: profile / lateral, lean rollout / CFD-DEM
+    assert long_rows[0].endswith(f"| {lr['mean_profile_rel_l2']:.3f} / {lr['mean_lateral_rel_l2']:.3f} "
+                                 f"| {lr['std_lean_pred']:+.3f} / {lr['std_lean_truth']:+.3f} |")

@@ -136,16 +136,20 @@ def render(results: list[dict]) -> str:
                        "whole CFD-DEM trajectory's (a baseline's 3 s against the 30 s); Lacey, bed height and "
                        "bubble fraction over the steps both have (a baseline: the first 3 s)."), "",
                   "| run | U0 [m/s] | steps (CFD-DEM) | rel. L2 mean solid fraction | rel. L2 std solid fraction "
-                  "| Lacey MAE | bed height [mm] pred / CFD-DEM | bubble fraction pred / CFD-DEM |",
-                  "|---|---|---|---|---|---|---|---|"]
+                  "| Lacey MAE | bed height [mm] pred / CFD-DEM | bubble fraction pred / CFD-DEM "
+                  "| time-mean error: profile / lateral | std-field lean pred / CFD-DEM |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
         for r, x in long_rows:
             bh, bf, full = x["bed_height"], x["bubble_fraction"], x.get("rel_l2_full") or x["rel_l2"]
+            lr = x.get("structure") or {}  # evaluation.compare: left-right structure over the window
             lines.append(f"| {run_name(r)} | {x['inlet_velocity']:.3f} "
                          f"| {x['window_steps']} ({x.get('truth_steps', x['window_steps'])}) "
                          f"| {_f(full['solid_fraction_mean'], '.3f')} "
                          f"| {_f(full['solid_fraction_std'], '.3f')} | {_f(x['lacey']['mae'], '.3f')} "
                          f"| {_f(1000 * bh['mean_pred'], '.1f')} / {_f(1000 * bh['mean_truth'], '.1f')} "
-                         f"| {_f(bf['mean_pred'], '.3f')} / {_f(bf['mean_truth'], '.3f')} |")
+                         f"| {_f(bf['mean_pred'], '.3f')} / {_f(bf['mean_truth'], '.3f')} "
+                         f"| {_f(lr.get('mean_profile_rel_l2'), '.3f')} / {_f(lr.get('mean_lateral_rel_l2'), '.3f')} "
+                         f"| {_f(lr.get('std_lean_pred'), '+.3f')} / {_f(lr.get('std_lean_truth'), '+.3f')} |")
     lines += pooled_table(results)
     m = first["machine"]
     lines += ["", f"Machine: {m.get('cpu_model', '')}; evaluated {first['date_utc']}.", ""]
