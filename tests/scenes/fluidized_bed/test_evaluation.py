@@ -141,7 +141,8 @@ def test_evaluation_of_a_model_writes_metrics_report_and_plots(fb_tiny_checkpoin
     assert "## Against every CFD-DEM trajectory at the velocity (pooled)" in report
     assert "## Left-right structure of the solid fraction" in report and "| 2.042 | pooled |" in report
     assert "| 2.042 | yes | 19 |" in report and "## Stability" in report and "3x (60 steps)" in report
-    for name in ("time_averages_sim_0002.png", "curves_sim_0002.png", "solid_volume.png", "rollouts/sim_0002.h5",
+    for name in ("time_averages_sim_0002.png", "curves_sim_0002.png", "lateral_profiles_sim_0002.png",
+                 "solid_volume.png", "rollouts/sim_0002.h5",
                  "vtk/sim_0002_grid.pvd"):
         assert (tmp_path / name).is_file(), name
 

@@ -462,7 +462,8 @@ def structure_section(trajectories: list[dict[str, Any]]) -> list[str]:
 
 
 def write_trajectory_figures(e: TrajectoryEvaluation, settings: dict[str, Any], out_dir: Path) -> dict[str, Any]:
-    """Time-averaged maps and metric curves, CFD-DEM next to NeuralDEM; returns the solid-volume curves."""
+    """Time-averaged maps, profiles across the bed and metric curves, CFD-DEM next to NeuralDEM; returns the
+    solid-volume curves."""
     label = f"U0 = {e.velocity:.2f} m/s"
     n = min(len(e.pred.times), len(e.truth.times))
     g = e.truth.grid
@@ -471,6 +472,11 @@ def write_trajectory_figures(e: TrajectoryEvaluation, settings: dict[str, Any], 
                                 out_dir / f"time_averages_{e.sim_id}.png",
                                 f"{label}: time averages over {n - 1} steps (central y slice)")
     c_pred, c_truth = curves(e.pred, settings), curves(e.truth, settings)
+    fb_plots.plot_lateral_profiles({"CFD-DEM": time_statistics(e.truth), "NeuralDEM": time_statistics(e.pred)},
+                                   g.axis_centres(0), g.axis_centres(2), float(np.mean(c_truth["bed_height"])),
+                                   out_dir / f"lateral_profiles_{e.sim_id}.png",
+                                   f"{label}: across the bed, whole series (CFD-DEM {len(e.truth.times) - 1} steps, "
+                                   f"NeuralDEM {len(e.pred.times) - 1})")
     fb_plots.plot_curves({"CFD-DEM": c_truth, "NeuralDEM": c_pred}, out_dir / f"curves_{e.sim_id}.png",
                          f"{label}: bed height, bubble fraction, Lacey index")
     return {f"NeuralDEM {label}": c_pred, f"CFD-DEM {label}": c_truth}

@@ -70,6 +70,40 @@ def plot_time_averages(stats: Mapping[str, Mapping[str, np.ndarray]], extent: tu
     plt.close(fig)
 
 
+def lateral_profiles(field: np.ndarray, z_centres: np.ndarray, bands: list[tuple[float, float]]) -> np.ndarray:
+    """(len(bands), nx): a per-cell field (nx, ny, nz) averaged over y and over the cells whose centre lies in
+    each height band [z0, z1)."""
+    out = []
+    for z0, z1 in bands:
+        inside = (z_centres >= z0) & (z_centres < z1)
+        out.append(field[:, :, inside].mean(axis=(1, 2)) if inside.any() else np.full(field.shape[0], np.nan))
+    return np.asarray(out)
+
+
+def plot_lateral_profiles(stats: Mapping[str, Mapping[str, np.ndarray]], x_centres: np.ndarray,
+                          z_centres: np.ndarray, bed_height: float, path: Path, title: str) -> None:
+    """Time mean and std of the solid fraction across the bed (x) in three height bands (lower and upper half
+    of the bed, the splash zone above it), one line style per series: where the bubbles pass, and whether the
+    model's are as often at the walls as CFD-DEM's. stats as for `plot_time_averages`."""
+    bands = [(0.0, bed_height / 2), (bed_height / 2, bed_height), (bed_height, 1.5 * bed_height)]
+    names = ["lower half of the bed", "upper half of the bed", "splash zone (1 - 1.5 bed heights)"]
+    colors = plt.cm.viridis(np.linspace(0.0, 0.8, len(bands)))
+    styles = ["-", "--", ":", "-."]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for ax, key, name in zip(axes, ("solid_fraction_mean", "solid_fraction_std"),
+                             ("time-mean solid fraction", "std of the solid fraction"), strict=True):
+        for style, (label, s) in zip(styles, stats.items(), strict=False):
+            for color, band, profile in zip(colors, names, lateral_profiles(s[key], z_centres, bands), strict=True):
+                ax.plot(1000 * x_centres, profile, color=color, ls=style, marker=".", label=f"{label}, {band}")
+        ax.set(xlabel="x [mm]", ylabel=name, title=name, ylim=(0, None))
+        ax.grid(alpha=0.3)
+    axes[1].legend(fontsize=6)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def plot_solid_volume(series: Mapping[str, Mapping[str, Any]], path: Path, title: str) -> None:
     """Total solid volume of the kernel field relative to the particles' volume (mass conservation)."""
     fig, ax = plt.subplots(figsize=(6, 3.5))
