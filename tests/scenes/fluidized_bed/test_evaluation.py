@@ -105,6 +105,7 @@ def test_a_mirrored_bed_is_scored_as_all_lateral_error_with_the_lean_reversed(fb
     assert lr["mean_lateral_rel_l2"] == pytest.approx(r["rel_l2"]["solid_fraction_mean"], rel=1e-12)
     assert lr["mean_asymmetry_pred"] == pytest.approx(lr["mean_asymmetry_truth"], rel=1e-12)
     assert lr["std_lean_pred"] == pytest.approx(-lr["std_lean_truth"], rel=1e-12) and lr["std_lean_truth"] != 0
+    assert lr["std_wall_share_pred"] == pytest.approx(lr["std_wall_share_truth"], rel=1e-12)  # both walls
 
 
 def test_evaluation_of_a_model_writes_metrics_report_and_plots(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path,

@@ -154,6 +154,9 @@ def test_left_right_structure_known_answers():
     odd = np.zeros((3, 1, 2))
     odd[1] = 1.0  # the middle column of an odd grid is in neither half
     assert fm.lean(odd) == 0.0
+    assert fm.wall_share(np.ones((12, 1, 5))) == pytest.approx(4 / 12)  # 2 columns at each wall of 12
+    assert fm.wall_share(one_column) == 1.0 and fm.wall_share(odd) == 0.0  # nx // 6 = 0 -> 1 column
+    assert fm.wall_share(np.ones((12, 1, 5)), columns=3) == pytest.approx(0.5)
     truth = rng.random((12, 1, 10)) + 0.1
     # an error that is the same across x at each height is all profile; a mirror-antisymmetric one all lateral
     shift = fm.profile_lateral_error(truth + rng.random((1, 1, 10)), truth)

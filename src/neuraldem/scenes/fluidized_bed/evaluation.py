@@ -449,15 +449,19 @@ def structure_section(trajectories: list[dict[str, Any]]) -> list[str]:
     lines = ["", "## Left-right structure of the solid fraction", "",
              "The time-mean error split into the height profile (x-mean per height) and the lateral rest "
              "(profile^2 + lateral^2 = rel. L2^2); mirror asymmetry ||f - f mirrored|| / ||f|| of the time-mean "
-             "and std fields and the std field's lean (right - left) / total, rollout / CFD-DEM (the box is "
-             "symmetric: CFD-DEM's values are sampling noise).", "",
+             "and std fields, the std field's lean (right - left) / total and its share in the columns next to the "
+             "walls (how much of the bubbling reaches them), rollout / CFD-DEM (the box is symmetric: CFD-DEM's "
+             "asymmetry and lean are sampling noise).", "",
              "| U0 [m/s] | reference | time-mean error: profile / lateral | asymmetry of the time mean "
-             "| asymmetry of the std field | lean of the std field |", "|---|---|---|---|---|---|"]
+             "| asymmetry of the std field | lean of the std field | wall share of the std field |",
+             "|---|---|---|---|---|---|---|"]
     for v, ref, q in rows:
         lines.append(f"| {v:.3f} | {ref} | {q['mean_profile_rel_l2']:.3f} / {q['mean_lateral_rel_l2']:.3f} | "
                      f"{q['mean_asymmetry_pred']:.3f} / {q['mean_asymmetry_truth']:.3f} | "
                      f"{q['std_asymmetry_pred']:.3f} / {q['std_asymmetry_truth']:.3f} | "
-                     f"{q['std_lean_pred']:+.3f} / {q['std_lean_truth']:+.3f} |")
+                     f"{q['std_lean_pred']:+.3f} / {q['std_lean_truth']:+.3f} | "
+                     f"{q.get('std_wall_share_pred', float('nan')):.3f} / "
+                     f"{q.get('std_wall_share_truth', float('nan')):.3f} |")
     return lines
 
 

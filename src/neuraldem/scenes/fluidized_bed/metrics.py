@@ -19,8 +19,9 @@ Definitions (docs/fluidized-bed.md has the same, with the reasoning):
   fraction is below `threshold` (default 0.15: nearly particle-free voids, vs ~0.5 in the dense phase).
 - left-right structure of a per-cell statistic f (nx, ny, nz), the box being mirror-symmetric in x: mirror
   asymmetry ||f - f mirrored in x|| / ||f||; lean (right half - left half) / total (the middle column, for odd
-  nx, in neither half); and the error of a prediction split into its height profile (the x-mean at each
-  height) and the lateral rest, profile^2 + lateral^2 = rel. L2^2 (orthogonal parts).
+  nx, in neither half); wall share: the part of the total in the nx // 6 columns next to either wall; and the
+  error of a prediction split into its height profile (the x-mean at each height) and the lateral rest,
+  profile^2 + lateral^2 = rel. L2^2 (orthogonal parts).
 """
 
 from __future__ import annotations
@@ -63,6 +64,14 @@ def lean(field: np.ndarray) -> float:
     return float((field[-half:].sum() - field[:half].sum()) / total) if total != 0 else float("nan")
 
 
+def wall_share(field: np.ndarray, columns: int | None = None) -> float:
+    """Share of a per-cell field's total (nx, ny, nz) in the `columns` (default nx // 6, at least 1) next to
+    either side wall: of the std field, how much of the bubbling reaches the walls (uniform: 2 columns / nx)."""
+    k = max(1, field.shape[0] // 6) if columns is None else columns
+    total = float(field.sum())
+    return float((field[:k].sum() + field[-k:].sum()) / total) if total != 0 else float("nan")
+
+
 def profile_lateral_error(pred: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     """rel. L2 of pred vs truth (nx, ny, nz) split into the height profile's part (the x-mean at each height
     and y) and the lateral rest; profile**2 + lateral**2 == total**2. Tells a bed that expands wrongly from
@@ -83,7 +92,8 @@ def left_right_structure(pred_mean: np.ndarray, pred_std: np.ndarray, truth_mean
     return {"mean_profile_rel_l2": split["profile"], "mean_lateral_rel_l2": split["lateral"],
             "mean_asymmetry_pred": mirror_asymmetry(pred_mean), "mean_asymmetry_truth": mirror_asymmetry(truth_mean),
             "std_asymmetry_pred": mirror_asymmetry(pred_std), "std_asymmetry_truth": mirror_asymmetry(truth_std),
-            "std_lean_pred": lean(pred_std), "std_lean_truth": lean(truth_std)}
+            "std_lean_pred": lean(pred_std), "std_lean_truth": lean(truth_std),
+            "std_wall_share_pred": wall_share(pred_std), "std_wall_share_truth": wall_share(truth_std)}
 
 
 def block_sums(field: np.ndarray, block: Sequence[int]) -> np.ndarray:
