@@ -32,7 +32,7 @@ from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.eval.checkpoints import IMPORTED_SPLIT, checkpoint_dataset, read_checkpoint, resolve_device
 from neuraldem.machine import machine_info
-from neuraldem.paths import invocation
+from neuraldem.paths import invocation, portable
 from neuraldem.scenes.fluidized_bed import metrics as fm
 from neuraldem.scenes.fluidized_bed import plots as fb_plots
 from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings
@@ -388,7 +388,8 @@ def aggregate(results: list[dict[str, Any]]) -> dict[str, Any]:
 
 def markdown_report(result: dict[str, Any]) -> str:
     h = result["training_horizon_steps"]
-    intro = (f"checkpoint `{result['checkpoint']}`, dataset `{result['dataset']}` ({result['split']} split, "
+    intro = (f"checkpoint `{portable(result['checkpoint'])}`, dataset `{portable(result['dataset'])}` "
+             f"({result['split']} split, "
              f"{result['part']}), trained on inlet velocities {result['trained_velocity_range'][0]:g} - "
              f"{result['trained_velocity_range'][1]:g} m/s, training horizon {h} steps of {result['dt']:g} s, "
              f"rollouts of {result['rollout_steps']} steps. Statistics over the steps both the rollout and the "
