@@ -157,6 +157,9 @@ def test_left_right_structure_known_answers():
     assert fm.wall_share(np.ones((12, 1, 5))) == pytest.approx(4 / 12)  # 2 columns at each wall of 12
     assert fm.wall_share(one_column) == 1.0 and fm.wall_share(odd) == 0.0  # nx // 6 = 0 -> 1 column
     assert fm.wall_share(np.ones((12, 1, 5)), columns=3) == pytest.approx(0.5)
+    assert np.isnan(fm.lean(np.ones((1, 1, 5))))  # a single column has no sides
+    with pytest.raises(ValueError, match="columns=0"):
+        fm.wall_share(np.ones((12, 1, 5)), columns=0)
     truth = rng.random((12, 1, 10)) + 0.1
     # an error that is the same across x at each height is all profile; a mirror-antisymmetric one all lateral
     shift = fm.profile_lateral_error(truth + rng.random((1, 1, 10)), truth)

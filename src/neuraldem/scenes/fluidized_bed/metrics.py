@@ -61,13 +61,17 @@ def lean(field: np.ndarray) -> float:
     """(right half - left half) / total of a per-cell field (nx, ny, nz): where, e.g., the bubbles pass."""
     half = field.shape[0] // 2
     total = float(field.sum())
-    return float((field[-half:].sum() - field[:half].sum()) / total) if total != 0 else float("nan")
+    if half == 0 or total == 0:  # one column: no sides
+        return float("nan")
+    return float((field[-half:].sum() - field[:half].sum()) / total)
 
 
 def wall_share(field: np.ndarray, columns: int | None = None) -> float:
     """Share of a per-cell field's total (nx, ny, nz) in the `columns` (default nx // 6, at least 1) next to
     either side wall: of the std field, how much of the bubbling reaches the walls (uniform: 2 columns / nx)."""
     k = max(1, field.shape[0] // 6) if columns is None else columns
+    if not 1 <= k <= field.shape[0] // 2:
+        raise ValueError(f"wall_share: columns={k} must be 1 .. {field.shape[0] // 2} for {field.shape[0]} columns")
     total = float(field.sum())
     return float((field[:k].sum() + field[-k:].sum()) / total) if total != 0 else float("nan")
 
