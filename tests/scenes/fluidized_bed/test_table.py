@@ -39,6 +39,8 @@ def test_one_row_per_run_and_per_velocity_with_stability(fb_tiny_checkpoint: Pat
     tm, sd, lacey, total = (float(c) for c in summary[2].strip("| ").split(" | ")[4:8])
     assert total == pytest.approx(tm + sd + lacey, abs=2e-3) and summary[3].startswith("| broken | 1 |")
     saved = json.loads(out.with_suffix(".json").read_text())
+    walls = next(r for r in saved if r["run"] == "broken")["trajectories"][0]["pooled"]["structure"]
+    assert summary[2].endswith(f"| {walls['std_wall_share_pred']:.3f} / {walls['std_wall_share_truth']:.3f} |")
     steady = next(r for r in saved if r["run"] == "steady")["trajectories"][0]["stability"]["steps_to_divergence"]
     assert rows["steady"].endswith(f"| {'none' if steady is None else steady} |")
     assert sorted(r["run"] for r in saved) == ["broken", "steady"]

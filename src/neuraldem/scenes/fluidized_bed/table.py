@@ -167,14 +167,17 @@ def pooled_table(results: list[dict]) -> list[str]:
                   "own trajectory out of the reference, a model's rollout keeps the one it started from; "
                   "sum = mean + std + Lacey)."), "",
              "| run | U0 [m/s] | CFD-DEM runs (snapshots) | series snapshots | rel. L2 mean solid fraction "
-             "| rel. L2 std solid fraction | Lacey MAE | sum |", "|---|---|---|---|---|---|---|---|"]
+             "| rel. L2 std solid fraction | Lacey MAE | sum | std-field wall share pred / CFD-DEM |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r, x in rows:
         q = x["pooled"]
+        lr = q.get("structure") or {}  # how much of the bubbling reaches the walls (metrics.wall_share)
         tm, sd, lm = q["rel_l2"]["solid_fraction_mean"], q["rel_l2"]["solid_fraction_std"], q["lacey_mae"]
         total = None if None in (tm, sd, lm) else tm + sd + lm
         lines.append(f"| {run_name(r)} | {x['inlet_velocity']:.3f} | {len(q['sims'])} ({q['snapshots']}) "
                      f"| {q['pred_snapshots']} | {_f(tm, '.3f')} | {_f(sd, '.3f')} | {_f(lm, '.3f')} "
-                     f"| {_f(total, '.3f')} |")
+                     f"| {_f(total, '.3f')} | {_f(lr.get('std_wall_share_pred'), '.3f')} / "
+                     f"{_f(lr.get('std_wall_share_truth'), '.3f')} |")
     lines += ["", "| run | velocities | mean rel. L2 mean solid fraction | std | Lacey MAE | sum |",
               "|---|---|---|---|---|---|"]
     for r in results:
