@@ -24,3 +24,11 @@ def test_invocation_names_a_package_script_by_its_module(monkeypatch, tmp_path):
     assert paths.invocation([str(package / "datagen/__main__.py")]) == "python -m neuraldem.datagen"
     # a script outside the package keeps its path
     assert paths.invocation(["/opt/tool.py", "-v"]) == "/opt/tool.py -v"
+
+
+def test_module_command_records_python_m_with_the_arguments_portably(monkeypatch, tmp_path):
+    monkeypatch.setenv(paths.ENV_VAR, str(tmp_path))
+    assert paths.module_command("neuraldem.scenes.hopper.cv", ["--out", f"{tmp_path}/cv.md"]) == \
+        "python -m neuraldem.scenes.hopper.cv --out $NEURALDEM_DATA/cv.md"
+    monkeypatch.setattr(paths.sys, "argv", ["/x/cv.py", "--folds", "1"])  # default: this process's arguments
+    assert paths.module_command("neuraldem.scenes.hopper.cv") == "python -m neuraldem.scenes.hopper.cv --folds 1"

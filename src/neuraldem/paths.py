@@ -54,6 +54,11 @@ def portable(text: str) -> str:
     return text.replace(str(root) + "/", "") if root is not None else text
 
 
+def module_command(module: str, argv: list[str] | None = None) -> str:
+    """`python -m <module> <argv>` (default: this process's arguments), portable: what a tool records."""
+    return portable(" ".join([f"python -m {module}", *(sys.argv[1:] if argv is None else argv)]))
+
+
 def invocation(argv: list[str] | None = None) -> str:
     """The command line that ran this process, portable: a script of this package (Hydra apps run as
     `python -m neuraldem.train`, whose argv[0] is the file) is written as `python -m neuraldem.<module>`."""

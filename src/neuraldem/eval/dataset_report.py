@@ -22,7 +22,7 @@ from neuraldem.cli import report_user_errors, tool_prog
 from neuraldem.data.manifest import Manifest
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.machine import machine_info
-from neuraldem.paths import portable
+from neuraldem.paths import module_command
 
 METRICS = {"drainage_time": "drainage time [s]", "residual_fraction": "residual fraction",
            "outflow_rate": "outflow rate [N0/s]", "mass_flow_index": "mass-flow index"}
@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     m = Manifest.load(a.dataset)
     a.out.mkdir(parents=True, exist_ok=True)
     summary = summarise(m)
-    command = portable(" ".join(["python -m neuraldem.eval.dataset_report", *sys.argv[1:]]))
+    command = module_command("neuraldem.eval.dataset_report")
     summary.update(machine=machine_info(), command=command,
                    date_utc=datetime.now(UTC).isoformat(timespec="seconds"))
     atomic_write_json(a.out / "summary.json", summary)

@@ -21,7 +21,7 @@ from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.gns.datamodule import ParticleRun
-from neuraldem.paths import portable
+from neuraldem.paths import module_command
 
 
 def displacements(positions: np.ndarray, diameters: np.ndarray) -> np.ndarray:
@@ -59,8 +59,7 @@ def main(argv: list[str] | None = None) -> int:
           f"displacement per snapshot [particle diameters] median {s['median']:.3f}, p90 {s['p90']:.3f}, "
           f"p99 {s['p99']:.3f}, max {s['max']:.3f} ({s['n_displacements']} values)")
     if a.out is not None:
-        s["command"] = portable(" ".join(["python -m neuraldem.gns.step_displacement",
-                                          *(argv if argv is not None else sys.argv[1:])]))
+        s["command"] = module_command("neuraldem.gns.step_displacement", argv)
         atomic_write_json(a.out, s)
         print(f"wrote {a.out}")
     return 0

@@ -22,7 +22,6 @@ without looking at the test velocities.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +33,7 @@ from neuraldem.data.manifest import Manifest
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.machine import machine_info
 from neuraldem.models.modules.conservative_advection import advect_tagged, tagged_volume
-from neuraldem.paths import portable
+from neuraldem.paths import module_command
 from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings
 from neuraldem.scenes.fluidized_bed.metrics import lacey_from_fields
 from neuraldem.scenes.fluidized_bed.stability import ADVECTION_FLUXES
@@ -182,8 +181,7 @@ def main(argv: list[str] | None = None) -> int:
         rows = model_rows(a.ckpt, paths, settings, a.corrections, a.steps, a.flux)
     else:
         rows = [oracle(path, settings, a.corrections, a.flux or "predicted") for path in paths]
-    command = portable("python -m neuraldem.scenes.fluidized_bed.advection_oracle " + " ".join(
-        sys.argv[1:] if argv is None else argv))
+    command = module_command("neuraldem.scenes.fluidized_bed.advection_oracle", argv)
     text = markdown(rows, a.corrections, command)
     print(text)
     if a.out:

@@ -461,8 +461,7 @@ def structure_section(trajectories: list[dict[str, Any]]) -> list[str]:
                      f"{q['mean_asymmetry_pred']:.3f} / {q['mean_asymmetry_truth']:.3f} | "
                      f"{q['std_asymmetry_pred']:.3f} / {q['std_asymmetry_truth']:.3f} | "
                      f"{q['std_lean_pred']:+.3f} / {q['std_lean_truth']:+.3f} | "
-                     f"{q.get('std_wall_share_pred', float('nan')):.3f} / "
-                     f"{q.get('std_wall_share_truth', float('nan')):.3f} |")
+                     f"{q['std_wall_share_pred']:.3f} / {q['std_wall_share_truth']:.3f} |")
     return lines
 
 

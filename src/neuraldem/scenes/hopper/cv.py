@@ -31,7 +31,7 @@ from neuraldem.errors import DataError
 from neuraldem.eval.checkpoints import read_checkpoint
 from neuraldem.eval.run_results import scan_results
 from neuraldem.machine import machine_info
-from neuraldem.paths import portable
+from neuraldem.paths import module_command
 from neuraldem.scenes.hopper.baselines import score_baseline
 from neuraldem.scenes.hopper.datamodule import cv_records
 
@@ -248,8 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     if bad:
         raise DataError(f"--folds {bad}: folds are 0 .. {a.n_folds - 1}")
     result = build(collect(a.dataset, a.grids, a.splits, a.n_folds, a.seed, a.n_sims, a.folds), floor)
-    result.update(machine=machine_info(), command=portable("python -m neuraldem.scenes.hopper.cv " + " ".join(
-        argv if argv is not None else sys.argv[1:])))
+    result.update(machine=machine_info(), command=module_command("neuraldem.scenes.hopper.cv", argv))
     text = render(result)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(text + "\n")
