@@ -19,11 +19,18 @@
 # `pf`) is refused since issue 20: it never trains the one-step map from data.
 # A variant may name a model config: "fb_base/full" trains model=fb_base (sizes side by side for
 # right-sizing: VARIANTS="fb_tiny/full fb_base/full fb_small/full").
-# Runs land in RUNS_DIR/<variant>/ (logs beside them), the table in RUNS_DIR/table.md (+ .json). A run whose
-# folder already holds evaluation/metrics.json is skipped, so a killed sweep resumes.
+# A variant ending in +alt ("full+alt") trains nothing: it scores the kept checkpoint of the variant before the
+# + with mirror-alternating rollouts (fluidized_bed.mirror_alternate=true), after the trainings; the same net
+# with and without the alternation, where mirror_alt trains a second net (its checkpoint chosen on alternating
+# rollouts).
+# Runs land in RUNS_DIR/<variant>/ (logs beside them), the table in RUNS_DIR/table.md (+ .json). A finished
+# training (RUNS_DIR/<variant>/.trained) is not repeated and a finished evaluation is skipped, so a killed sweep
+# resumes.
 # VAL=1 also scores each run's kept checkpoint (checkpoints/last.ckpt) on the validation part into
 # RUNS_DIR-val/<variant>/evaluation (3000-step rollouts, against each validation trajectory and pooled over every
 # run at its velocity) with its own table RUNS_DIR-val/table.md: choose between variants there, not on the test.
+# TEST=0 leaves the test part alone (evaluate=false), to score only the variant validation chose, later:
+#   neuraldem evaluate ckpt=RUNS_DIR/<variant>/checkpoints/last.ckpt vtk=false hydra.run.dir=RUNS_DIR/<variant>/evaluation
 set -uo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 PY=${PYTHON:-python}
@@ -63,24 +70,67 @@ overrides() {
     *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror continuity long mirror_alt mirror_both base noise grid_only residual grid_residual)" >&2; return 2 ;;
   esac
 }
-for v in $VARIANTS; do overrides "$v" > /dev/null || exit 2; done
+trained_of() { case "$1" in *+alt) echo "${1%+alt}" ;; *) echo "$1" ;; esac; }
+for v in $VARIANTS; do
+  overrides "$(trained_of "$v")" > /dev/null || exit 2
+  case "$v" in *+alt)
+    b=$(trained_of "$v")
+    case " $VARIANTS " in *" $b "*) ;; *)
+      [ -f "$runs/$b/.trained" ] || { echo "fb_ablation: '$v' scores variant '$b', which is neither in VARIANTS nor trained in $runs/$b" >&2; exit 2; } ;;
+    esac ;;
+  esac
+done
+TEST=${TEST:-1}
+test_off=()
+[ "$TEST" = 1 ] || test_off=(evaluate=false)
 failed=0
 running=0
+slot() { if [ "$running" -ge "$JOBS" ]; then wait -n || failed=$((failed + 1)); running=$((running - 1)); fi; }
+val_eval() {  # $1 variant, $2 checkpoint, then extra evaluate overrides
+  local v=$1 ckpt=$2; shift 2
+  [ "${VAL:-0}" = 1 ] || return 0
+  [ -f "$runs-val/$v/evaluation/metrics.json" ] && return 0
+  "$PY" -m neuraldem.evaluate ckpt="$ckpt" part=val vtk=false "$@" hydra.run.dir="$runs-val/$v/evaluation"
+}
 for v in $VARIANTS; do
+  case "$v" in *+alt) continue ;; esac
   run="$runs/$v"
-  if [ -f "$run/evaluation/metrics.json" ]; then echo "skip $v (evaluated)"; continue; fi
-  if [ "$running" -ge "$JOBS" ]; then wait -n || failed=$((failed + 1)); running=$((running - 1)); fi
+  if [ -f "$run/evaluation/metrics.json" ] || { [ -f "$run/.trained" ] && [ "$TEST" != 1 ]; }; then
+    echo "skip training $v (done)"
+    [ "${VAL:-0}" = 1 ] && [ ! -f "$runs-val/$v/evaluation/metrics.json" ] || continue
+  fi
+  slot
   echo "start $v"
-  rm -rf "$run"
   mkdir -p "$(dirname "$run")"
   # shellcheck disable=SC2046
   (
-    "$PY" -m neuraldem.train experiment=fb $(overrides "$v") hydra.run.dir="$run" callbacks.progress=null "$@" || exit 1
-    if [ "${VAL:-0}" = 1 ]; then
-      "$PY" -m neuraldem.evaluate ckpt="$run/checkpoints/last.ckpt" part=val vtk=false \
-        hydra.run.dir="$runs-val/$v/evaluation"
+    if [ ! -f "$run/.trained" ] && [ ! -f "$run/evaluation/metrics.json" ]; then
+      rm -rf "$run"
+      "$PY" -m neuraldem.train experiment=fb $(overrides "$v") hydra.run.dir="$run" callbacks.progress=null \
+        "${test_off[@]}" "$@" || exit 1
+      mkdir -p "$run" && touch "$run/.trained"
+    elif [ "$TEST" = 1 ] && [ ! -f "$run/evaluation/metrics.json" ]; then
+      "$PY" -m neuraldem.evaluate ckpt="$run/checkpoints/last.ckpt" vtk=false hydra.run.dir="$run/evaluation" || exit 1
     fi
-  ) > "$run.log" 2>&1 &
+    val_eval "$v" "$run/checkpoints/last.ckpt"
+  ) >> "$run.log" 2>&1 &
+  running=$((running + 1))
+done
+while [ "$running" -gt 0 ]; do wait -n || failed=$((failed + 1)); running=$((running - 1)); done
+for v in $VARIANTS; do  # the trained nets again, with mirror-alternating rollouts
+  case "$v" in *+alt) ;; *) continue ;; esac
+  ckpt="$runs/$(trained_of "$v")/checkpoints/last.ckpt"
+  [ -f "$runs/$(trained_of "$v")/.trained" ] || [ -f "$ckpt" ] \
+    || { echo "fb_ablation: $v: $(trained_of "$v") was not trained (see its log)" >&2; failed=$((failed + 1)); continue; }
+  slot
+  echo "start $v"
+  (
+    if [ "$TEST" = 1 ] && [ ! -f "$runs/$v/evaluation/metrics.json" ]; then
+      "$PY" -m neuraldem.evaluate ckpt="$ckpt" vtk=false fluidized_bed.mirror_alternate=true \
+        hydra.run.dir="$runs/$v/evaluation" || exit 1
+    fi
+    val_eval "$v" "$ckpt" fluidized_bed.mirror_alternate=true
+  ) >> "$runs/$v.log" 2>&1 &
   running=$((running + 1))
 done
 while [ "$running" -gt 0 ]; do wait -n || failed=$((failed + 1)); running=$((running - 1)); done

@@ -66,3 +66,42 @@ def test_unknown_variant_or_model_runs_nothing(tmp_path: Path):
                               ("pf", "unknown variant 'pf'")):
         proc, calls = _run(tmp_path, variants)
         assert proc.returncode == 2 and message in proc.stderr and calls == []
+
+
+def test_alt_variant_scores_the_trained_net_with_alternating_rollouts(tmp_path: Path):
+    proc, calls = _run(tmp_path, "full full+alt", VAL="1", TEST="0")
+    assert proc.returncode == 0, proc.stderr
+    assert [c[1] for c in calls] == ["neuraldem.train", "neuraldem.evaluate", "neuraldem.evaluate",
+                                     "neuraldem.scenes.fluidized_bed.table", "neuraldem.scenes.fluidized_bed.table"]
+    train, val, alt_val = calls[:3]
+    runs = tmp_path / "runs"
+    assert "evaluate=false" in train  # TEST=0: the test part is left for the chosen variant
+    assert "fluidized_bed.mirror_alternate=true" not in val
+    assert f"ckpt={runs / 'full' / 'checkpoints' / 'last.ckpt'}" in alt_val  # the same net, no second training
+    assert "fluidized_bed.mirror_alternate=true" in alt_val and "part=val" in alt_val
+    assert f"hydra.run.dir={runs}-val/full+alt/evaluation" in alt_val
+    assert (runs / "full" / ".trained").exists()
+
+
+def test_alt_variant_with_test_scores_the_test_part_too(tmp_path: Path):
+    (tmp_path / "runs" / "full" / "checkpoints").mkdir(parents=True)
+    (tmp_path / "runs" / "full" / "checkpoints" / "last.ckpt").touch()
+    (tmp_path / "runs" / "full" / ".trained").touch()
+    proc, calls = _run(tmp_path, "full+alt")  # full was trained by an earlier sweep
+    assert proc.returncode == 0, proc.stderr
+    (test_eval,) = [c for c in calls if c[1] == "neuraldem.evaluate"]
+    assert "fluidized_bed.mirror_alternate=true" in test_eval and "part=val" not in test_eval
+    assert not any(c[1] == "neuraldem.train" for c in calls)
+
+
+def test_resumed_sweep_does_not_train_again(tmp_path: Path):
+    _run(tmp_path, "full", VAL="1", TEST="0")
+    (tmp_path / "calls.txt").unlink()
+    proc, calls = _run(tmp_path, "full", VAL="1", TEST="0")  # the fake evaluate wrote no metrics: scored again
+    assert proc.returncode == 0, proc.stderr
+    assert [c[1] for c in calls][:1] == ["neuraldem.evaluate"] and not any(c[1] == "neuraldem.train" for c in calls)
+
+
+def test_alt_of_an_untrained_variant_runs_nothing(tmp_path: Path):
+    proc, calls = _run(tmp_path, "mirror+alt")
+    assert proc.returncode == 2 and "'mirror+alt' scores variant 'mirror'" in proc.stderr and calls == []
