@@ -19,10 +19,11 @@
 # `pf`) is refused since issue 20: it never trains the one-step map from data.
 # A variant may name a model config: "fb_base/full" trains model=fb_base (sizes side by side for
 # right-sizing: VARIANTS="fb_tiny/full fb_base/full fb_small/full").
-# A variant ending in +alt ("full+alt") trains nothing: it scores the kept checkpoint of the variant before the
-# + with mirror-alternating rollouts (fluidized_bed.mirror_alternate=true), after the trainings; the same net
-# with and without the alternation, where mirror_alt trains a second net (its checkpoint chosen on alternating
-# rollouts).
+# A variant with rollout options after a + ("full+alt", "full+noise1", "full+alt+noise0.5") trains nothing: it
+# scores the kept checkpoint of the variant before the first + again, after the trainings, with those rollout
+# options: alt = mirror-alternating rollouts (fluidized_bed.mirror_alternate=true), noiseX = the net reads each
+# state + noise of X times its one-step error (fluidized_bed.rollout_noise=X). The same net with and without
+# them, where mirror_alt trains a second net (its checkpoint chosen on alternating rollouts).
 # Runs land in RUNS_DIR/<variant>/ (logs beside them), the table in RUNS_DIR/table.md (+ .json). A finished
 # training (RUNS_DIR/<variant>/.trained) is not repeated and a finished evaluation is skipped, so a killed sweep
 # resumes.
@@ -70,10 +71,22 @@ overrides() {
     *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror continuity long mirror_alt mirror_both base noise grid_only residual grid_residual)" >&2; return 2 ;;
   esac
 }
-trained_of() { case "$1" in *+alt) echo "${1%+alt}" ;; *) echo "$1" ;; esac; }
+trained_of() { echo "${1%%+*}"; }
+rollout_options() {  # "full+alt+noise1" -> the evaluate overrides of its rollout options
+  local rest=${1#*+} opt out=""
+  for opt in ${rest//+/ }; do
+    case "$opt" in
+      alt) out="$out fluidized_bed.mirror_alternate=true" ;;
+      noise[0-9]*) out="$out fluidized_bed.rollout_noise=${opt#noise}" ;;
+      *) echo "fb_ablation: unknown rollout option '$opt' in '$1' (known: alt, noiseX e.g. noise1)" >&2; return 2 ;;
+    esac
+  done
+  echo "$out"
+}
 for v in $VARIANTS; do
   overrides "$(trained_of "$v")" > /dev/null || exit 2
-  case "$v" in *+alt)
+  case "$v" in *+*)
+    rollout_options "$v" > /dev/null || exit 2
     b=$(trained_of "$v")
     case " $VARIANTS " in *" $b "*) ;; *)
       [ -f "$runs/$b/.trained" ] || { echo "fb_ablation: '$v' scores variant '$b', which is neither in VARIANTS nor trained in $runs/$b" >&2; exit 2; } ;;
@@ -93,7 +106,7 @@ val_eval() {  # $1 variant, $2 checkpoint, then extra evaluate overrides
   "$PY" -m neuraldem.evaluate ckpt="$ckpt" part=val vtk=false "$@" hydra.run.dir="$runs-val/$v/evaluation"
 }
 for v in $VARIANTS; do
-  case "$v" in *+alt) continue ;; esac
+  case "$v" in *+*) continue ;; esac
   run="$runs/$v"
   if [ -f "$run/evaluation/metrics.json" ] || { [ -f "$run/.trained" ] && [ "$TEST" != 1 ]; }; then
     echo "skip training $v (done)"
@@ -117,8 +130,9 @@ for v in $VARIANTS; do
   running=$((running + 1))
 done
 while [ "$running" -gt 0 ]; do wait -n || failed=$((failed + 1)); running=$((running - 1)); done
-for v in $VARIANTS; do  # the trained nets again, with mirror-alternating rollouts
-  case "$v" in *+alt) ;; *) continue ;; esac
+for v in $VARIANTS; do  # the trained nets again, with other rollout options
+  case "$v" in *+*) ;; *) continue ;; esac
+  opts=$(rollout_options "$v")
   ckpt="$runs/$(trained_of "$v")/checkpoints/last.ckpt"
   [ -f "$runs/$(trained_of "$v")/.trained" ] || [ -f "$ckpt" ] \
     || { echo "fb_ablation: $v: $(trained_of "$v") was not trained (see its log)" >&2; failed=$((failed + 1)); continue; }
@@ -126,10 +140,12 @@ for v in $VARIANTS; do  # the trained nets again, with mirror-alternating rollou
   echo "start $v"
   (
     if [ "$TEST" = 1 ] && [ ! -f "$runs/$v/evaluation/metrics.json" ]; then
-      "$PY" -m neuraldem.evaluate ckpt="$ckpt" vtk=false fluidized_bed.mirror_alternate=true \
+      # shellcheck disable=SC2086
+      "$PY" -m neuraldem.evaluate ckpt="$ckpt" vtk=false $opts \
         hydra.run.dir="$runs/$v/evaluation" || exit 1
     fi
-    val_eval "$v" "$ckpt" fluidized_bed.mirror_alternate=true
+    # shellcheck disable=SC2086
+    val_eval "$v" "$ckpt" $opts
   ) >> "$runs/$v.log" 2>&1 &
   running=$((running + 1))
 done

@@ -105,3 +105,18 @@ def test_resumed_sweep_does_not_train_again(tmp_path: Path):
 def test_alt_of_an_untrained_variant_runs_nothing(tmp_path: Path):
     proc, calls = _run(tmp_path, "mirror+alt")
     assert proc.returncode == 2 and "'mirror+alt' scores variant 'mirror'" in proc.stderr and calls == []
+
+
+def test_rollout_options_combine_after_the_trained_variant(tmp_path: Path):
+    proc, calls = _run(tmp_path, "full full+noise1 full+alt+noise0.5", VAL="1", TEST="0")
+    assert proc.returncode == 0, proc.stderr
+    evals = [c for c in calls if c[1] == "neuraldem.evaluate"]
+    assert len(evals) == 3 and sum(c[1] == "neuraldem.train" for c in calls) == 1
+    plain, noise, both = evals
+    assert not any(a.startswith("fluidized_bed.") for a in plain)
+    assert "fluidized_bed.rollout_noise=1" in noise and "fluidized_bed.mirror_alternate=true" not in noise
+    assert {"fluidized_bed.rollout_noise=0.5", "fluidized_bed.mirror_alternate=true"} <= set(both)
+    assert f"hydra.run.dir={tmp_path / 'runs'}-val/full+alt+noise0.5/evaluation" in both
+    (tmp_path / "plain").mkdir()
+    proc, calls = _run(tmp_path / "plain", "full full+stir")
+    assert proc.returncode == 2 and "unknown rollout option 'stir'" in proc.stderr and calls == []

@@ -27,6 +27,7 @@ from neuraldem.scenes.fluidized_bed.rollout import (
     rollout,
     run_rollout,
 )
+from neuraldem.scenes.fluidized_bed.datamodule import grid_input
 from neuraldem.scenes.fluidized_bed.store import FbFile
 from tests.helpers import run_module
 
@@ -238,7 +239,8 @@ def test_bad_rollout_requests_end_in_one_line(fb_tiny_checkpoint: Path, fb_tiny_
     cases = [("init_snapshot=999", "init_snapshot=999 is invalid:", "e.g. init_snapshot=1"),
              ("mixing=advect", "mixing=advect needs a model trained with the solids flux", "mixing=absolute"),
              ("mixing=stir", "mixing='stir' is invalid", "must be one of"),
-             ("mirror_alternate=maybe", "mirror_alternate='maybe' is invalid", "must be true or false")]
+             ("mirror_alternate=maybe", "mirror_alternate='maybe' is invalid", "must be true or false"),
+             ("rollout_noise=-1", "rollout_noise=-1 is invalid", "must be >= 0")]
     for i, (override, message, fix) in enumerate(cases):
         proc = run_module("neuraldem.rollout", f"ckpt={fb_tiny_checkpoint}", f"velocity={TRAINED_VELOCITY}", "steps=3",
                           override,
@@ -276,3 +278,45 @@ def test_mirror_alternation_steps_every_second_state_in_the_mirror_image(fb_tiny
     volume = r.solid_fraction.astype(np.float64).reshape(len(r.times), -1).sum(axis=1)
     np.testing.assert_allclose(volume, float(np.sum(state.solid_fraction)), rtol=2e-6)
     assert r.diverged_at is None and r.mixing.min() >= 0.0 and r.mixing.max() <= 1.0
+
+
+def test_rollout_noise_perturbs_what_the_net_reads_and_nothing_else(fb_tiny_flux_checkpoint: Path,
+                                                                    fb_tiny_dataset: Path):
+    """The net reads each state plus noise of rollout_noise x its running one-step error; the projection and the
+    advection act on the clean state, so even a large noise keeps the solid volume to round-off, the packing
+    cap and the mixing in [0, 1]. A seed reproduces its rollout; 0 is the plain rollout."""
+    module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
+    assert float(module.step_error_fluid.abs().sum()) > 0  # trained: the running error exists
+    with FbFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
+        state = initial_state(f)
+    plain = rollout(ModelStepper(module, TRAINED_VELOCITY, 0), state, 30, progress=False)
+    off = rollout(ModelStepper(module, TRAINED_VELOCITY, 0, rollout_noise=0.0), state, 30, progress=False)
+    np.testing.assert_array_equal(off.solid_fraction, plain.solid_fraction)
+    for scale in (1.0, 10.0):
+        runs = [rollout(ModelStepper(module, TRAINED_VELOCITY, 0, rollout_noise=scale), state, 30, progress=False)
+                for _ in range(2)]
+        np.testing.assert_array_equal(runs[0].solid_fraction, runs[1].solid_fraction)
+        r = runs[0]
+        assert r.diverged_at is None and np.abs(r.solid_fraction - plain.solid_fraction).max() > 0
+        volume = r.solid_fraction.astype(np.float64).reshape(len(r.times), -1).sum(axis=1)
+        np.testing.assert_allclose(volume, float(np.sum(state.solid_fraction)), rtol=2e-6)
+        assert r.mixing.min() >= 0.0 and r.mixing.max() <= 1.0
+        assert r.solid_fraction.max() <= module.norm.solid_fraction_max * (1 + 1e-5)
+    # what the net read: the state plus noise of 3 x the running error, per channel
+    read, latents = [], module.net.latents
+    module.net.latents = lambda x: read.append(x.grid.clone()) or latents(x)
+    stepper = ModelStepper(module, TRAINED_VELOCITY, 0, rollout_noise=3.0)
+    clean = torch.from_numpy(grid_input(module.norm, state.fluid_velocity, state.solid_fraction, state.solids_flux))
+    stepper.step(state)
+    spread = (read[0][0] - clean.float()).flatten(1).std(dim=1)
+    np.testing.assert_allclose(spread.numpy(), 3.0 * module.step_error_fluid.numpy(), rtol=0.35)
+
+
+def test_rollout_noise_names_a_checkpoint_without_its_running_error(fb_tiny_flux_checkpoint: Path):
+    module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
+    for name in ("particles", "fluid", "mixing"):
+        getattr(module, f"step_error_{name}").zero_()
+    with pytest.raises(ConfigError, match="rollout_noise=1 needs the model's running one-step error"):
+        ModelStepper(module, TRAINED_VELOCITY, 0, rollout_noise=1.0)
+    with pytest.raises(ConfigError, match="model.stability.rollout_noise=-0.5 is invalid"):
+        ModelStepper(module, TRAINED_VELOCITY, 0, rollout_noise=-0.5)

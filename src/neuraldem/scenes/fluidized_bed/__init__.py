@@ -21,7 +21,7 @@ def pipeline(data_cfg: DictConfig) -> Any:
 def evaluate(cfg: DictConfig) -> None:
     from neuraldem.scenes.fluidized_bed.evaluation import evaluate_checkpoint
     from neuraldem.scenes.fluidized_bed.rollout import DivergenceLimits
-    from neuraldem.scenes.fluidized_bed.stability import ADVECTION_FLUXES, MIXING_MODES
+    from neuraldem.scenes.fluidized_bed.stability import ADVECTION_FLUXES, MAX_ROLLOUT_NOISE, MIXING_MODES
 
     fb = cfg.fluidized_bed
     conserve = fb.conserve_solid_volume
@@ -40,7 +40,9 @@ def evaluate(cfg: DictConfig) -> None:
         advection_flux=None if fb.get("advection_flux") is None else checks.one_of(
             "fluidized_bed.advection_flux", fb.advection_flux, ADVECTION_FLUXES),
         mirror_alternate=None if fb.get("mirror_alternate") is None else checks.boolean(
-            "fluidized_bed.mirror_alternate", fb.mirror_alternate))
+            "fluidized_bed.mirror_alternate", fb.mirror_alternate),
+        rollout_noise=None if fb.get("rollout_noise") is None else checks.number(
+            "fluidized_bed.rollout_noise", fb.rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE))
     agg = result["aggregate"]
     print((Path(cfg.paths.output_dir) / "report.md").read_text())
     which = "held-out velocities" if cfg.part == "test" else f"{cfg.part} trajectories"

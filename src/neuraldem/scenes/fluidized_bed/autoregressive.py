@@ -231,11 +231,13 @@ def next_inputs(net: MultiBranchOperator, tokens: dict[str, torch.Tensor], cond:
 def advance(net: MultiBranchOperator, inputs: OperatorInputs, norm: FbNormalizer, n_particles: int,
             generator: torch.Generator | None = None, chunk_size: int | None = None,
             step_scales: dict[str, torch.Tensor] | None = None, stability: FbStability | None = None,
-            volume: torch.Tensor | None = None) -> OperatorInputs:
+            volume: torch.Tensor | None = None, net_view: OperatorInputs | None = None) -> OperatorInputs:
     """The model's next state as the next input: decoded grids (with the stability options: `volume` (B,) is
     the solid volume to conserve, default the input's), particles re-sampled from the solid fraction.
-    `step_scales` (`grid_step_scales`) for a residual model, whose grid outputs are scaled changes."""
-    tokens, cond = net.latents(inputs)
+    `step_scales` (`grid_step_scales`) for a residual model, whose grid outputs are scaled changes. `net_view`:
+    what the net reads instead of `inputs` (a perturbed copy, `stability.rollout_noise`); the stability options
+    and a residual model's base still use `inputs`."""
+    tokens, cond = net.latents(inputs if net_view is None else net_view)
     fields = apply_stability(decode_grid(net, tokens, cond, inputs, chunk_size, step_scales), inputs, norm,
                              stability, volume)
     return next_inputs(net, tokens, cond, fields, inputs, norm, n_particles, generator, chunk_size)

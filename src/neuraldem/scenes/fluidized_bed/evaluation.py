@@ -290,7 +290,8 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
                         init_snapshot: int = DEFAULT_INIT_SNAPSHOT,
                         advection_correction: float | None = None,
                         advection_flux: str | None = None,
-                        mirror_alternate: bool | None = None) -> dict[str, Any]:
+                        mirror_alternate: bool | None = None,
+                        rollout_noise: float | None = None) -> dict[str, Any]:
     """Evaluate a fluidized-bed checkpoint on the held-out velocities; write and return metrics.json."""
     horizons = [checks.positive_int(f"fluidized_bed.horizons[{i}]", h) for i, h in enumerate(horizons)]
     if not horizons:
@@ -310,9 +311,9 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     steps = max(horizons) * norm.horizon_steps
     make_stepper = make_stepper or (lambda mod, v: ModelStepper(mod, v, seed, device, conserve_solid_volume, mixing,
                                                                 advection_correction, advection_flux,
-                                                                mirror_alternate))
+                                                                mirror_alternate, rollout_noise))
     options = rollout_overrides(module.stability, mixing, conserve_solid_volume, advection_correction,
-                                advection_flux, mirror_alternate)
+                                advection_flux, mirror_alternate, rollout_noise)
     out_dir = Path(out_dir)
     (out_dir / "rollouts").mkdir(parents=True, exist_ok=True)
     results, volumes = [], {}
@@ -324,7 +325,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         attrs = {"extrapolation": check_velocity(norm, v), "checkpoint": str(Path(ckpt).resolve()),
                  "initial_state": f"{m.name}/{rec.sim_id} snapshot {init_snapshot}", "seed": seed,
                  "conserve_solid_volume": options.conserve_volume, "mixing": options.mixing,
-                 "mirror_alternate": options.mirror_alternate}
+                 "mirror_alternate": options.mirror_alternate, "rollout_noise": options.rollout_noise}
         e = evaluate_trajectory(path, rec.sim_id, v, make_stepper(module, v), steps, norm.horizon_steps, horizons,
                                 settings, limits, out_dir / "rollouts" / f"{rec.sim_id}.h5", attrs, progress,
                                 init_snapshot)

@@ -28,7 +28,7 @@ from __future__ import annotations
 import json
 import logging
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Protocol
@@ -147,15 +147,17 @@ class ModelStepper:
     CFD-DEM loses no particle), so the rollout holds it to round-off. A model trained without it and rolled
     out with it is a projection on top of the model: its drift is then 0 by construction and says nothing of
     the model's own conservation. A stochastic model draws its latent noise from this stepper's generator.
-    With `mirror_alternate` every second step is taken in the mirror image of the bed (`FbStability`)."""
+    With `mirror_alternate` every second step is taken in the mirror image of the bed, with `rollout_noise` the
+    net reads a perturbed copy of each state (`FbStability`; both drawn from this stepper's generator)."""
 
     def __init__(self, module: FluidizedBedModule, velocity: float, seed: int = 0, device: str = "cpu",
                  conserve_solid_volume: bool | None = None, mixing: str | None = None,
                  advection_correction: float | None = None, advection_flux: str | None = None,
-                 mirror_alternate: bool | None = None):
+                 mirror_alternate: bool | None = None, rollout_noise: float | None = None):
         base = getattr(module, "stability", None) or FbStability()
         self.stability = rollout_overrides(base, mixing, conserve_solid_volume, advection_correction, advection_flux,
-                                           mirror_alternate)
+                                           mirror_alternate, rollout_noise)
+        self.noise_std = perturbation_std(module, self.stability.rollout_noise, device)
         self.steps_taken = 0
         if self.stability.mixing == "advect" and not module.metadata.get("solids_flux", False):
             raise ConfigError("config value mixing=advect needs a model trained with the solids flux "
@@ -201,9 +203,10 @@ class ModelStepper:
                            mixing_grid=self._tensor(mixing_input(norm, state.mixing)), scalars=self.scalars,
                            noise=noise)
         volume = torch.tensor([self.solid_volume], dtype=torch.float64, device=self.device)
+        view = None if self.noise_std is None else perturbed(x, self.noise_std, self.generator)
         nxt = advance(self.net, x, norm, n_particles=len(state.positions), generator=self.generator,
                       chunk_size=self.chunk_size, step_scales=self.step_scales, stability=self.stability,
-                      volume=volume)
+                      volume=volume, net_view=view)
         grid = np.moveaxis(nxt.grid[0].double().cpu().numpy(), 0, -1)
         solid_fraction = norm.field_back("solid_fraction", grid[..., 3:4])
         if self.conserve_solid_volume:  # the step projected in float32: remove its round-off
@@ -224,6 +227,30 @@ class ModelStepper:
             mixing=norm.field_back("mixing", np.moveaxis(nxt.mixing_grid[0].double().cpu().numpy(), 0, -1)),
             solids_flux=norm.field_back("solids_flux", grid[..., 4:7]) if self.solids_flux else None,
         )
+
+
+def perturbation_std(module: FluidizedBedModule, scale: float, device: str) -> dict[str, torch.Tensor] | None:
+    """Per-channel std (model units) of `rollout_noise`: `scale` times the module's running one-step error
+    (None when off)."""
+    if not scale:
+        return None
+    std = {name: getattr(module, f"step_error_{name}", None) for name in ("particles", "fluid", "mixing")}
+    if any(s is None for s in std.values()) or not any(float(s.abs().sum()) > 0 for s in std.values()):
+        raise ConfigError(f"rollout_noise={scale:g} needs the model's running one-step error, which this checkpoint "
+                          "does not hold (trained before issue 20 or as a residual model): use rollout_noise=0")
+    return {name: scale * s.detach().float().to(device) for name, s in std.items()}
+
+
+def perturbed(x: OperatorInputs, std: dict[str, torch.Tensor], generator: torch.Generator) -> OperatorInputs:
+    """x plus Gaussian noise of `std` per channel on the particle features, fluid grid and mixing grid."""
+    def noisy(t: torch.Tensor, s: torch.Tensor, channel_dim: int) -> torch.Tensor:
+        shape = [1] * t.ndim
+        shape[channel_dim] = -1
+        noise = torch.randn(t.shape, generator=generator, device=t.device, dtype=t.dtype)
+        return t + s.to(t.dtype).reshape(shape) * noise
+
+    return replace(x, particle_features=noisy(x.particle_features, std["particles"], -1),
+                   grid=noisy(x.grid, std["fluid"], 1), mixing_grid=noisy(x.mixing_grid, std["mixing"], 1))
 
 
 class DataStepper:
@@ -434,7 +461,8 @@ def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets
                 init_snapshot: int = DEFAULT_INIT_SNAPSHOT, seed: int = 0, limits: DivergenceLimits | None = None,
                 particles_every: int = 10, vtk: bool = True, vtk_every: int = 10, device: str = "cpu",
                 progress: bool = True, conserve_solid_volume: bool | None = None,
-                mixing: str | None = None, mirror_alternate: bool | None = None) -> dict[str, Any]:
+                mixing: str | None = None, mirror_alternate: bool | None = None,
+                rollout_noise: float | None = None) -> dict[str, Any]:
     """Load, roll out, write rollout.h5 (+ vtk/, rollout.json) into `out_dir`; return the summary."""
     checks.positive_int("steps", steps)
     limits = limits or DivergenceLimits()
@@ -449,7 +477,7 @@ def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets
         volumes = f.particle_volumes[present]
         grid = f.grid
     stepper = ModelStepper(module, velocity, seed, device, conserve_solid_volume, mixing,
-                           mirror_alternate=mirror_alternate)
+                           mirror_alternate=mirror_alternate, rollout_noise=rollout_noise)
     r = rollout(stepper, state, steps, limits, particles_every, progress)
     summary = {
         "checkpoint": str(Path(ckpt).resolve()), "data_name": meta["data_name"], "inlet_velocity": float(velocity),
@@ -457,7 +485,7 @@ def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets
         "initial_state": f"{source} snapshot {init_snapshot}", "seed": seed, "max_packing": limits.max_packing,
         "tolerance": limits.tolerance, "dt": norm.dt, "training_horizon_steps": norm.horizon_steps,
         "conserve_solid_volume": stepper.stability.conserve_volume, "mixing": stepper.stability.mixing,
-        "mirror_alternate": stepper.stability.mirror_alternate,
+        "mirror_alternate": stepper.stability.mirror_alternate, "rollout_noise": stepper.stability.rollout_noise,
     }
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

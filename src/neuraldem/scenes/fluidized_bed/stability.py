@@ -41,6 +41,14 @@ mirror_alternate  rollouts only: every other step is taken in the mirror image o
                   a persistent bubble channel on that side (the 3000-step time means of stop 35 leaned by up to
                   11 % of the bubbling to one side where CFD-DEM's lean < 2 %). Alternating flips the lean's sign
                   each step so it cancels; the cost is nothing (the same one forward pass per step).
+rollout_noise     rollouts only: each step the net reads its input state plus Gaussian noise of this many times
+                  the model's running one-step error per channel (what `input_noise=auto` trained it to
+                  tolerate); the volume projection and the mixing advection still act on the clean state, so
+                  the solid volume and the tagged volume are kept exactly. 0 = off. Why: a deterministic step
+                  settles into its most likely bubble path (the shipped model's bubbles keep to the middle of
+                  the bed: std-field share next to the walls 0.24 where CFD-DEM has 0.29, results/.../bubbles.md
+                  stop 38); perturbations of the size of its own error let the paths wander as a chaotic bed's
+                  do, at no cost per step. Needs a model with the running error (trained since issue 20).
 ensemble          members per training sample: 1 = deterministic (MSE); >= 2 = a stochastic model (net
                   noise_dim > 0) trained with the fair CRPS over its members.
 """
@@ -60,6 +68,7 @@ MIXING_MODES = ("absolute", "advect")
 ADVECTION_FLUXES = ("predicted", "consistent")
 LOSS_ON = ("every", "last")
 MAX_ENSEMBLE = 16
+MAX_ROLLOUT_NOISE = 10.0  # times the one-step error: beyond it the net reads noise, not a state
 
 
 @dataclass(frozen=True)
@@ -74,6 +83,7 @@ class FbStability:
     advection_flux: str = "predicted"  # checkpoints saved before the option keep their behaviour
     flux_consistency: float = 0.0
     mirror_alternate: bool = False
+    rollout_noise: float = 0.0
     ensemble: int = 1
     noise_ema: float = field(default=0.99, repr=False)
 
@@ -114,6 +124,7 @@ class FbStability:
                               f"{KEY}.advection_flux=predicted)")
         checks.number(f"{KEY}.flux_consistency", self.flux_consistency, lo=0.0, hi=100.0)
         checks.boolean(f"{KEY}.mirror_alternate", self.mirror_alternate)
+        checks.number(f"{KEY}.rollout_noise", self.rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE)
         if isinstance(self.ensemble, bool) or not isinstance(self.ensemble, int) or self.ensemble < 1:
             raise ConfigError(f"config value {KEY}.ensemble={self.ensemble!r} is invalid: must be an integer >= 1 "
                               f"(1 = deterministic; 2 = a stochastic model trained with CRPS, e.g. {KEY}.ensemble=2)")
@@ -150,9 +161,11 @@ class FbStability:
 
 def rollout_overrides(base: FbStability, mixing: str | None = None, conserve_volume: bool | None = None,
                       advection_correction: float | None = None, advection_flux: str | None = None,
-                      mirror_alternate: bool | None = None) -> FbStability:
+                      mirror_alternate: bool | None = None, rollout_noise: float | None = None) -> FbStability:
     """The options a rollout uses: the checkpoint's, with the rollout-time ones overridden (validated)."""
     d = base.to_dict()
+    if rollout_noise is not None:
+        d["rollout_noise"] = rollout_noise
     if mirror_alternate is not None:
         d["mirror_alternate"] = mirror_alternate
     if advection_flux is not None:

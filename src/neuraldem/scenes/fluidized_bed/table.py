@@ -55,6 +55,8 @@ def options_label(r: dict) -> str:
         parts.append("mirror")
     if st.get("mirror_alternate"):
         parts.append("mirror-alternating rollout")
+    if st.get("rollout_noise"):
+        parts.append(f"rollout noise x{st['rollout_noise']:g}")
     if t.get("weights") == "EMA":
         parts.append("EMA")
     return ", ".join(parts)
