@@ -15,6 +15,7 @@ import pytest
 import torch
 
 from neuraldem.errors import ConfigError, DataError
+from neuraldem.scenes.fluidized_bed.datamodule import grid_input
 from neuraldem.scenes.fluidized_bed.rollout import (
     DataStepper,
     DivergenceLimits,
@@ -27,7 +28,6 @@ from neuraldem.scenes.fluidized_bed.rollout import (
     rollout,
     run_rollout,
 )
-from neuraldem.scenes.fluidized_bed.datamodule import grid_input
 from neuraldem.scenes.fluidized_bed.store import FbFile
 from tests.helpers import run_module
 

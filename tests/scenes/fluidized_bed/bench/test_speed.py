@@ -32,7 +32,7 @@ def test_surrogate_time_per_simulated_second(monkeypatch: pytest.MonkeyPatch, di
     computed, the diverging one included)."""
     fake = FakeClock()
     monkeypatch.setattr(fb_speed, "rollout", _fake_rollout(fake, 20 if diverged_at is None else 4, diverged_at))
-    monkeypatch.setattr(fb_speed, "ModelStepper", lambda *args: None)
+    monkeypatch.setattr(fb_speed, "ModelStepper", lambda *args, **kwargs: None)
     module = SimpleNamespace(norm=SimpleNamespace(dt=0.01))
     t = fb_speed.surrogate_timing(module, 1.2, state=None, steps=20, repeats=3, threads=1, clock=fake.clock())
     assert t.median.wall_s == pytest.approx(0.5 / (computed * 0.01))
@@ -143,6 +143,7 @@ def test_without_keep_runs_the_run_folders_go(fb_tiny_checkpoint: Path, fb_tiny_
     (["--threads", "0"], "error: config value --threads[0]=0 is invalid: must be a positive integer"),
     (["--repeats", "0"], "error: config value --repeats=0 is invalid"),
     (["--rollout-steps", "-2"], "error: config value --rollout-steps=-2 is invalid"),
+    (["--rollout-noise", "-1"], "error: config value --rollout-noise=-1.0 is invalid: must be >= 0.0"),
     (["--sim", "sim_9999"], "error: simulation 'sim_9999' is not in the manifest of dataset 'fb_tiny'"),
     (["--out", "speed.txt"], "error: --out=speed.txt is invalid: pass a .json file or a folder"),
 ])

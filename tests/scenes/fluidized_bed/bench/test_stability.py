@@ -98,6 +98,7 @@ def test_solid_volume_drift_beyond_the_limit_is_a_failure(fb_tiny_checkpoint: Pa
     (["--velocities", "1.2", "0"], "error: config value --velocities[1]=0.0 is invalid: must be > 0.0"),
     (["--drift-limit-pct", "0"], "error: config value --drift-limit-pct=0.0 is invalid: must be > 0.0"),
     (["--n-velocities", "0"], "error: config value --n-velocities=0 is invalid"),
+    (["--rollout-noise", "-1"], "error: config value --rollout-noise=-1.0 is invalid: must be >= 0.0"),
     (["--out", "map.csv"], "error: --out=map.csv is invalid: pass a .json file or a folder"),
 ])
 def test_bad_values_fail_with_one_line(fb_tiny_checkpoint: Path, tmp_path: Path, capsys: pytest.CaptureFixture,

@@ -47,6 +47,7 @@ from neuraldem.scenes.fluidized_bed.rollout import (
     rollout,
 )
 from neuraldem.scenes.fluidized_bed.solver import STATUS_OK, FluidizedBedScene, run_fluidized_bed
+from neuraldem.scenes.fluidized_bed.stability import MAX_ROLLOUT_NOISE
 from neuraldem.scenes.fluidized_bed.store import FbFile
 
 NAME = "fb_speed"
@@ -166,11 +167,12 @@ def solver_recorded(m: Manifest, dataset_dir: Path) -> Timing:
 
 def surrogate_timing(module: FluidizedBedModule, velocity: float, state: FbState, steps: int, repeats: int,
                      threads: int, seed: int = 0, limits: DivergenceLimits | None = None,
-                     clock: Clock = SYSTEM_CLOCK) -> Timing:
+                     clock: Clock = SYSTEM_CLOCK, rollout_noise: float | None = None) -> Timing:
     """Median over `repeats` (after one untimed warm-up) of a `steps`-step rollout from `state` on `threads`
     torch threads, per simulated second. A rollout that diverges is timed over the steps it computed."""
     def once():
-        return rollout(ModelStepper(module, velocity, seed), state, steps, limits, progress=False)
+        return rollout(ModelStepper(module, velocity, seed, rollout_noise=rollout_noise), state, steps, limits,
+                       progress=False)
 
     with torch_threads(threads):
         per_run, r = time_call(once, repeats, warmup=1, clock=clock)
@@ -257,17 +259,20 @@ class Plan:
     workdir: Path
     keep_runs: bool = False
     seed: int = 0
+    rollout_noise: float | None = None
 
 
 def prepare(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: int, solver_repeats: int,
             sim_seconds: float, rollout_steps: int | None, threads: list[int] | None, reuse_dataset: bool,
-            workdir: Path, keep_runs: bool = False, seed: int = 0) -> Plan:
+            workdir: Path, keep_runs: bool = False, seed: int = 0, rollout_noise: float | None = None) -> Plan:
     """Check every option and input (one clear error for a bad one) before anything is timed."""
     checks.positive_int("--repeats", repeats)
     checks.positive_int("--solver-repeats", solver_repeats)
     if rollout_steps is not None:
         checks.positive_int("--rollout-steps", rollout_steps)
     checks.positive_int("--seed", seed, allow_zero=True)
+    if rollout_noise is not None:
+        checks.number("--rollout-noise", rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE)
     threads = parse_threads(threads)
     t0 = time.perf_counter()
     module = load_fb_checkpoint(Path(ckpt))  # refuses other kinds with a message
@@ -284,7 +289,8 @@ def prepare(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: i
             raise
         recorded = None  # e.g. an imported dataset: no datagen costs, the measured runs stand alone
     return Plan(Path(ckpt), module, load_s, case, state, rollout_steps or module.norm.horizon_steps, threads,
-                repeats, solver_repeats, sim_seconds, recorded, reuse_dataset, Path(workdir), keep_runs, seed)
+                repeats, solver_repeats, sim_seconds, recorded, reuse_dataset, Path(workdir), keep_runs, seed,
+                rollout_noise)
 
 
 def measure(plan: Plan, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
@@ -295,7 +301,7 @@ def measure(plan: Plan, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
         measured = solver_measured(case, plan.sim_seconds, plan.solver_repeats, plan.workdir, plan.keep_runs)
         solvers = {"DPMFoam, measured": measured, **solvers}
     surrogates = {t: surrogate_timing(module, case.velocity, plan.state, plan.steps, plan.repeats, t, plan.seed,
-                                      clock=clock) for t in plan.threads}
+                                      clock=clock, rollout_noise=plan.rollout_noise) for t in plan.threads}
     return {
         "scene": module.metadata["data_name"], "checkpoint": str(plan.ckpt.resolve()),
         "dataset": str(case.dataset_dir), "sim_id": case.record.sim_id, "inlet_velocity": case.velocity,
@@ -306,6 +312,7 @@ def measure(plan: Plan, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
         "solver": {label: t.as_dict() for label, t in solvers.items()},
         "surrogate": {str(t): s.as_dict() for t, s in surrogates.items()},
         "surrogate_parameters": sum(p.numel() for p in module.net.parameters()), "surrogate_load_s": plan.load_s,
+        "rollout_noise": plan.rollout_noise,
         "side_by_side": compare(solvers, surrogates), "target_speedup": TARGET_SPEEDUP,
     }
 
@@ -326,6 +333,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--reuse-dataset", action="store_true",
                    help="run no DPMFoam: compare with the costs the manifest recorded (labelled in the output)")
     p.add_argument("--seed", type=int, default=0, help="seed of the rollout's particle re-sampling")
+    p.add_argument("--rollout-noise", type=float, default=None,
+                   help="the rollouts' rollout_noise (default: as the checkpoint was trained)")
     p.add_argument("--workdir", type=Path, default=None, help=f"DPMFoam runs (default <data dir>/bench/{NAME})")
     p.add_argument("--keep-runs", action="store_true", help="keep the DPMFoam case folders")
     p.add_argument("--out", type=Path, default=None,
@@ -334,7 +343,8 @@ def main(argv: list[str]) -> int:
     a = p.parse_args(argv)
     out = resolve_out(a.out, NAME)
     plan = prepare(a.ckpt, a.dataset, a.sim, a.repeats, a.solver_repeats, a.sim_seconds, a.rollout_steps,
-                   a.threads, a.reuse_dataset, a.workdir or default_workdir(NAME), a.keep_runs, a.seed)
+                   a.threads, a.reuse_dataset, a.workdir or default_workdir(NAME), a.keep_runs, a.seed,
+                   a.rollout_noise)
     machine = machine_info()
     warning = warn_if_busy(machine)
     results = measure(plan)

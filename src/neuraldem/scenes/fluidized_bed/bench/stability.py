@@ -43,6 +43,7 @@ from neuraldem.scenes.fluidized_bed.rollout import (
     load_fb_checkpoint,
     rollout,
 )
+from neuraldem.scenes.fluidized_bed.stability import MAX_ROLLOUT_NOISE
 from neuraldem.scenes.fluidized_bed.store import FbFile
 
 NAME = "fb_stability"
@@ -108,7 +109,8 @@ def check_options(ckpts: list[Path], labels: list[str] | None, velocities: list[
 def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[float] | None = None,
         n_velocities: int = DEFAULT_N_VELOCITIES, steps: int | None = None, dataset_dir: Path | None = None,
         drift_limit_pct: float = DEFAULT_DRIFT_LIMIT_PCT, seed: int = 0, limits: DivergenceLimits | None = None,
-        make_stepper: MakeStepper | None = None, progress: bool = True) -> dict[str, Any]:
+        make_stepper: MakeStepper | None = None, progress: bool = True,
+        rollout_noise: float | None = None) -> dict[str, Any]:
     """The stability map of every checkpoint over the same velocities and step count."""
     labels = check_options(ckpts, labels, velocities, steps, drift_limit_pct, seed)
     checks.positive_int("--n-velocities", n_velocities)
@@ -118,7 +120,9 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
     grid = sorted({round(float(v), 6) for v in velocities}) if velocities else \
         velocity_grid(min(r[0] for r in ranges), max(r[1] for r in ranges), n_velocities)
     steps = steps or DEFAULT_HORIZON_MULTIPLE * modules[0].norm.horizon_steps
-    make_stepper = make_stepper or (lambda module, v, f: ModelStepper(module, v, seed))
+    if rollout_noise is not None:
+        checks.number("--rollout-noise", rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE)
+    make_stepper = make_stepper or (lambda module, v, f: ModelStepper(module, v, seed, rollout_noise=rollout_noise))
     series = []
     for label, ckpt, module in zip(labels, ckpts, modules, strict=False):
         norm, points = module.norm, []
@@ -141,6 +145,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
                        "training_horizon_steps": norm.horizon_steps, "dt": norm.dt,
                        "n_failed": sum(p["failed"] for p in points), "points": points})
     return {"velocities": grid, "steps": steps, "drift_limit_pct": drift_limit_pct, "seed": seed,
+            "rollout_noise": rollout_noise,
             "limits": {"max_packing": limits.max_packing, "tolerance": limits.tolerance}, "series": series}
 
 
@@ -188,6 +193,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--dataset", type=Path, default=None,
                    help="dataset dir of the checkpoints' scene (default: <data dir>/datasets/<data name>)")
     p.add_argument("--seed", type=int, default=0, help="seed of the rollouts' particle re-sampling")
+    p.add_argument("--rollout-noise", type=float, default=None,
+                   help="the rollouts' rollout_noise (default: as each checkpoint was trained)")
     p.add_argument("--out", type=Path, default=None,
                    help=f"results JSON, or a folder for {NAME}.json (default results/bench/{NAME}.json); "
                         ".png beside it")
@@ -196,6 +203,7 @@ def main(argv: list[str]) -> int:
     check_options(a.ckpt, a.labels, a.velocities, a.steps, a.drift_limit_pct, a.seed)
     checks.positive_int("--n-velocities", a.n_velocities)
     machine = machine_info()
-    results = run(a.ckpt, a.labels, a.velocities, a.n_velocities, a.steps, a.dataset, a.drift_limit_pct, a.seed)
+    results = run(a.ckpt, a.labels, a.velocities, a.n_velocities, a.steps, a.dataset, a.drift_limit_pct, a.seed,
+                  rollout_noise=a.rollout_noise)
     write_map(NAME, results, argv, out, machine)
     return 0
