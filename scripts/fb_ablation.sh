@@ -133,9 +133,10 @@ while [ "$running" -gt 0 ]; do wait -n || failed=$((failed + 1)); running=$((run
 for v in $VARIANTS; do  # the trained nets again, with other rollout options
   case "$v" in *+*) ;; *) continue ;; esac
   opts=$(rollout_options "$v")
-  ckpt="$runs/$(trained_of "$v")/checkpoints/last.ckpt"
-  [ -f "$runs/$(trained_of "$v")/.trained" ] || [ -f "$ckpt" ] \
-    || { echo "fb_ablation: $v: $(trained_of "$v") was not trained (see its log)" >&2; failed=$((failed + 1)); continue; }
+  b=$(trained_of "$v")
+  ckpt="$runs/$b/checkpoints/last.ckpt"
+  [ -f "$runs/$b/.trained" ] || [ -f "$ckpt" ] \
+    || { echo "fb_ablation: $v: $b was not trained (see its log)" >&2; failed=$((failed + 1)); continue; }
   slot
   echo "start $v"
   (

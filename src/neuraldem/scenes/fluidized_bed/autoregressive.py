@@ -14,7 +14,7 @@ concentration carried by the predicted solids flux (`mixing=advect`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -226,6 +226,23 @@ def next_inputs(net: MultiBranchOperator, tokens: dict[str, torch.Tensor], cond:
                                                           inputs.particle_features.shape[-1])
     return replace(inputs, particle_pos=positions, particle_features=displacement, grid=fluid, mixing_grid=mixing,
                    query_pos={}, supernode_idx=None, noise=None)
+
+
+def perturb_inputs(x: OperatorInputs, std: dict[str, torch.Tensor | float],
+                   draw: Callable[[str, torch.Tensor], torch.Tensor]) -> OperatorInputs:
+    """x plus `std[name]` times `draw(name, tensor)` (a standard normal of the tensor's shape) on the particle
+    features ("particles", channels last), the fluid grid ("fluid") and the mixing grid ("mixing", channels in
+    dim 1); a std is one number or one per channel. Training's input noise and a rollout's `rollout_noise`."""
+    def noisy(name: str, t: torch.Tensor, channel_dim: int) -> torch.Tensor:
+        s = std[name]
+        if torch.is_tensor(s):
+            shape = [1] * t.ndim
+            shape[channel_dim] = -1
+            s = s.to(t.dtype).reshape(shape)
+        return t + s * draw(name, t)
+
+    return replace(x, particle_features=noisy("particles", x.particle_features, -1),
+                   grid=noisy("fluid", x.grid, 1), mixing_grid=noisy("mixing", x.mixing_grid, 1))
 
 
 def advance(net: MultiBranchOperator, inputs: OperatorInputs, norm: FbNormalizer, n_particles: int,

@@ -40,6 +40,7 @@ from neuraldem.scenes.fluidized_bed.autoregressive import (
     grid_cells,
     grid_step_scales,
     next_inputs,
+    perturb_inputs,
     solid_volume,
 )
 from neuraldem.scenes.fluidized_bed.datamodule import FluidizedBedDataModule
@@ -108,18 +109,12 @@ class FluidizedBedModule(SurrogateModule):
         if all(not torch.is_tensor(v) and v == 0.0 for v in std.values()):
             return x
 
-        def noisy(name: str, t: torch.Tensor, s: torch.Tensor | float, channel_dim: int) -> torch.Tensor:
-            if torch.is_tensor(s):
-                shape = [1] * t.ndim
-                shape[channel_dim] = -1
-                s = s.to(t.dtype).reshape(shape)
-            noise = torch.randn_like(t) if draws is None else \
-                draws.rows(f"input_noise/{name}", t.shape[0], t.shape[1:], dtype=t.dtype)
-            return t + s * noise
+        def draw(name: str, t: torch.Tensor) -> torch.Tensor:
+            if draws is None:
+                return torch.randn_like(t)
+            return draws.rows(f"input_noise/{name}", t.shape[0], t.shape[1:], dtype=t.dtype)
 
-        return replace(x, particle_features=noisy("particles", x.particle_features, std["particles"], -1),
-                       grid=noisy("fluid", x.grid, std["fluid"], 1),
-                       mixing_grid=noisy("mixing", x.mixing_grid, std["mixing"], 1))
+        return perturb_inputs(x, std, draw)
 
     @torch.no_grad()
     def update_step_error(self, out: dict[str, torch.Tensor], targets: dict[str, torch.Tensor]) -> None:

@@ -28,7 +28,7 @@ from __future__ import annotations
 import json
 import logging
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Protocol
@@ -45,7 +45,7 @@ from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.checkpoints import checkpoint_dataset, read_checkpoint
 from neuraldem.eval.vtk_export import write_grid_series, write_point_series
 from neuraldem.models.multi_branch_operator import OperatorInputs
-from neuraldem.scenes.fluidized_bed.autoregressive import advance
+from neuraldem.scenes.fluidized_bed.autoregressive import advance, perturb_inputs
 from neuraldem.scenes.fluidized_bed.datamodule import grid_input, mixing_input
 from neuraldem.scenes.fluidized_bed.mirror import mirror_grid, mirror_points, mirror_vectors
 from neuraldem.scenes.fluidized_bed.module import FluidizedBedModule
@@ -203,7 +203,9 @@ class ModelStepper:
                            mixing_grid=self._tensor(mixing_input(norm, state.mixing)), scalars=self.scalars,
                            noise=noise)
         volume = torch.tensor([self.solid_volume], dtype=torch.float64, device=self.device)
-        view = None if self.noise_std is None else perturbed(x, self.noise_std, self.generator)
+        view = None if self.noise_std is None else perturb_inputs(
+            x, self.noise_std, lambda _, t: torch.randn(t.shape, generator=self.generator, device=t.device,
+                                                        dtype=t.dtype))
         nxt = advance(self.net, x, norm, n_particles=len(state.positions), generator=self.generator,
                       chunk_size=self.chunk_size, step_scales=self.step_scales, stability=self.stability,
                       volume=volume, net_view=view)
@@ -239,18 +241,6 @@ def perturbation_std(module: FluidizedBedModule, scale: float, device: str) -> d
         raise ConfigError(f"rollout_noise={scale:g} needs the model's running one-step error, which this checkpoint "
                           "does not hold (trained before issue 20 or as a residual model): use rollout_noise=0")
     return {name: scale * s.detach().float().to(device) for name, s in std.items()}
-
-
-def perturbed(x: OperatorInputs, std: dict[str, torch.Tensor], generator: torch.Generator) -> OperatorInputs:
-    """x plus Gaussian noise of `std` per channel on the particle features, fluid grid and mixing grid."""
-    def noisy(t: torch.Tensor, s: torch.Tensor, channel_dim: int) -> torch.Tensor:
-        shape = [1] * t.ndim
-        shape[channel_dim] = -1
-        noise = torch.randn(t.shape, generator=generator, device=t.device, dtype=t.dtype)
-        return t + s.to(t.dtype).reshape(shape) * noise
-
-    return replace(x, particle_features=noisy(x.particle_features, std["particles"], -1),
-                   grid=noisy(x.grid, std["fluid"], 1), mixing_grid=noisy(x.mixing_grid, std["mixing"], 1))
 
 
 class DataStepper:

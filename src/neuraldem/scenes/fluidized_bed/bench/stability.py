@@ -115,13 +115,13 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
     labels = check_options(ckpts, labels, velocities, steps, drift_limit_pct, seed)
     checks.positive_int("--n-velocities", n_velocities)
     limits = limits or DivergenceLimits()
+    if rollout_noise is not None:
+        checks.number("--rollout-noise", rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE)
     modules = [load_fb_checkpoint(Path(c)) for c in ckpts]  # refuses other kinds before any rollout
     ranges = [(m.norm.velocity_lo, m.norm.velocity_hi) for m in modules]
     grid = sorted({round(float(v), 6) for v in velocities}) if velocities else \
         velocity_grid(min(r[0] for r in ranges), max(r[1] for r in ranges), n_velocities)
     steps = steps or DEFAULT_HORIZON_MULTIPLE * modules[0].norm.horizon_steps
-    if rollout_noise is not None:
-        checks.number("--rollout-noise", rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE)
     make_stepper = make_stepper or (lambda module, v, f: ModelStepper(module, v, seed, rollout_noise=rollout_noise))
     series = []
     for label, ckpt, module in zip(labels, ckpts, modules, strict=False):
