@@ -13,7 +13,10 @@
 # training samples mirrored in x), continuity (+ the continuity loss on the predicted solids flux, weight 0.2),
 # long (16000 training steps, twice the default 8000), mirror_alt (rollouts alternate with the mirror image,
 # model.stability.mirror_alternate, in the run's rollout validation and evaluation too), mirror_both (mirrored
-# training samples + alternating rollouts). The options before issue 20 (one-step training, absolute mixing, no projection,
+# training samples + alternating rollouts), noise_sel (rollout noise 3, model.stability.rollout_noise, in the run's
+# rollout validation, so the checkpoint is chosen on noisy rollouts, and in its evaluation), noise_pooled (noise_sel
+# + that validation scored against every CFD-DEM run at the velocity, callbacks.rollout_validation.reference=pooled).
+# The options before issue 20 (one-step training, absolute mixing, no projection,
 # no flux channels): base (no noise), noise (input noise 0.01), grid_only (no particle branch), residual (the grid
 # branches predict the scaled change per step), grid_residual (both). Push-forward scored only at t + k (the old
 # `pf`) is refused since issue 20: it never trains the one-step map from data.
@@ -22,7 +25,8 @@
 # A variant with rollout options after a + ("full+alt", "full+noise1", "full+alt+noise0.5") trains nothing: it
 # scores the kept checkpoint of the variant before the first + again, after the trainings, with those rollout
 # options: alt = mirror-alternating rollouts (fluidized_bed.mirror_alternate=true), noiseX = the net reads each
-# state + noise of X times its one-step error (fluidized_bed.rollout_noise=X). The same net with and without
+# state + noise of X times its one-step error (fluidized_bed.rollout_noise=X), corrX = the mixing advection's flux
+# correction X in [0, 1] (fluidized_bed.advection_correction=X; 1 = full FCT, the least numerical mixing). The same net with and without
 # them, where mirror_alt trains a second net (its checkpoint chosen on alternating rollouts).
 # Runs land in RUNS_DIR/<variant>/ (logs beside them), the table in RUNS_DIR/table.md (+ .json). A finished
 # training (RUNS_DIR/<variant>/.trained) is not repeated and a finished evaluation is skipped, so a killed sweep
@@ -68,7 +72,9 @@ overrides() {
     long) echo "trainer.max_steps=16000" ;;
     mirror_alt) echo "model.stability.mirror_alternate=true" ;;
     mirror_both) echo "data.datamodule.mirror=true model.stability.mirror_alternate=true" ;;
-    *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror continuity long mirror_alt mirror_both base noise grid_only residual grid_residual)" >&2; return 2 ;;
+    noise_sel) echo "model.stability.rollout_noise=3" ;;
+    noise_pooled) echo "model.stability.rollout_noise=3 callbacks.rollout_validation.reference=pooled" ;;
+    *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror continuity long mirror_alt mirror_both noise_sel noise_pooled base noise grid_only residual grid_residual)" >&2; return 2 ;;
   esac
 }
 trained_of() { echo "${1%%+*}"; }
@@ -78,7 +84,8 @@ rollout_options() {  # "full+alt+noise1" -> the evaluate overrides of its rollou
     case "$opt" in
       alt) out="$out fluidized_bed.mirror_alternate=true" ;;
       noise[0-9]*) out="$out fluidized_bed.rollout_noise=${opt#noise}" ;;
-      *) echo "fb_ablation: unknown rollout option '$opt' in '$1' (known: alt, noiseX e.g. noise1)" >&2; return 2 ;;
+      corr[0-9]*) out="$out fluidized_bed.advection_correction=${opt#corr}" ;;
+      *) echo "fb_ablation: unknown rollout option '$opt' in '$1' (known: alt, noiseX e.g. noise1, corrX e.g. corr1)" >&2; return 2 ;;
     esac
   done
   echo "$out"

@@ -41,6 +41,12 @@ def test_each_variant_is_one_training_command(tmp_path: Path):
     assert "callbacks.ema=null" in no_ema and "data.datamodule.mirror=true" in mirror
     assert "model.stability.flux_consistency=0.2" in continuity and "trainer.max_steps=16000" in long
     assert calls[-1][:2] == ["-m", "neuraldem.scenes.fluidized_bed.table"]  # then the table of all runs
+    (tmp_path / "sel").mkdir()  # the options of the noisy checkpoint selection
+    proc, calls = _run(tmp_path / "sel", "noise_sel noise_pooled")
+    sel, pooled = [c for c in calls if c[:2] == ["-m", "neuraldem.train"]]
+    assert "model.stability.rollout_noise=3" in sel
+    assert not any(a.startswith("callbacks.rollout_validation") for a in sel)
+    assert {"model.stability.rollout_noise=3", "callbacks.rollout_validation.reference=pooled"} <= set(pooled)
 
 
 def test_val_scores_each_kept_checkpoint_on_the_validation_part(tmp_path: Path):
@@ -108,11 +114,13 @@ def test_alt_of_an_untrained_variant_runs_nothing(tmp_path: Path):
 
 
 def test_rollout_options_combine_after_the_trained_variant(tmp_path: Path):
-    proc, calls = _run(tmp_path, "full full+noise1 full+alt+noise0.5", VAL="1", TEST="0")
+    proc, calls = _run(tmp_path, "full full+noise1 full+alt+noise0.5 full+noise3+corr1", VAL="1", TEST="0")
     assert proc.returncode == 0, proc.stderr
     evals = [c for c in calls if c[1] == "neuraldem.evaluate"]
-    assert len(evals) == 3 and sum(c[1] == "neuraldem.train" for c in calls) == 1
-    plain, noise, both = evals
+    assert len(evals) == 4 and sum(c[1] == "neuraldem.train" for c in calls) == 1
+    plain, noise, both, corr = evals
+    assert {"fluidized_bed.rollout_noise=3", "fluidized_bed.advection_correction=1"} <= set(corr)
+    assert not any(a.startswith("fluidized_bed.advection") for a in noise)
     assert not any(a.startswith("fluidized_bed.") for a in plain)
     assert "fluidized_bed.rollout_noise=1" in noise and "fluidized_bed.mirror_alternate=true" not in noise
     assert {"fluidized_bed.rollout_noise=0.5", "fluidized_bed.mirror_alternate=true"} <= set(both)

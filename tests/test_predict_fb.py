@@ -140,3 +140,35 @@ def test_refresh_field_reruns_the_field_answers_and_keeps_the_rest(fb_tiny_pretr
 def test_refresh_bad_input_ends_in_one_line(tmp_path: Path, flags: list[str], message: str):
     proc = run_module("neuraldem.pretrained.build", "--name", "nothing_here", "--out", str(tmp_path), *flags)
     assert proc.returncode != 0 and message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
+def test_refresh_with_rollout_options_writes_them_into_the_shipped_model(fb_tiny_pretrained: Path, tmp_path: Path):
+    """--rollout-noise / --advection-correction are written into field.pt (so predict, the explorer and evaluate
+    roll out with them without a flag), its checksum in meta.json follows and the options are recorded; a value
+    out of range is refused in one line before the file is touched."""
+    import shutil
+
+    from neuraldem.data.integrity import digest
+    from neuraldem.eval.checkpoints import read_checkpoint
+    from neuraldem.scenes.fluidized_bed.rollout import ModelStepper
+
+    folder = tmp_path / "fb_tiny_test"
+    shutil.copytree(fb_tiny_pretrained / "fb_tiny_test", folder)
+    field = folder / "field.pt"
+    before = digest(field)
+    bad = run_module("neuraldem.pretrained.build", "--name", "fb_tiny_test", "--out", str(tmp_path),
+                     "--refresh-field", "--rollout-noise", "-1")
+    assert bad.returncode != 0 and "rollout_noise" in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
+    assert digest(field) == before
+    proc = run_module("neuraldem.pretrained.build", "--name", "fb_tiny_test", "--out", str(tmp_path),
+                      "--refresh-field", "--rollout-noise", "2", "--advection-correction", "1")
+    assert proc.returncode == 0, proc.stderr
+    meta = json.loads((folder / "meta.json").read_text())
+    assert meta["rollout_options"] == {"rollout_noise": 2.0, "advection_correction": 1.0}
+    assert meta["files"]["field"]["sha256"] == digest(field) != before
+    assert "rollout options" in meta["refreshed"][-1]["what"]
+    stepper = ModelStepper(read_checkpoint(field).module("fluidized_bed", "cpu", "test"), 1.5)
+    assert stepper.stability.rollout_noise == 2.0 and stepper.stability.advection_correction == 1.0
+    assert stepper.noise_std is not None
+    wrong = run_module("neuraldem.pretrained.build", "--name", "x", "--ckpt", str(field), "--rollout-noise", "1")
+    assert wrong.returncode != 0 and "go with --refresh-field" in wrong.stderr

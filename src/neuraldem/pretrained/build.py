@@ -159,6 +159,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--refresh-field", action="store_true",
                    help="fluidized bed, no --ckpt: rerun the shipped model's field answers (test rows, probe) "
                         "after a change of the rollout code, keeping its files and the stored CFD-DEM answers")
+    p.add_argument("--rollout-noise", type=float, default=None,
+                   help="with --refresh-field: rollouts read each state + noise of this many times the model's "
+                        "one-step error (model.stability.rollout_noise), written into field.pt")
+    p.add_argument("--advection-correction", type=float, default=None,
+                   help="with --refresh-field: the mixing advection's flux correction in [0, 1] "
+                        "(model.stability.advection_correction), written into field.pt")
     p.add_argument("--out", type=Path, default=Path(__file__).parent, help="folder of shipped models")
     p.add_argument("--dataset", type=Path, default=None, help="dataset dir (default: the checkpoint's)")
     p.add_argument("--lacey-time", type=float, default=1.0,
@@ -169,13 +175,17 @@ def main(argv: list[str] | None = None) -> int:
             p.error("--refresh-field reruns a shipped model's answers: give --name only, not --ckpt")
         from neuraldem.pretrained.build_fb import refresh_field_answers
 
-        meta = refresh_field_answers(args.out / args.name)
+        options = {k: v for k, v in (("rollout_noise", args.rollout_noise),
+                                     ("advection_correction", args.advection_correction)) if v is not None}
+        meta = refresh_field_answers(args.out / args.name, rollout_options=options)
         change = meta["refreshed"][-1]["field_model_errors_before"]
         print(f"refreshed {args.out / args.name}/meta.json: field-model test errors {change} -> "
               f"{meta['test_errors']['field model']}")
         return 0
     if args.ckpt is None:
         p.error("--ckpt is required (or --refresh-field for a shipped fluidized-bed model)")
+    if args.rollout_noise is not None or args.advection_correction is not None:
+        p.error("--rollout-noise / --advection-correction go with --refresh-field (build first, then set them)")
     from neuraldem.eval.checkpoints import read_checkpoint
 
     kind = read_checkpoint(args.ckpt).metadata.get("kind")

@@ -150,11 +150,44 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
     return folder
 
 
-def refresh_field_answers(folder: Path, progress: bool = True) -> dict[str, Any]:
+ROLLOUT_OPTIONS = ("rollout_noise", "advection_correction")
+
+
+def set_rollout_options(field: Path, options: dict[str, float]) -> dict[str, Any]:
+    """Write rollout options (`model.stability.rollout_noise` / `advection_correction`, chosen on validation) into
+    a shipped field checkpoint's stability, so every path that rolls the shipped model out (`predict fb`, the
+    explorer, the benches, `evaluate ckpt=<field.pt>`) uses them without a flag of its own. Checked before the
+    file is touched: the values' ranges and, for noise, that the checkpoint holds the running one-step error.
+    Returns the checkpoint's stability options after the change."""
+    import torch
+
+    from neuraldem.eval.checkpoints import read_checkpoint
+    from neuraldem.scenes.fluidized_bed.rollout import perturbation_std
+    from neuraldem.scenes.fluidized_bed.stability import FbStability
+
+    unknown = sorted(set(options) - set(ROLLOUT_OPTIONS))
+    if unknown:
+        raise DataError(f"{field}: {unknown[0]} is not a rollout option of a shipped model (known: {ROLLOUT_OPTIONS})")
+    raw = torch.load(field, map_location="cpu", weights_only=False)
+    stability = dict(raw.get("hyper_parameters", {}).get("stability") or {})
+    stability.update({k: float(v) for k, v in options.items()})
+    FbStability.from_config(stability)  # ranges, in one line naming the key
+    module = read_checkpoint(field).module("fluidized_bed", "cpu", "setting rollout options")
+    perturbation_std(module, float(stability.get("rollout_noise", 0.0)), "cpu")
+    raw["hyper_parameters"]["stability"] = stability
+    tmp = field.with_suffix(".tmp")
+    torch.save(raw, tmp)
+    tmp.replace(field)
+    return stability
+
+
+def refresh_field_answers(folder: Path, progress: bool = True,
+                          rollout_options: dict[str, float] | None = None) -> dict[str, Any]:
     """Re-run a shipped bed model's field answers (its test rows and the probe) after the rollout code changed,
     keeping its files, the GP and the CFD-DEM answers stored with each test row: the rollouts start from the
     shipped states, so no dataset is needed. The field model's test errors are recomputed against the stored
-    CFD-DEM answers and the refresh is recorded in meta.json (`refreshed`)."""
+    CFD-DEM answers and the refresh is recorded in meta.json (`refreshed`). `rollout_options` are written into
+    field.pt first (`set_rollout_options`; its checksum in meta.json follows) and recorded in meta.json."""
     import json
     from datetime import UTC, datetime
 
@@ -172,7 +205,14 @@ def refresh_field_answers(folder: Path, progress: bool = True) -> dict[str, Any]
     meta = json.loads(path.read_text())
     if meta.get("kind") != "fluidized_bed":
         raise DataError(f"{path}: kind {meta.get('kind')!r}; --refresh-field is for fluidized-bed models")
-    module = read_checkpoint(folder / meta["files"]["field"]["file"]).module("fluidized_bed", "cpu", "refresh")
+    field = folder / meta["files"]["field"]["file"]
+    if rollout_options:
+        from neuraldem.data.integrity import digest
+
+        stability = set_rollout_options(field, rollout_options)
+        meta["files"]["field"].update(sha256=digest(field), bytes=field.stat().st_size)
+        meta["rollout_options"] = {k: stability.get(k) for k in ROLLOUT_OPTIONS}
+    module = read_checkpoint(field).module("fluidized_bed", "cpu", "refresh")
     states = InitialStates.load_npz(folder / meta["files"]["states"]["file"])
     settings = FbMetricSettings.from_config(meta["metric_settings"], f"{path} metric_settings")
     window = AnswerWindow.from_dict(meta["answer_window"])
@@ -186,7 +226,8 @@ def refresh_field_answers(folder: Path, progress: bool = True) -> dict[str, Any]
     probe["field_summary"] = field_answer(module, states, float(probe["parameters"]["inlet_velocity"]), settings,
                                           window).summary
     meta.setdefault("refreshed", []).append({
-        "what": "field-model answers (test rows and probe) rerun with the rollout code of this commit",
+        "what": "field-model answers (test rows and probe) rerun with the rollout code of this commit"
+                + (f" and rollout options {rollout_options}" if rollout_options else ""),
         "field_model_errors_before": before, "commit": commit(),
         "date_utc": datetime.now(UTC).isoformat(timespec="seconds")})
     atomic_write_json(path, meta)
