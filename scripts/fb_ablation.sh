@@ -11,7 +11,7 @@
 # solids-flux channels, mixing re-predicted absolutely), no_conserve (no volume projection), stochastic (+ latent
 # noise, CRPS over 2 members), no_ema (the training weights instead of their moving average), mirror (+ half the
 # training samples mirrored in x), continuity (+ the continuity loss on the predicted solids flux, weight 0.2),
-# long (16000 training steps, twice the default 8000), mirror_alt (rollouts alternate with the mirror image,
+# long (16000 training steps, twice the default 8000), short (4000, stop 34's length and the shipped model's), mirror_alt (rollouts alternate with the mirror image,
 # model.stability.mirror_alternate, in the run's rollout validation and evaluation too), mirror_both (mirrored
 # training samples + alternating rollouts), noise_sel (rollout noise 3, model.stability.rollout_noise, in the run's
 # rollout validation, so the checkpoint is chosen on noisy rollouts, and in its evaluation), noise_pooled (noise_sel
@@ -70,11 +70,12 @@ overrides() {
     mirror) echo "data.datamodule.mirror=true" ;;
     continuity) echo "model.stability.flux_consistency=0.2" ;;
     long) echo "trainer.max_steps=16000" ;;
+    short) echo "trainer.max_steps=4000" ;;
     mirror_alt) echo "model.stability.mirror_alternate=true" ;;
     mirror_both) echo "data.datamodule.mirror=true model.stability.mirror_alternate=true" ;;
     noise_sel) echo "model.stability.rollout_noise=3" ;;
     noise_pooled) echo "model.stability.rollout_noise=3 callbacks.rollout_validation.reference=pooled" ;;
-    *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror continuity long mirror_alt mirror_both noise_sel noise_pooled base noise grid_only residual grid_residual)" >&2; return 2 ;;
+    *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror continuity long short mirror_alt mirror_both noise_sel noise_pooled base noise grid_only residual grid_residual)" >&2; return 2 ;;
   esac
 }
 trained_of() { echo "${1%%+*}"; }

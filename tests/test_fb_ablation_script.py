@@ -23,12 +23,12 @@ def _run(tmp_path: Path, variants: str, **extra: str) -> tuple[subprocess.Comple
 
 
 def test_each_variant_is_one_training_command(tmp_path: Path):
-    variants = "noise fb_base/full fb_base/grid_only no_flux stochastic no_ema mirror continuity long"
+    variants = "noise fb_base/full fb_base/grid_only no_flux stochastic no_ema mirror continuity long short"
     proc, calls = _run(tmp_path, variants)
     assert proc.returncode == 0, proc.stderr
     train = [c for c in calls if c[:2] == ["-m", "neuraldem.train"]]
-    assert len(train) == 9
-    noise, base, grid, no_flux, stochastic, no_ema, mirror, continuity, long = train
+    assert len(train) == 10
+    noise, base, grid, no_flux, stochastic, no_ema, mirror, continuity, long, short = train
     assert "model.net.particle_branch=false" in grid and "model.net.particle_branch=false" not in base
     assert "data.datamodule.input_noise=0.01" in noise and "model.stability.unroll=[1.0]" in noise
     assert "model.stability.mixing=absolute" in noise and "callbacks.ema=null" in noise  # before issue 20
@@ -40,6 +40,8 @@ def test_each_variant_is_one_training_command(tmp_path: Path):
     assert "model.stability.ensemble=2" in stochastic and "model.net.noise_dim=8" in stochastic
     assert "callbacks.ema=null" in no_ema and "data.datamodule.mirror=true" in mirror
     assert "model.stability.flux_consistency=0.2" in continuity and "trainer.max_steps=16000" in long
+    assert short[-1] == "trainer.max_steps=7"  # the command line's own value is the last word
+    assert "trainer.max_steps=4000" in short
     assert calls[-1][:2] == ["-m", "neuraldem.scenes.fluidized_bed.table"]  # then the table of all runs
     (tmp_path / "sel").mkdir()  # the options of the noisy checkpoint selection
     proc, calls = _run(tmp_path / "sel", "noise_sel noise_pooled")
