@@ -167,6 +167,7 @@ def test_refresh_with_rollout_options_writes_them_into_the_shipped_model(fb_tiny
     assert meta["rollout_options"] == {"rollout_noise": 2.0, "advection_correction": 1.0}
     assert meta["files"]["field"]["sha256"] == digest(field) != before
     assert "rollout options" in meta["refreshed"][-1]["what"]
+    assert meta["rebuild"][-1].endswith("--refresh-field --rollout-noise 2 --advection-correction 1")
     stepper = ModelStepper(read_checkpoint(field).module("fluidized_bed", "cpu", "test"), 1.5)
     assert stepper.stability.rollout_noise == 2.0 and stepper.stability.advection_correction == 1.0
     assert stepper.noise_std is not None

@@ -153,12 +153,12 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
 ROLLOUT_OPTIONS = ("rollout_noise", "advection_correction")
 
 
-def set_rollout_options(field: Path, options: dict[str, float]) -> dict[str, Any]:
+def set_rollout_options(field: Path, options: dict[str, float]) -> dict[str, float]:
     """Write rollout options (`model.stability.rollout_noise` / `advection_correction`, chosen on validation) into
     a shipped field checkpoint's stability, so every path that rolls the shipped model out (`predict fb`, the
     explorer, the benches, `evaluate ckpt=<field.pt>`) uses them without a flag of its own. Checked before the
     file is touched: the values' ranges and, for noise, that the checkpoint holds the running one-step error.
-    Returns the checkpoint's stability options after the change."""
+    Returns the checkpoint's rollout options after the change (all of them, the ones not given as they were)."""
     import torch
 
     from neuraldem.eval.checkpoints import read_checkpoint
@@ -171,14 +171,14 @@ def set_rollout_options(field: Path, options: dict[str, float]) -> dict[str, Any
     raw = torch.load(field, map_location="cpu", weights_only=False)
     stability = dict(raw.get("hyper_parameters", {}).get("stability") or {})
     stability.update({k: float(v) for k, v in options.items()})
-    FbStability.from_config(stability)  # ranges, in one line naming the key
+    checked = FbStability.from_config(stability)  # ranges, in one line naming the key
     module = read_checkpoint(field).module("fluidized_bed", "cpu", "setting rollout options")
     perturbation_std(module, float(stability.get("rollout_noise", 0.0)), "cpu")
     raw["hyper_parameters"]["stability"] = stability
     tmp = field.with_suffix(".tmp")
     torch.save(raw, tmp)
     tmp.replace(field)
-    return stability
+    return {k: float(getattr(checked, k)) for k in ROLLOUT_OPTIONS}
 
 
 def refresh_field_answers(folder: Path, progress: bool = True,
@@ -209,9 +209,11 @@ def refresh_field_answers(folder: Path, progress: bool = True,
     if rollout_options:
         from neuraldem.data.integrity import digest
 
-        stability = set_rollout_options(field, rollout_options)
+        meta["rollout_options"] = set_rollout_options(field, rollout_options)
         meta["files"]["field"].update(sha256=digest(field), bytes=field.stat().st_size)
-        meta["rollout_options"] = {k: stability.get(k) for k in ROLLOUT_OPTIONS}
+        flags = " ".join(f"--{k.replace('_', '-')} {v:g}" for k, v in meta["rollout_options"].items())
+        meta["rebuild"] = [c for c in meta.get("rebuild", []) if "--refresh-field" not in c] + [
+            f"python -m neuraldem.pretrained.build --name {meta['name']} --refresh-field {flags}"]
     module = read_checkpoint(field).module("fluidized_bed", "cpu", "refresh")
     states = InitialStates.load_npz(folder / meta["files"]["states"]["file"])
     settings = FbMetricSettings.from_config(meta["metric_settings"], f"{path} metric_settings")
