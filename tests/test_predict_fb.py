@@ -158,7 +158,7 @@ def test_refresh_with_rollout_options_writes_them_into_the_shipped_model(fb_tiny
     before = digest(field)
     bad = run_module("neuraldem.pretrained.build", "--name", "fb_tiny_test", "--out", str(tmp_path),
                      "--refresh-field", "--rollout-noise", "-1")
-    assert bad.returncode != 0 and "rollout_noise" in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
+    assert bad.returncode != 0 and "--rollout-noise -1" in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
     assert digest(field) == before
     proc = run_module("neuraldem.pretrained.build", "--name", "fb_tiny_test", "--out", str(tmp_path),
                       "--refresh-field", "--rollout-noise", "2", "--advection-correction", "1")

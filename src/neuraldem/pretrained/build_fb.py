@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from neuraldem.data.manifest import Manifest, SimRecord
-from neuraldem.errors import DataError
+from neuraldem.errors import ConfigError, DataError
 
 ERROR_UNITS = {"bed_height": ("bed_height_mae_mm", 1000.0), "bubble_fraction": ("bubble_fraction_mae_pp", 100.0),
                "lacey": ("lacey_mae", 1.0)}
@@ -171,7 +171,12 @@ def set_rollout_options(field: Path, options: dict[str, float]) -> dict[str, flo
     raw = torch.load(field, map_location="cpu", weights_only=False)
     stability = dict(raw.get("hyper_parameters", {}).get("stability") or {})
     stability.update({k: float(v) for k, v in options.items()})
-    checked = FbStability.from_config(stability)  # ranges, in one line naming the key
+    try:  # ranges, in one line naming the flag
+        checked = FbStability.from_config(stability)
+    except ConfigError as e:
+        given = ", ".join(f"--{k.replace('_', '-')} {v:g}" for k, v in options.items())
+        reason = str(e).split(" (override it")[0]
+        raise ConfigError(f"{given} for {field}: {reason} (give a value inside the range)") from e
     module = read_checkpoint(field).module("fluidized_bed", "cpu", "setting rollout options")
     perturbation_std(module, float(stability.get("rollout_noise", 0.0)), "cpu")
     raw["hyper_parameters"]["stability"] = stability
