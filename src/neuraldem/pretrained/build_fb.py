@@ -153,6 +153,11 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
 ROLLOUT_OPTIONS = ("rollout_noise", "advection_correction")
 
 
+def _flag(option: str) -> str:
+    """The build command's flag of a rollout option (rollout_noise -> --rollout-noise)."""
+    return "--" + option.replace("_", "-")
+
+
 def set_rollout_options(field: Path, options: dict[str, float]) -> dict[str, float]:
     """Write rollout options (`model.stability.rollout_noise` / `advection_correction`, chosen on validation) into
     a shipped field checkpoint's stability, so every path that rolls the shipped model out (`predict fb`, the
@@ -168,20 +173,21 @@ def set_rollout_options(field: Path, options: dict[str, float]) -> dict[str, flo
     unknown = sorted(set(options) - set(ROLLOUT_OPTIONS))
     if unknown:
         raise DataError(f"{field}: {unknown[0]} is not a rollout option of a shipped model (known: {ROLLOUT_OPTIONS})")
-    raw = torch.load(field, map_location="cpu", weights_only=False)
-    stability = dict(raw.get("hyper_parameters", {}).get("stability") or {})
+    checkpoint = read_checkpoint(field)  # one read: its raw dict for the rewrite, its module for the check
+    hp = checkpoint.hyper_parameters  # a copy: the read is shared within the process
+    stability = dict(hp.get("stability") or {})
     stability.update({k: float(v) for k, v in options.items()})
     try:  # ranges, in one line naming the flag
         checked = FbStability.from_config(stability)
     except ConfigError as e:
-        given = ", ".join(f"--{k.replace('_', '-')} {v:g}" for k, v in options.items())
+        given = ", ".join(f"{_flag(k)} {v:g}" for k, v in options.items())
         reason = str(e).split(" (override it")[0]
         raise ConfigError(f"{given} for {field}: {reason} (give a value inside the range)") from e
-    module = read_checkpoint(field).module("fluidized_bed", "cpu", "setting rollout options")
-    perturbation_std(module, float(stability.get("rollout_noise", 0.0)), "cpu")
-    raw["hyper_parameters"]["stability"] = stability
+    module = checkpoint.module("fluidized_bed", "cpu", "setting rollout options")
+    perturbation_std(module, checked.rollout_noise, "cpu")
+    hp["stability"] = stability
     tmp = field.with_suffix(".tmp")
-    torch.save(raw, tmp)
+    torch.save({**checkpoint.raw, "hyper_parameters": hp}, tmp)
     tmp.replace(field)
     return {k: float(getattr(checked, k)) for k in ROLLOUT_OPTIONS}
 
@@ -216,7 +222,7 @@ def refresh_field_answers(folder: Path, progress: bool = True,
 
         meta["rollout_options"] = set_rollout_options(field, rollout_options)
         meta["files"]["field"].update(sha256=digest(field), bytes=field.stat().st_size)
-        flags = " ".join(f"--{k.replace('_', '-')} {v:g}" for k, v in meta["rollout_options"].items())
+        flags = " ".join(f"{_flag(k)} {v:g}" for k, v in meta["rollout_options"].items())
         meta["rebuild"] = [c for c in meta.get("rebuild", []) if "--refresh-field" not in c] + [
             f"python -m neuraldem.pretrained.build --name {meta['name']} --refresh-field {flags}"]
     module = read_checkpoint(field).module("fluidized_bed", "cpu", "refresh")
