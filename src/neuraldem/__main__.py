@@ -34,6 +34,8 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
         "hopper-table": ("neuraldem.scenes.hopper.table", "hopper runs side by side"),
         "fb-table": ("neuraldem.scenes.fluidized_bed.table", "fluidized-bed runs and baselines side by side"),
         "refill-table": ("neuraldem.scenes.hopper_refill.table", "refilling-hopper runs side by side"),
+        "fb-select": ("neuraldem.scenes.fluidized_bed.select",
+                      "choose a bed checkpoint on long validation rollouts (RUN_DIR --rollout-noise 3)"),
         "fb-baselines": ("neuraldem.scenes.fluidized_bed.baselines",
                          "nearest / interpolated / constant CFD-DEM baselines"),
         "hopper-cv": ("neuraldem.scenes.hopper.cv",

@@ -40,7 +40,9 @@ def main(cfg: DictConfig) -> None:
         mirror_alternate=None if cfg.get("mirror_alternate") is None else checks.boolean(
             "mirror_alternate", cfg.mirror_alternate),
         rollout_noise=None if cfg.get("rollout_noise") is None else checks.number(
-            "rollout_noise", cfg.rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE))
+            "rollout_noise", cfg.rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE),
+        advection_correction=None if cfg.get("advection_correction") is None else checks.number(
+            "advection_correction", cfg.advection_correction, lo=0.0, hi=1.0))
     print(summary["message"])
     if summary["extrapolation"]:
         lo, hi = summary["trained_velocity_range"]

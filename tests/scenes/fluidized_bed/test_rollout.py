@@ -234,13 +234,32 @@ def test_a_projection_short_of_the_volume_is_named(fb_tiny_flux_checkpoint: Path
     assert "the projected solid volume is -10 % off the volume to keep" in caplog.text
 
 
+def test_advection_correction_reaches_the_mixing_and_is_recorded(fb_tiny_flux_checkpoint: Path,
+                                                                  fb_tiny_dataset: Path, tmp_path: Path):
+    """`rollout advection_correction=X` (as `evaluate fluidized_bed.advection_correction=X`) changes only how the
+    tagged solid is carried: the solid fraction is the same step for step, the mixing field is not, and the
+    summary says which correction ran."""
+    import h5py
+
+    runs = {}
+    for corr in (0.0, 1.0):
+        summary = _run(fb_tiny_flux_checkpoint, fb_tiny_dataset, tmp_path / str(corr), steps=20, vtk=False,
+                       advection_correction=corr)
+        assert summary["advection_correction"] == corr
+        with h5py.File(tmp_path / str(corr) / "rollout.h5") as f:
+            runs[corr] = {k: f["snapshots"][k][...] for k in ("solid_fraction", "mixing")}
+    np.testing.assert_array_equal(runs[0.0]["solid_fraction"], runs[1.0]["solid_fraction"])
+    assert np.abs(runs[0.0]["mixing"] - runs[1.0]["mixing"]).max() > 1e-6
+
+
 def test_bad_rollout_requests_end_in_one_line(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tmp_path: Path):
     env = {"NEURALDEM_DATA": str(fb_tiny_dataset.parent.parent)}
     cases = [("init_snapshot=999", "init_snapshot=999 is invalid:", "e.g. init_snapshot=1"),
              ("mixing=advect", "mixing=advect needs a model trained with the solids flux", "mixing=absolute"),
              ("mixing=stir", "mixing='stir' is invalid", "must be one of"),
              ("mirror_alternate=maybe", "mirror_alternate='maybe' is invalid", "must be true or false"),
-             ("rollout_noise=-1", "rollout_noise=-1 is invalid", "must be >= 0")]
+             ("rollout_noise=-1", "rollout_noise=-1 is invalid", "must be >= 0"),
+             ("advection_correction=2", "advection_correction=2 is invalid", "must be <= 1")]
     for i, (override, message, fix) in enumerate(cases):
         proc = run_module("neuraldem.rollout", f"ckpt={fb_tiny_checkpoint}", f"velocity={TRAINED_VELOCITY}", "steps=3",
                           override,

@@ -452,7 +452,7 @@ def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets
                 particles_every: int = 10, vtk: bool = True, vtk_every: int = 10, device: str = "cpu",
                 progress: bool = True, conserve_solid_volume: bool | None = None,
                 mixing: str | None = None, mirror_alternate: bool | None = None,
-                rollout_noise: float | None = None) -> dict[str, Any]:
+                rollout_noise: float | None = None, advection_correction: float | None = None) -> dict[str, Any]:
     """Load, roll out, write rollout.h5 (+ vtk/, rollout.json) into `out_dir`; return the summary."""
     checks.positive_int("steps", steps)
     limits = limits or DivergenceLimits()
@@ -467,7 +467,8 @@ def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets
         volumes = f.particle_volumes[present]
         grid = f.grid
     stepper = ModelStepper(module, velocity, seed, device, conserve_solid_volume, mixing,
-                           mirror_alternate=mirror_alternate, rollout_noise=rollout_noise)
+                           advection_correction=advection_correction, mirror_alternate=mirror_alternate,
+                           rollout_noise=rollout_noise)
     r = rollout(stepper, state, steps, limits, particles_every, progress)
     summary = {
         "checkpoint": str(Path(ckpt).resolve()), "data_name": meta["data_name"], "inlet_velocity": float(velocity),
@@ -476,6 +477,7 @@ def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets
         "tolerance": limits.tolerance, "dt": norm.dt, "training_horizon_steps": norm.horizon_steps,
         "conserve_solid_volume": stepper.stability.conserve_volume, "mixing": stepper.stability.mixing,
         "mirror_alternate": stepper.stability.mirror_alternate, "rollout_noise": stepper.stability.rollout_noise,
+        "advection_correction": stepper.stability.advection_correction,
     }
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

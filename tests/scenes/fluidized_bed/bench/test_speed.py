@@ -94,6 +94,25 @@ def test_with_the_manifest_costs(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path
     assert (tmp_path / "fb_speed.png").stat().st_size > 0
 
 
+def test_mirror_alternation_is_timed_when_asked(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tmp_path: Path,
+                                                monkeypatch: pytest.MonkeyPatch):
+    """--mirror-alternate times the rollout as the model is used (bubbles.md stop 41) and says so in the record."""
+    seen = []
+    real = fb_speed.ModelStepper
+
+    def recording(*args, **kwargs):
+        stepper = real(*args, **kwargs)
+        seen.append(stepper.stability.mirror_alternate)
+        return stepper
+
+    monkeypatch.setattr(fb_speed, "ModelStepper", recording)
+    argv = ["fb-speed", "--ckpt", str(fb_tiny_checkpoint), "--dataset", str(fb_tiny_dataset), "--reuse-dataset",
+            "--repeats", "1", "--rollout-steps", "2", "--threads", "1", "--mirror-alternate", "--out", str(tmp_path)]
+    assert bench_main(argv) == 0
+    assert seen == [True, True]  # the warm-up and the timed rollout
+    assert json.loads((tmp_path / "fb_speed.json").read_text())["results"]["mirror_alternate"] is True
+
+
 @pytest.mark.solver
 def test_fresh_dpmfoam_run_of_the_same_trajectory(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tmp_path: Path):
     """0.05 s spin-up + 0.01 s: the run reproduces the dataset trajectory's first snapshot (same scene, inlet

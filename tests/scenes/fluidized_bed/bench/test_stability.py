@@ -51,6 +51,32 @@ def test_map_of_two_checkpoints(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path,
     assert out.with_suffix(".png").stat().st_size > 0
 
 
+def test_rollout_options_reach_every_rollout_and_the_record(fb_tiny_flux_checkpoint: Path, fb_tiny_dataset: Path,
+                                                            tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """--advection-correction / --mirror-alternate (as the model is used: bubbles.md stop 41) go to each rollout's
+    stepper and into the map's record."""
+    seen = []
+    real = fb_stability.ModelStepper
+
+    def recording(*args, **kwargs):
+        stepper = real(*args, **kwargs)
+        seen.append((stepper.stability.advection_correction, stepper.stability.mirror_alternate))
+        return stepper
+
+    monkeypatch.setattr(fb_stability, "ModelStepper", recording)
+    out = tmp_path / "map.json"
+    assert bench_main(["fb_stability", "--ckpt", str(fb_tiny_flux_checkpoint), "--velocities", str(TRAINED_VELOCITY),
+                       "1.3", "--steps", "2", "--advection-correction", "1", "--mirror-alternate",
+                       "--dataset", str(fb_tiny_dataset), "--out", str(out)]) == 0
+    assert seen == [(1.0, True), (1.0, True)]  # both velocities
+    r = json.loads(out.read_text())["results"]
+    assert r["advection_correction"] == 1.0 and r["mirror_alternate"] is True
+    seen.clear()
+    fb_stability.run([fb_tiny_flux_checkpoint], velocities=[TRAINED_VELOCITY], steps=2, dataset_dir=fb_tiny_dataset,
+                     progress=False)
+    assert seen == [(0.75, False)]  # as trained
+
+
 def test_injected_divergence_is_a_failure_at_its_step(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path):
     """The ground truth replayed (it holds its mass) with NaN injected at step 5."""
     r = fb_stability.run([fb_tiny_checkpoint], velocities=[TRAINED_VELOCITY, 2.0], steps=8,
@@ -99,6 +125,7 @@ def test_solid_volume_drift_beyond_the_limit_is_a_failure(fb_tiny_checkpoint: Pa
     (["--drift-limit-pct", "0"], "error: config value --drift-limit-pct=0.0 is invalid: must be > 0.0"),
     (["--n-velocities", "0"], "error: config value --n-velocities=0 is invalid"),
     (["--rollout-noise", "-1"], "error: config value --rollout-noise=-1.0 is invalid: must be >= 0.0"),
+    (["--advection-correction", "2"], "error: config value --advection-correction=2.0 is invalid: must be <= 1.0"),
     (["--out", "map.csv"], "error: --out=map.csv is invalid: pass a .json file or a folder"),
 ])
 def test_bad_values_fail_with_one_line(fb_tiny_checkpoint: Path, tmp_path: Path, capsys: pytest.CaptureFixture,

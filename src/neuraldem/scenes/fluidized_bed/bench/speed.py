@@ -167,12 +167,13 @@ def solver_recorded(m: Manifest, dataset_dir: Path) -> Timing:
 
 def surrogate_timing(module: FluidizedBedModule, velocity: float, state: FbState, steps: int, repeats: int,
                      threads: int, seed: int = 0, limits: DivergenceLimits | None = None,
-                     clock: Clock = SYSTEM_CLOCK, rollout_noise: float | None = None) -> Timing:
+                     clock: Clock = SYSTEM_CLOCK, rollout_noise: float | None = None,
+                     mirror_alternate: bool | None = None) -> Timing:
     """Median over `repeats` (after one untimed warm-up) of a `steps`-step rollout from `state` on `threads`
     torch threads, per simulated second. A rollout that diverges is timed over the steps it computed."""
     def once():
-        return rollout(ModelStepper(module, velocity, seed, rollout_noise=rollout_noise), state, steps, limits,
-                       progress=False)
+        stepper = ModelStepper(module, velocity, seed, mirror_alternate=mirror_alternate, rollout_noise=rollout_noise)
+        return rollout(stepper, state, steps, limits, progress=False)
 
     with torch_threads(threads):
         per_run, r = time_call(once, repeats, warmup=1, clock=clock)
@@ -260,11 +261,13 @@ class Plan:
     keep_runs: bool = False
     seed: int = 0
     rollout_noise: float | None = None
+    mirror_alternate: bool | None = None
 
 
 def prepare(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: int, solver_repeats: int,
             sim_seconds: float, rollout_steps: int | None, threads: list[int] | None, reuse_dataset: bool,
-            workdir: Path, keep_runs: bool = False, seed: int = 0, rollout_noise: float | None = None) -> Plan:
+            workdir: Path, keep_runs: bool = False, seed: int = 0, rollout_noise: float | None = None,
+            mirror_alternate: bool | None = None) -> Plan:
     """Check every option and input (one clear error for a bad one) before anything is timed."""
     checks.positive_int("--repeats", repeats)
     checks.positive_int("--solver-repeats", solver_repeats)
@@ -290,7 +293,7 @@ def prepare(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: i
         recorded = None  # e.g. an imported dataset: no datagen costs, the measured runs stand alone
     return Plan(Path(ckpt), module, load_s, case, state, rollout_steps or module.norm.horizon_steps, threads,
                 repeats, solver_repeats, sim_seconds, recorded, reuse_dataset, Path(workdir), keep_runs, seed,
-                rollout_noise)
+                rollout_noise, mirror_alternate)
 
 
 def measure(plan: Plan, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
@@ -301,7 +304,8 @@ def measure(plan: Plan, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
         measured = solver_measured(case, plan.sim_seconds, plan.solver_repeats, plan.workdir, plan.keep_runs)
         solvers = {"DPMFoam, measured": measured, **solvers}
     surrogates = {t: surrogate_timing(module, case.velocity, plan.state, plan.steps, plan.repeats, t, plan.seed,
-                                      clock=clock, rollout_noise=plan.rollout_noise) for t in plan.threads}
+                                      clock=clock, rollout_noise=plan.rollout_noise,
+                                      mirror_alternate=plan.mirror_alternate) for t in plan.threads}
     return {
         "scene": module.metadata["data_name"], "checkpoint": str(plan.ckpt.resolve()),
         "dataset": str(case.dataset_dir), "sim_id": case.record.sim_id, "inlet_velocity": case.velocity,
@@ -312,7 +316,7 @@ def measure(plan: Plan, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
         "solver": {label: t.as_dict() for label, t in solvers.items()},
         "surrogate": {str(t): s.as_dict() for t, s in surrogates.items()},
         "surrogate_parameters": sum(p.numel() for p in module.net.parameters()), "surrogate_load_s": plan.load_s,
-        "rollout_noise": plan.rollout_noise,
+        "rollout_noise": plan.rollout_noise, "mirror_alternate": plan.mirror_alternate,
         "side_by_side": compare(solvers, surrogates), "target_speedup": TARGET_SPEEDUP,
     }
 
@@ -335,6 +339,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--seed", type=int, default=0, help="seed of the rollout's particle re-sampling")
     p.add_argument("--rollout-noise", type=float, default=None,
                    help="the rollouts' rollout_noise (default: as the checkpoint was trained)")
+    p.add_argument("--mirror-alternate", action="store_true", default=None,
+                   help="every second step in the mirror image of the bed (default: as the checkpoint was trained)")
     p.add_argument("--workdir", type=Path, default=None, help=f"DPMFoam runs (default <data dir>/bench/{NAME})")
     p.add_argument("--keep-runs", action="store_true", help="keep the DPMFoam case folders")
     p.add_argument("--out", type=Path, default=None,
@@ -344,7 +350,7 @@ def main(argv: list[str]) -> int:
     out = resolve_out(a.out, NAME)
     plan = prepare(a.ckpt, a.dataset, a.sim, a.repeats, a.solver_repeats, a.sim_seconds, a.rollout_steps,
                    a.threads, a.reuse_dataset, a.workdir or default_workdir(NAME), a.keep_runs, a.seed,
-                   a.rollout_noise)
+                   a.rollout_noise, a.mirror_alternate)
     machine = machine_info()
     warning = warn_if_busy(machine)
     results = measure(plan)

@@ -110,19 +110,25 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
         n_velocities: int = DEFAULT_N_VELOCITIES, steps: int | None = None, dataset_dir: Path | None = None,
         drift_limit_pct: float = DEFAULT_DRIFT_LIMIT_PCT, seed: int = 0, limits: DivergenceLimits | None = None,
         make_stepper: MakeStepper | None = None, progress: bool = True,
-        rollout_noise: float | None = None) -> dict[str, Any]:
-    """The stability map of every checkpoint over the same velocities and step count."""
+        rollout_noise: float | None = None, advection_correction: float | None = None,
+        mirror_alternate: bool | None = None) -> dict[str, Any]:
+    """The stability map of every checkpoint over the same velocities and step count, rolled out with the
+    given rollout options (None: as each checkpoint was trained)."""
     labels = check_options(ckpts, labels, velocities, steps, drift_limit_pct, seed)
     checks.positive_int("--n-velocities", n_velocities)
     limits = limits or DivergenceLimits()
     if rollout_noise is not None:
         checks.number("--rollout-noise", rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE)
+    if advection_correction is not None:
+        checks.number("--advection-correction", advection_correction, lo=0.0, hi=1.0)
     modules = [load_fb_checkpoint(Path(c)) for c in ckpts]  # refuses other kinds before any rollout
     ranges = [(m.norm.velocity_lo, m.norm.velocity_hi) for m in modules]
     grid = sorted({round(float(v), 6) for v in velocities}) if velocities else \
         velocity_grid(min(r[0] for r in ranges), max(r[1] for r in ranges), n_velocities)
     steps = steps or DEFAULT_HORIZON_MULTIPLE * modules[0].norm.horizon_steps
-    make_stepper = make_stepper or (lambda module, v, f: ModelStepper(module, v, seed, rollout_noise=rollout_noise))
+    make_stepper = make_stepper or (lambda module, v, f: ModelStepper(
+        module, v, seed, advection_correction=advection_correction, mirror_alternate=mirror_alternate,
+        rollout_noise=rollout_noise))
     series = []
     for label, ckpt, module in zip(labels, ckpts, modules, strict=False):
         norm, points = module.norm, []
@@ -145,7 +151,8 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
                        "training_horizon_steps": norm.horizon_steps, "dt": norm.dt,
                        "n_failed": sum(p["failed"] for p in points), "points": points})
     return {"velocities": grid, "steps": steps, "drift_limit_pct": drift_limit_pct, "seed": seed,
-            "rollout_noise": rollout_noise,
+            "rollout_noise": rollout_noise, "advection_correction": advection_correction,
+            "mirror_alternate": mirror_alternate,
             "limits": {"max_packing": limits.max_packing, "tolerance": limits.tolerance}, "series": series}
 
 
@@ -195,6 +202,10 @@ def main(argv: list[str]) -> int:
     p.add_argument("--seed", type=int, default=0, help="seed of the rollouts' particle re-sampling")
     p.add_argument("--rollout-noise", type=float, default=None,
                    help="the rollouts' rollout_noise (default: as each checkpoint was trained)")
+    p.add_argument("--advection-correction", type=float, default=None,
+                   help="the mixing advection's flux correction, 0 .. 1 (default: as each checkpoint was trained)")
+    p.add_argument("--mirror-alternate", action="store_true", default=None,
+                   help="every second step in the mirror image of the bed (default: as each checkpoint was trained)")
     p.add_argument("--out", type=Path, default=None,
                    help=f"results JSON, or a folder for {NAME}.json (default results/bench/{NAME}.json); "
                         ".png beside it")
@@ -204,6 +215,7 @@ def main(argv: list[str]) -> int:
     checks.positive_int("--n-velocities", a.n_velocities)
     machine = machine_info()
     results = run(a.ckpt, a.labels, a.velocities, a.n_velocities, a.steps, a.dataset, a.drift_limit_pct, a.seed,
-                  rollout_noise=a.rollout_noise)
+                  rollout_noise=a.rollout_noise, advection_correction=a.advection_correction,
+                  mirror_alternate=a.mirror_alternate)
     write_map(NAME, results, argv, out, machine)
     return 0

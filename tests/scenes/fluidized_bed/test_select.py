@@ -1,0 +1,108 @@
+"""Checkpoint selection on long validation rollouts (scenes.fluidized_bed.select).
+
+The evaluator is replaced by one that writes a metrics.json with known pooled scores (synthetic numbers, said so):
+what is tested here is the ranking, the averaging over rollout seeds, the copy of the winner, resuming and the
+refusals; `neuraldem.evaluate` itself is tested in test_evaluation.py.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from neuraldem.errors import ConfigError, DataError
+from neuraldem.scenes.fluidized_bed.select import SELECTED, main, select
+
+
+def make_run(tmp_path: Path, steps: list[int]) -> Path:
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    for s in steps:
+        (run / "checkpoints" / f"step{s:06d}.ckpt").write_bytes(f"weights of step {s}".encode())
+    (run / "checkpoints" / "last.ckpt").write_bytes(b"not a step checkpoint")
+    return run
+
+
+def fake_evaluator(scores: dict[tuple[int, int], float], calls: list):
+    """Writes metrics.json whose pooled terms sum to scores[(step, seed)] (synthetic, for the ranking only)."""
+
+    def evaluate(ckpt: Path, out: Path, overrides: list[str]) -> Path:
+        step = int(ckpt.name[4:10])
+        seed = int(next(o for o in overrides if o.startswith("fluidized_bed.seed=")).split("=")[1])
+        calls.append((step, seed, tuple(overrides)))
+        s = scores[(step, seed)]
+        out.mkdir(parents=True)
+        agg = {"n_trajectories": 4, "stable_at_10x": 4, "pooled_solid_fraction_mean_rel_l2": s / 2,
+               "pooled_solid_fraction_std_rel_l2": s / 4, "pooled_lacey_mae": s / 4}
+        (out / "metrics.json").write_text(json.dumps({"aggregate": agg}))
+        return out / "metrics.json"
+
+    return evaluate
+
+
+def test_the_lowest_mean_over_seeds_wins_and_is_copied(tmp_path: Path):
+    run = make_run(tmp_path, [500, 1000, 1500, 2000])
+    # step 1500 is best on seed 0 alone; step 2000 on the mean over both seeds
+    scores = {(1000, 0): 0.30, (1000, 1): 0.30, (1500, 0): 0.20, (1500, 1): 0.40, (2000, 0): 0.25, (2000, 1): 0.26}
+    calls: list = []
+    doc = select(run, from_step=1000, rollout_noise=3, advection_correction=1, seeds=(0, 1),
+                 evaluator=fake_evaluator(scores, calls))
+    assert [r["step"] for r in doc["rows"]] == [1000, 1500, 2000]  # step 500 skipped
+    assert doc["selected"]["step"] == 2000
+    assert doc["rows"][1]["sum"] == pytest.approx(0.30) and doc["rows"][1]["sum_per_seed"] == pytest.approx([0.2, 0.4])
+    assert (run / "checkpoints" / SELECTED).read_bytes() == b"weights of step 2000"
+    assert ("fluidized_bed.rollout_noise=3" in calls[0][2]) and ("fluidized_bed.advection_correction=1" in calls[0][2])
+    md = (run / "selection" / "selection.md").read_text()
+    assert "| 2000 **selected** |" in md and "rollout seeds [0, 1]" in md
+    assert json.loads((run / "selection" / "selection.json").read_text())["selected"]["step"] == 2000
+
+
+def test_a_finished_evaluation_is_not_repeated(tmp_path: Path):
+    run = make_run(tmp_path, [1000, 2000])
+    scores = {(1000, 0): 0.3, (2000, 0): 0.2}
+    first: list = []
+    select(run, evaluator=fake_evaluator(scores, first))
+    assert len(first) == 2
+    assert (run / "selection" / "step001000_seed0" / "evaluation" / "metrics.json").is_file()  # where fb-table looks
+    (run / "checkpoints" / "step003000.ckpt").write_bytes(b"weights of step 3000")
+    again: list = []
+    doc = select(run, evaluator=fake_evaluator({**scores, (3000, 0): 0.5}, again))
+    assert [c[0] for c in again] == [3000]  # only the new checkpoint is evaluated
+    assert doc["selected"]["step"] == 2000
+
+
+def test_a_diverged_rollout_never_wins(tmp_path: Path):
+    run = make_run(tmp_path, [1000, 2000])
+    calls: list = []
+    evaluate = fake_evaluator({(1000, 0): 0.9, (2000, 0): 0.1}, calls)
+
+    def diverging(ckpt: Path, out: Path, overrides: list[str]) -> Path:
+        metrics = evaluate(ckpt, out, overrides)
+        if "step002000" in ckpt.name:
+            doc = json.loads(metrics.read_text())
+            doc["aggregate"]["stable_at_10x"] = 3
+            metrics.write_text(json.dumps(doc))
+        return metrics
+
+    assert select(run, evaluator=diverging)["selected"]["step"] == 1000
+
+
+def test_refusals_name_the_fix(tmp_path: Path, capsys):
+    run = make_run(tmp_path, [8000])
+    with pytest.raises(DataError, match="save_top_k=-1"):
+        select(run, evaluator=fake_evaluator({}, []))
+    with pytest.raises(DataError, match="no checkpoints/ folder"):
+        select(tmp_path / "nowhere", evaluator=fake_evaluator({}, []))
+    with pytest.raises(ConfigError, match="--rollout-noise"):
+        select(run, rollout_noise=-1)
+    with pytest.raises(ConfigError, match="--advection-correction"):
+        select(run, advection_correction=2)
+    with pytest.raises(ConfigError, match="--seeds"):
+        select(run, seeds=())
+    with pytest.raises(SystemExit) as exit_:  # the CLI reports it in one line instead of a traceback
+        main([str(run)])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "save_top_k=-1" in err[0]
