@@ -54,9 +54,19 @@ def test_the_lowest_mean_over_seeds_wins_and_is_copied(tmp_path: Path):
     assert doc["rows"][1]["sum"] == pytest.approx(0.30) and doc["rows"][1]["sum_per_seed"] == pytest.approx([0.2, 0.4])
     assert (run / "checkpoints" / SELECTED).read_bytes() == b"weights of step 2000"
     assert ("fluidized_bed.rollout_noise=3" in calls[0][2]) and ("fluidized_bed.advection_correction=1" in calls[0][2])
-    md = (run / "selection" / "selection.md").read_text()
+    assert not any("mirror_alternate" in o for o in calls[0][2])  # as trained unless asked
+    md = (run / "selection" / "noise3_corr1" / "selection.md").read_text()
     assert "| 2000 **selected** |" in md and "rollout seeds [0, 1]" in md
-    assert json.loads((run / "selection" / "selection.json").read_text())["selected"]["step"] == 2000
+    assert json.loads((run / "selection" / "noise3_corr1" / "selection.json").read_text())["selected"]["step"] == 2000
+
+
+def test_mirror_alternation_is_passed_on(tmp_path: Path):
+    run = make_run(tmp_path, [1000, 2000])
+    calls: list = []
+    doc = select(run, mirror_alternate=True, evaluator=fake_evaluator({(1000, 0): 0.3, (2000, 0): 0.2}, calls))
+    assert all("fluidized_bed.mirror_alternate=true" in c[2] for c in calls) and len(calls) == 2
+    assert "mirror-alternating steps on" in (run / "selection" / "alt" / "selection.md").read_text()
+    assert doc["mirror_alternate"] is True
 
 
 def test_a_finished_evaluation_is_not_repeated(tmp_path: Path):
@@ -65,12 +75,15 @@ def test_a_finished_evaluation_is_not_repeated(tmp_path: Path):
     first: list = []
     select(run, evaluator=fake_evaluator(scores, first))
     assert len(first) == 2
-    assert (run / "selection" / "step001000_seed0" / "evaluation" / "metrics.json").is_file()  # where fb-table looks
+    assert (run / "selection" / "as_trained" / "step001000_seed0" / "evaluation" / "metrics.json").is_file()
     (run / "checkpoints" / "step003000.ckpt").write_bytes(b"weights of step 3000")
     again: list = []
     doc = select(run, evaluator=fake_evaluator({**scores, (3000, 0): 0.5}, again))
     assert [c[0] for c in again] == [3000]  # only the new checkpoint is evaluated
     assert doc["selected"]["step"] == 2000
+    other: list = []  # other rollout options never reuse these evaluations
+    select(run, rollout_noise=1, evaluator=fake_evaluator({**scores, (3000, 0): 0.5}, other))
+    assert [c[0] for c in other] == [1000, 2000, 3000] and (run / "selection" / "noise1").is_dir()
 
 
 def test_a_diverged_rollout_never_wins(tmp_path: Path):

@@ -6,15 +6,16 @@ velocity, plain rollouts) keeps one checkpoint, but the model is judged on 3000-
 noise, and a bed that erupts after 10 s (stop 40: one seed at 2.05 m/s) scores well for 3 s. Run the training with
 every validated checkpoint kept (`callbacks.checkpoint.save_top_k=-1`, 2.5 MB each for fb_tiny); this then scores
 each one from `--from-step` on with `neuraldem.evaluate part=val` (3000-step rollouts from every validation
-velocity) under `--rollout-noise` / `--advection-correction`, ranks them by the pooled score -- rel. L2 of the
-per-cell time mean + rel. L2 of the std field + Lacey MAE, each against every CFD-DEM run at the velocity, the sum
-the tables report (`scenes.fluidized_bed.table`) -- averaged over `--seeds` (rollout seeds: the noise draws and
-particle samples), and copies the winner to RUN_DIR/checkpoints/selected.ckpt.
+velocity) under `--rollout-noise` / `--advection-correction` / `--mirror-alternate`, ranks them by the pooled
+score -- rel. L2 of the per-cell time mean + rel. L2 of the std field + Lacey MAE, each against every CFD-DEM run
+at the velocity, the sum the tables report (`scenes.fluidized_bed.table`) -- averaged over `--seeds` (rollout
+seeds: the noise draws and particle samples), and copies the winner to RUN_DIR/checkpoints/selected.ckpt.
 
-Each evaluation lands in RUN_DIR/selection/stepNNNNNN_seedS/evaluation/ (metrics.json, report, plots; `neuraldem
-report fb-table RUN_DIR/selection` puts them side by side); a finished one is not repeated, so a killed selection
-resumes. The ranking is RUN_DIR/selection/selection.md (+ .json). Validation runs
-only: the test part stays untouched until the choice is made.
+Each evaluation lands in RUN_DIR/selection/OPTIONS/stepNNNNNN_seedS/evaluation/ (OPTIONS names the rollout
+options, e.g. noise3_corr1; metrics.json, report, plots; `neuraldem report fb-table RUN_DIR/selection/OPTIONS` puts
+them side by side); a finished one is not repeated, so a killed selection resumes. The ranking is
+RUN_DIR/selection/OPTIONS/selection.md (+ .json). Validation runs only: the test part stays
+untouched until the choice is made.
 """
 
 from __future__ import annotations
@@ -57,8 +58,21 @@ def step_checkpoints(run_dir: Path, from_step: int) -> dict[int, Path]:
     return chosen
 
 
-def rollout_overrides(rollout_noise: float | None, advection_correction: float | None, seed: int) -> list[str]:
+def options_tag(rollout_noise: float | None, advection_correction: float | None,
+                mirror_alternate: bool | None) -> str:
+    """The folder name of one set of rollout options (e.g. noise3_corr1_alt), so that a selection under other
+    options never reuses these evaluations."""
+    parts = ([] if rollout_noise is None else [f"noise{rollout_noise:g}"]) + \
+        ([] if advection_correction is None else [f"corr{advection_correction:g}"]) + \
+        ([] if mirror_alternate is None else ["alt" if mirror_alternate else "noalt"])
+    return "_".join(parts) or "as_trained"
+
+
+def rollout_overrides(rollout_noise: float | None, advection_correction: float | None, seed: int,
+                      mirror_alternate: bool | None = None) -> list[str]:
     out = [f"fluidized_bed.seed={seed}"]
+    if mirror_alternate is not None:
+        out.append(f"fluidized_bed.mirror_alternate={str(mirror_alternate).lower()}")
     if rollout_noise is not None:
         out.append(f"fluidized_bed.rollout_noise={rollout_noise:g}")
     if advection_correction is not None:
@@ -91,7 +105,7 @@ def pooled_score(metrics: dict, where: Path) -> dict[str, float]:
 
 def select(run_dir: Path, from_step: int = 0, rollout_noise: float | None = None,
            advection_correction: float | None = None, seeds: Sequence[int] = (0,),
-           evaluator: Evaluator = run_evaluate) -> dict:
+           evaluator: Evaluator = run_evaluate, mirror_alternate: bool | None = None) -> dict:
     """Score every kept checkpoint from `from_step` on (resumable), write the ranking, copy the winner."""
     if rollout_noise is not None and rollout_noise < 0:
         raise ConfigError(f"--rollout-noise {rollout_noise}: must be >= 0 (0 = plain rollouts, 3 = the shipped bed's)")
@@ -100,7 +114,7 @@ def select(run_dir: Path, from_step: int = 0, rollout_noise: float | None = None
     if not seeds or any(s < 0 for s in seeds):
         raise ConfigError(f"--seeds {list(seeds)}: give one or more rollout seeds >= 0 (e.g. --seeds 0 1)")
     ckpts = step_checkpoints(run_dir, from_step)
-    sel = run_dir / "selection"
+    sel = run_dir / "selection" / options_tag(rollout_noise, advection_correction, mirror_alternate)
     rows = []
     for step, ckpt in ckpts.items():
         per_seed = []
@@ -108,7 +122,8 @@ def select(run_dir: Path, from_step: int = 0, rollout_noise: float | None = None
             out = sel / f"step{step:06d}_seed{seed}" / "evaluation"  # where the tables look (fb-table)
             metrics = out / "metrics.json"
             if not metrics.is_file():
-                metrics = evaluator(ckpt, out, rollout_overrides(rollout_noise, advection_correction, seed))
+                metrics = evaluator(ckpt, out, rollout_overrides(rollout_noise, advection_correction, seed,
+                                                                 mirror_alternate))
             per_seed.append(pooled_score(json.loads(metrics.read_text()), metrics))
         mean = {k: float(np.mean([s[k] for s in per_seed])) for k in (*SCORE_KEYS, "sum")}
         rows.append({"step": step, "checkpoint": str(ckpt), **mean, "sum_per_seed": [s["sum"] for s in per_seed]})
@@ -118,7 +133,8 @@ def select(run_dir: Path, from_step: int = 0, rollout_noise: float | None = None
     shutil.copyfile(best["checkpoint"], tmp)
     tmp.replace(target)
     doc = {"run_dir": str(run_dir), "from_step": from_step, "rollout_noise": rollout_noise,
-           "advection_correction": advection_correction, "seeds": list(seeds), "rows": rows,
+           "advection_correction": advection_correction, "mirror_alternate": mirror_alternate,
+           "seeds": list(seeds), "rows": rows,
            "selected": {"step": best["step"], "checkpoint": best["checkpoint"], "copied_to": str(target)},
            "date_utc": datetime.now(UTC).isoformat(timespec="seconds")}
     atomic_write_json(sel / "selection.json", doc)
@@ -130,8 +146,9 @@ def render(doc: dict) -> str:
     def opt(key: str) -> str:
         return "as trained" if doc[key] is None else f"{doc[key]:g}"
 
+    mirror = {None: "as trained", True: "on", False: "off"}[doc.get("mirror_alternate")]
     opts = (f"rollout noise {opt('rollout_noise')}, advection correction {opt('advection_correction')}, "
-            f"rollout seeds {doc['seeds']}")
+            f"mirror-alternating steps {mirror}, rollout seeds {doc['seeds']}")
     lines = [f"# Checkpoint selection: {doc['run_dir']}", "",
              f"Validation part, 3000-step rollouts, {opts}; pooled against every CFD-DEM run at each velocity, "
              "means over the velocities (and seeds). Selected: step "
@@ -154,9 +171,12 @@ def main(argv: list[str] | None = None) -> int:
                    help="fluidized_bed.rollout_noise (default: as trained)")
     p.add_argument("--advection-correction", type=float, default=None,
                    help="fluidized_bed.advection_correction (default: as trained)")
+    p.add_argument("--mirror-alternate", action="store_true", default=None,
+                   help="fluidized_bed.mirror_alternate=true (default: as trained)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="rollout seeds to average over")
     a = p.parse_args(argv)
-    doc = select(a.run_dir, a.from_step, a.rollout_noise, a.advection_correction, a.seeds)
+    doc = select(a.run_dir, a.from_step, a.rollout_noise, a.advection_correction, a.seeds,
+                 mirror_alternate=a.mirror_alternate)
     print(render(doc), end="")
     return 0
 
