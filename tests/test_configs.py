@@ -105,3 +105,30 @@ def test_fb_averages_the_weights_unless_told_not_to(compose_train_cfg):
     assert not any(isinstance(cb, Ema) for cb in without)
     with pytest.raises(Exception, match="callbacks.ema.decay"):
         build_callbacks(compose_train_cfg("experiment=fb", "callbacks.ema.decay=1.5").callbacks)
+
+
+def test_fb_keeps_every_validated_checkpoint_beside_the_kept_one(compose_train_cfg, tmp_path):
+    """experiment=fb writes a checkpoint at every validation to checkpoints/all/ (for `neuraldem report fb-select`)
+    while checkpoints/ keeps the one the rollout validation chose, and last.ckpt with it."""
+    from lightning.pytorch.callbacks import ModelCheckpoint
+    from lightning.pytorch.demos.boring_classes import BoringModel
+
+    cfg = compose_train_cfg("experiment=fb", f"paths.output_dir={tmp_path}")
+    every = [cb for cb in build_callbacks(cfg.callbacks) if isinstance(cb, ModelCheckpoint)
+             and str(cb.dirpath).endswith("checkpoints/all")]
+    assert len(every) == 1
+    kept = ModelCheckpoint(dirpath=tmp_path / "checkpoints", filename="step{step:06d}", monitor="val_loss",
+                           save_top_k=1, auto_insert_metric_name=False)
+
+    class Model(BoringModel):
+        def validation_step(self, batch, batch_idx):
+            self.log("val_loss", 1.0 / (1 + self.global_step))  # improves every time: one file kept
+            return super().validation_step(batch, batch_idx)
+
+    trainer = L.Trainer(max_steps=6, val_check_interval=2, limit_val_batches=1, accelerator="cpu", logger=False,
+                        enable_progress_bar=False, enable_model_summary=False, num_sanity_val_steps=0,
+                        callbacks=[kept, every[0]])
+    trainer.fit(Model())
+    assert sorted(p.name for p in (tmp_path / "checkpoints" / "all").glob("*.ckpt")) == [
+        "step000002.ckpt", "step000004.ckpt", "step000006.ckpt"]
+    assert sorted(p.name for p in (tmp_path / "checkpoints").glob("*.ckpt")) == ["step000006.ckpt"]

@@ -122,3 +122,25 @@ def test_resuming_with_another_net_names_the_differing_keys(tiny_checkpoint: Pat
     out = _one_clear_error(run_module("neuraldem.train", "experiment=hopper_quickstart", "model.net.dim=64",
                                       f"ckpt_path={tiny_checkpoint}", env={"NEURALDEM_DATA": str(tmp_path)}))
     assert "its net differs from model.net in dim" in out
+
+
+def test_resuming_a_bed_run_ignores_the_channels_its_data_set(compose_train_cfg, tmp_path: Path):
+    """experiment=fb's module sets model.net.fluid_channels from its dataset (7 with the solids flux), so the
+    checkpoint holds 7 where the config says 4: not a different net (a killed fb run must resume); dim still is."""
+    import torch
+    from omegaconf import OmegaConf
+
+    from neuraldem.errors import ConfigError
+    from neuraldem.train import check_resume_checkpoint
+
+    cfg = OmegaConf.merge(compose_train_cfg("experiment=fb"), {"ckpt_path": str(tmp_path / "latest.ckpt")})
+    net = OmegaConf.to_container(cfg.model.net, resolve=True)
+    metadata = {"kind": "fluidized_bed", "data_name": "fb_small"}
+    for changed, refused in (({"fluid_channels": 7}, False), ({"fluid_channels": 7, "dim": 2 * net["dim"]}, True)):
+        torch.save({"hyper_parameters": {"net": {**net, **changed}, "metadata": metadata}, "state_dict": {}},
+                   tmp_path / "latest.ckpt")
+        if refused:
+            with pytest.raises(ConfigError, match="differs from model.net in dim"):
+                check_resume_checkpoint(cfg)
+        else:
+            check_resume_checkpoint(cfg)

@@ -87,6 +87,9 @@ def evaluate_after_training(cfg: DictConfig, trainer: L.Trainer) -> dict[str, fl
 
 
 RESUME_FIX = "resume with the killed run's <run>/checkpoints/latest.ckpt, or leave ckpt_path out to start afresh"
+# net keys a module sets from its dataset rather than from model.net: the fluidized-bed grid's channel count (4, or 7
+# with the solids flux of experiment=fb; `scenes.fluidized_bed.module`). A resumed run gets them from the same data.
+DATA_DERIVED_NET_KEYS = frozenset({"fluid_channels"})
 
 
 def check_resume_checkpoint(cfg: DictConfig) -> None:
@@ -103,6 +106,7 @@ def check_resume_checkpoint(cfg: DictConfig) -> None:
     trained = ckpt.hyper_parameters.get("net")
     if net is not None and trained is not None:
         diff = differing_keys(trained, OmegaConf.to_container(net, resolve=True))  # type: ignore[arg-type]
+        diff = [k for k in diff if k not in DATA_DERIVED_NET_KEYS]
         if diff:
             raise ConfigError(f"config value ckpt_path={path} is invalid: its net differs from model.net in "
                               f"{', '.join(diff[:5])}",

@@ -69,6 +69,18 @@ def test_mirror_alternation_is_passed_on(tmp_path: Path):
     assert doc["mirror_alternate"] is True
 
 
+def test_every_validated_checkpoint_of_experiment_fb_is_found(tmp_path: Path):
+    """experiment=fb writes every validated checkpoint to checkpoints/all/ beside the kept one in checkpoints/."""
+    run = make_run(tmp_path, [1500])  # the kept one
+    (run / "checkpoints" / "all").mkdir()
+    for s in (500, 1000, 1500):
+        (run / "checkpoints" / "all" / f"step{s:06d}.ckpt").write_bytes(f"weights of step {s}".encode())
+    calls: list = []
+    doc = select(run, evaluator=fake_evaluator({(500, 0): 0.4, (1000, 0): 0.1, (1500, 0): 0.3}, calls))
+    assert sorted(c[0] for c in calls) == [500, 1000, 1500] and doc["selected"]["step"] == 1000
+    assert (run / "checkpoints" / SELECTED).read_bytes() == b"weights of step 1000"
+
+
 def test_a_finished_evaluation_is_not_repeated(tmp_path: Path):
     run = make_run(tmp_path, [1000, 2000])
     scores = {(1000, 0): 0.3, (2000, 0): 0.2}

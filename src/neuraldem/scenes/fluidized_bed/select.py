@@ -3,13 +3,14 @@ rollouts, with the rollout options it will be used with.
 
 Why: the rollout validation while training (`callbacks.rollout_validation`: 300 steps = 3 s from one trajectory per
 velocity, plain rollouts) keeps one checkpoint, but the model is judged on 3000-step (30-s) rollouts with rollout
-noise, and a bed that erupts after 10 s (stop 40: one seed at 2.05 m/s) scores well for 3 s. Run the training with
-every validated checkpoint kept (`callbacks.checkpoint.save_top_k=-1`, 2.5 MB each for fb_tiny); this then scores
-each one from `--from-step` on with `neuraldem.evaluate part=val` (3000-step rollouts from every validation
-velocity) under `--rollout-noise` / `--advection-correction` / `--mirror-alternate`, ranks them by the pooled
-score -- rel. L2 of the per-cell time mean + rel. L2 of the std field + Lacey MAE, each against every CFD-DEM run
-at the velocity, the sum the tables report (`scenes.fluidized_bed.table`) -- averaged over `--seeds` (rollout
-seeds: the noise draws and particle samples), and copies the winner to RUN_DIR/checkpoints/selected.ckpt.
+noise, and a bed that erupts after 10 s (stop 40: one seed at 2.05 m/s) scores well for 3 s. experiment=fb keeps
+every validated checkpoint in RUN_DIR/checkpoints/all/ (2.5 MB each for fb_tiny; elsewhere train with
+`callbacks.checkpoint.save_top_k=-1`); this then scores each one from `--from-step` on with `neuraldem.evaluate
+part=val` (3000-step rollouts from every validation velocity) under `--rollout-noise` / `--advection-correction` /
+`--mirror-alternate`, ranks them by the pooled score -- rel. L2 of the per-cell time mean + rel. L2 of the std
+field + Lacey MAE, each against every CFD-DEM run at the velocity, the sum the tables report
+(`scenes.fluidized_bed.table`) -- averaged over `--seeds` (rollout seeds: the noise draws and particle samples),
+and copies the winner to RUN_DIR/checkpoints/selected.ckpt.
 
 Each evaluation lands in RUN_DIR/selection/OPTIONS/stepNNNNNN_seedS/evaluation/ (OPTIONS names the rollout
 options, e.g. noise3_corr1; metrics.json, report, plots; `neuraldem report fb-table RUN_DIR/selection/OPTIONS` puts
@@ -44,17 +45,23 @@ Evaluator = Callable[[Path, Path, list[str]], Path]
 
 
 def step_checkpoints(run_dir: Path, from_step: int) -> dict[int, Path]:
-    """The run's kept `stepNNNNNN.ckpt` files from `from_step` on, by training step."""
+    """The run's `stepNNNNNN.ckpt` files from `from_step` on, by training step: those of checkpoints/all/ (every
+    validated one, `callbacks.every_checkpoint` of experiment=fb) and of checkpoints/ (the kept ones; all of them
+    with `callbacks.checkpoint.save_top_k=-1`)."""
     folder = run_dir / "checkpoints"
     if not folder.is_dir():
         raise DataError(f"{run_dir}: no checkpoints/ folder; give the folder of a training run "
                         "(hydra.run.dir of neuraldem.train)")
-    found = {int(m.group(1)): p for p in folder.iterdir() if (m := STEP_CKPT.match(p.name))}
+    found = {}
+    for where in (folder, folder / "all"):  # the same step in both is the same state
+        if where.is_dir():
+            found |= {int(m.group(1)): p for p in where.iterdir() if (m := STEP_CKPT.match(p.name))}
     chosen = {s: p for s, p in sorted(found.items()) if s >= from_step}
     if len(chosen) < 2:
         raise DataError(f"{folder}: {len(chosen)} step checkpoint(s) from step {from_step} on "
-                        f"({sorted(found) or 'none'}), nothing to choose between: train with "
-                        "callbacks.checkpoint.save_top_k=-1 (keeps every validated checkpoint) or lower --from-step")
+                        f"({sorted(found) or 'none'}), nothing to choose between: train with experiment=fb "
+                        "(keeps every validated checkpoint in checkpoints/all/) or callbacks.checkpoint.save_top_k=-1, "
+                        "or lower --from-step")
     return chosen
 
 
