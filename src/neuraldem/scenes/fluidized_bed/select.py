@@ -33,8 +33,10 @@ from pathlib import Path
 import numpy as np
 
 from neuraldem.cli import doc_parser, report_user_errors
+from neuraldem.config import checks
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError, DataError
+from neuraldem.scenes.fluidized_bed.stability import MAX_ROLLOUT_NOISE
 
 STEP_CKPT = re.compile(r"^step(\d+)\.ckpt$")
 SCORE_KEYS = ("pooled_solid_fraction_mean_rel_l2", "pooled_solid_fraction_std_rel_l2", "pooled_lacey_mae")
@@ -114,10 +116,10 @@ def select(run_dir: Path, from_step: int = 0, rollout_noise: float | None = None
            advection_correction: float | None = None, seeds: Sequence[int] = (0,),
            evaluator: Evaluator = run_evaluate, mirror_alternate: bool | None = None) -> dict:
     """Score every kept checkpoint from `from_step` on (resumable), write the ranking, copy the winner."""
-    if rollout_noise is not None and rollout_noise < 0:
-        raise ConfigError(f"--rollout-noise {rollout_noise}: must be >= 0 (0 = plain rollouts, 3 = the shipped bed's)")
-    if advection_correction is not None and not 0.0 <= advection_correction <= 1.0:
-        raise ConfigError(f"--advection-correction {advection_correction}: must be in [0, 1] (1 = full FCT)")
+    if rollout_noise is not None:  # the same checks as the benches' and rollout's flags
+        checks.number("--rollout-noise", rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE)
+    if advection_correction is not None:
+        checks.number("--advection-correction", advection_correction, lo=0.0, hi=1.0)
     if not seeds or any(s < 0 for s in seeds):
         raise ConfigError(f"--seeds {list(seeds)}: give one or more rollout seeds >= 0 (e.g. --seeds 0 1)")
     ckpts = step_checkpoints(run_dir, from_step)
