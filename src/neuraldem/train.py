@@ -16,7 +16,7 @@ from typing import Any
 import lightning as L
 import torch
 from hydra.errors import InstantiationException
-from hydra.utils import instantiate
+from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from neuraldem.cli import hydra_app
@@ -87,9 +87,16 @@ def evaluate_after_training(cfg: DictConfig, trainer: L.Trainer) -> dict[str, fl
 
 
 RESUME_FIX = "resume with the killed run's <run>/checkpoints/latest.ckpt, or leave ckpt_path out to start afresh"
-# net keys a module sets from its dataset rather than from model.net: the fluidized-bed grid's channel count (4, or 7
-# with the solids flux of experiment=fb; `scenes.fluidized_bed.module`). A resumed run gets them from the same data.
-DATA_DERIVED_NET_KEYS = frozenset({"fluid_channels"})
+
+
+def data_derived_net_keys(model_cfg: DictConfig) -> frozenset[str]:
+    """Net keys the model's class sets from its dataset rather than from model.net, as the class declares them
+    (`DATA_DERIVED_NET_KEYS`, e.g. the bed's grid channel count): a resumed run gets them from the same data."""
+    try:
+        cls = get_class(str(model_cfg.get("_target_")))
+    except Exception:  # a bad _target_ is reported where the model is built
+        return frozenset()
+    return frozenset(getattr(cls, "DATA_DERIVED_NET_KEYS", ()))
 
 
 def check_resume_checkpoint(cfg: DictConfig) -> None:
@@ -106,7 +113,8 @@ def check_resume_checkpoint(cfg: DictConfig) -> None:
     trained = ckpt.hyper_parameters.get("net")
     if net is not None and trained is not None:
         diff = differing_keys(trained, OmegaConf.to_container(net, resolve=True))  # type: ignore[arg-type]
-        diff = [k for k in diff if k not in DATA_DERIVED_NET_KEYS]
+        derived = data_derived_net_keys(cfg.model)
+        diff = [k for k in diff if k not in derived]
         if diff:
             raise ConfigError(f"config value ckpt_path={path} is invalid: its net differs from model.net in "
                               f"{', '.join(diff[:5])}",

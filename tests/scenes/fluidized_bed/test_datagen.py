@@ -206,3 +206,38 @@ def test_new_metric_settings_rescore_without_rerunning(fb_tiny_dataset: Path, tm
         assert new.metrics["bubble_fraction_mean"] >= old.metrics["bubble_fraction_mean"]
     assert any(n.metrics["bubble_fraction_mean"] > o.metrics["bubble_fraction_mean"]
                for o, n in zip(before.simulations, m.simulations, strict=False))
+
+
+def test_a_long_validation_table_holds_its_long_trajectories_only(tmp_path: Path):
+    """data=fb_small_longval: fb_small's scene, no regular table, one 30-s trajectory listed as validation."""
+    cfg = compose_cfg("datagen", ["data=fb_small_longval"], output_dir=tmp_path)
+    with open_dict(cfg):
+        cfg.data.dataset_dir = str(tmp_path / "ds")
+    pipe = FluidizedBedPipeline(cfg.data)
+    small = pipeline(tmp_path)
+    assert pipe.scene.as_dict() == small.scene.as_dict()  # a model trained on fb_small is scored on it
+    (only,) = pipe.parameter_sequence(1)
+    assert only == {"inlet_velocity": 1.963668, "packing": 0.0, "duration": 30.0}
+    m = Manifest(name="x", kind="fluidized_bed", scene={}, solver={}, parameters={})
+    m.simulations = [SimRecord(sim_id=f"s{i}", index=i, params=p) for i, p in enumerate(small.parameter_sequence(93))]
+    assert f"{only['inlet_velocity']:.6f}" in small.velocity_parts(m)["val"]  # a validation velocity of fb_small
+    assert pipe.packing_seed(SimRecord("a", 0, {})) != small.packing_seed(SimRecord("a", 0, {}))  # a new packing
+    m = Manifest(name="x", kind="fluidized_bed", scene={}, solver={}, parameters={})
+    m.simulations = [SimRecord(sim_id="sim_0000", index=0, params=only, status="ok", file="sims/sim_0000.h5")]
+    splits = pipe.splits(m)
+    assert splits["long"] == {"train": [], "val": ["sim_0000"], "test": []}
+    assert splits["velocity"] == {"train": [], "val": [], "test": []}
+    with pytest.raises(ConfigError, match="n_sims=2 is invalid"):  # the table cannot grow past its long runs
+        pipe.parameter_sequence(2)
+
+
+@pytest.mark.parametrize("overrides,message", [
+    (["data.parameters.n_velocities=0", "data.parameters.long.inlet_velocities=[]"],
+     "n_velocities=0 is invalid: a table without regular velocities needs long trajectories"),
+    (["data.parameters.long.part=train"], "data.parameters.long.part='train' is invalid: must be one of"),
+    (["data.parameters.n_velocities=-1"], "data.parameters.n_velocities=-1 is invalid"),
+])
+def test_bad_long_table_values_name_the_key(tmp_path: Path, overrides: list[str], message: str):
+    with pytest.raises(ConfigError) as err:
+        pipeline(tmp_path, *overrides)
+    assert message in str(err.value)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,7 @@ from neuraldem.scenes.fluidized_bed.evaluation import (
     curves,
     evaluate_checkpoint,
     evaluate_trajectory,
+    held_out,
     pooled_reference,
 )
 from neuraldem.scenes.fluidized_bed.rollout import DataStepper, ModelStepper
@@ -165,3 +167,26 @@ def test_stability_report_counts_steps_until_divergence(fb_tiny_checkpoint: Path
     assert (agg["stable_at_1x"], agg["stable_at_3x"], agg["stable_at_10x"]) == (1, 0, 0)
     assert "| 2.042 | 30 (NaN/inf in the predicted fluid velocity (1 values)) | stable | diverged | diverged |" in \
         (tmp_path / "report.md").read_text()
+
+
+def test_long_validation_trajectories_of_another_dataset_are_scored_as_val(fb_tiny_checkpoint: Path,
+                                                                            fb_tiny_dataset: Path, tmp_path: Path):
+    """A dataset of long validation trajectories (data.parameters.long.part=val, e.g. fb_small_longval) is scored
+    with `evaluate dataset_dir=... part=val`, as `report fb-select --long-val` does. Built here from fb_tiny's real
+    files, its manifest relisted: sim_0002 (2.04 m/s) as the one long validation trajectory (said so: it is 0.2 s)."""
+    longval = tmp_path / "fb_tiny_longval"
+    shutil.copytree(fb_tiny_dataset, longval, ignore=shutil.ignore_patterns("runs", "*.lock"))
+    m = Manifest.load(longval)
+    m.splits = {"velocity": {"train": [], "val": [], "test": []},
+                "long": {"train": [], "val": ["sim_0002"], "test": []}}
+    m.save(longval)
+    assert [r.sim_id for r in held_out(m, "velocity", "val", None)] == ["sim_0002"]
+    assert held_out(m, "velocity", "test", None) == []  # a validation trajectory is never a test one
+    env = {"NEURALDEM_DATA": str(fb_tiny_dataset.parent.parent)}
+    proc = run_module("neuraldem.evaluate", f"ckpt={fb_tiny_checkpoint}", f"dataset_dir={longval}", "part=val",
+                      "fluidized_bed.horizons=[1]", "vtk=false", f"hydra.run.dir={tmp_path / 'eval'}", env=env)
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads((tmp_path / "eval" / "metrics.json").read_text())
+    assert [t["sim_id"] for t in result["trajectories"]] == ["sim_0002"] and result["part"] == "val"
+    assert result["dataset"] == str(longval)  # pooled against that dataset's runs at the velocity
+    assert result["trajectories"][0]["pooled"]["sims"] == ["sim_0002"]

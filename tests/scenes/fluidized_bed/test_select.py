@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.scenes.fluidized_bed.select import SELECTED, main, select
 
@@ -25,16 +26,19 @@ def make_run(tmp_path: Path, steps: list[int]) -> Path:
     return run
 
 
-def fake_evaluator(scores: dict[tuple[int, int], float], calls: list):
-    """Writes metrics.json whose pooled terms sum to scores[(step, seed)] (synthetic, for the ranking only)."""
+def fake_evaluator(scores: dict[tuple[int, int], float], calls: list, long_scores: dict | None = None):
+    """Writes metrics.json whose pooled terms sum to scores[(step, seed)] over 4 velocities, or, for an evaluation on
+    another dataset (`dataset_dir=`), to long_scores[(step, seed)] over 1 (synthetic, for the ranking only)."""
 
     def evaluate(ckpt: Path, out: Path, overrides: list[str]) -> Path:
         step = int(ckpt.name[4:10])
         seed = int(next(o for o in overrides if o.startswith("fluidized_bed.seed=")).split("=")[1])
         calls.append((step, seed, tuple(overrides)))
-        s = scores[(step, seed)]
+        long = any(o.startswith("dataset_dir=") for o in overrides)
+        s = (long_scores if long else scores)[(step, seed)]
+        n = 1 if long else 4
         out.mkdir(parents=True)
-        agg = {"n_trajectories": 4, "stable_at_10x": 4, "pooled_solid_fraction_mean_rel_l2": s / 2,
+        agg = {"n_trajectories": n, "stable_at_10x": n, "pooled_solid_fraction_mean_rel_l2": s / 2,
                "pooled_solid_fraction_std_rel_l2": s / 4, "pooled_lacey_mae": s / 4}
         (out / "metrics.json").write_text(json.dumps({"aggregate": agg}))
         return out / "metrics.json"
@@ -131,3 +135,54 @@ def test_refusals_name_the_fix(tmp_path: Path, capsys):
     assert exit_.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "save_top_k=-1" in err[0]
+
+
+def make_long_val(tmp_path: Path, part: str = "val", name: str = "fb_small_longval") -> Path:
+    """A dataset folder whose manifest lists one finished long trajectory in `part` of the long split (no file is
+    read: the evaluator is replaced)."""
+    ds = tmp_path / name
+    m = Manifest(name=name, kind="fluidized_bed", scene={}, solver={}, parameters={})
+    m.simulations = [SimRecord(sim_id="sim_0000", index=0, params={"inlet_velocity": 1.96, "duration": 30.0},
+                               status="ok", file="sims/sim_0000.h5")]
+    m.splits = {"velocity": {"train": [], "val": [], "test": []},
+                "long": {"train": [], "val": [], "test": [], part: ["sim_0000"]}}
+    m.save(ds)
+    return ds
+
+
+def test_long_validation_counts_as_one_more_velocity(tmp_path: Path):
+    """Step 2000 is best on the 3-s validation part, step 1000 once its 30-s trajectory (one velocity of five)
+    is pooled in: (4 x 0.20 + 0.60) / 5 = 0.28 against (4 x 0.25 + 0.25) / 5 = 0.25."""
+    run = make_run(tmp_path, [1000, 2000])
+    ds = make_long_val(tmp_path)
+    calls: list = []
+    short, long = {(1000, 0): 0.25, (2000, 0): 0.20}, {(1000, 0): 0.25, (2000, 0): 0.60}
+    doc = select(run, rollout_noise=3, evaluator=fake_evaluator(short, calls, long), long_val=[ds])
+    assert doc["selected"]["step"] == 1000
+    rows = {r["step"]: r for r in doc["rows"]}
+    assert rows[2000]["sum"] == pytest.approx(0.28) and rows[1000]["sum"] == pytest.approx(0.25)
+    assert rows[2000]["sum_by_source"] == pytest.approx({"val": 0.20, "fb_small_longval": 0.60})
+    assert rows[2000]["n_velocities"] == 5
+    long_calls = [c for c in calls if f"dataset_dir={ds.resolve()}" in c[2]]
+    assert len(long_calls) == 2 and all("fluidized_bed.rollout_noise=3" in c[2] for c in long_calls)
+    sel = run / "selection" / "noise3"
+    assert (sel / "step002000_seed0" / "fb_small_longval" / "evaluation" / "metrics.json").is_file()
+    md = (sel / "selection_fb_small_longval.md").read_text()
+    assert "long validation trajectories of fb_small_longval" in md and "| 1000 **selected** |" in md
+    assert "0.600 |" in md
+    # the 3-s evaluations are shared with a selection without it (resumed, not repeated)
+    again: list = []
+    assert select(run, rollout_noise=3, evaluator=fake_evaluator(short, again))["selected"]["step"] == 2000
+    assert again == [] and (sel / "selection.md").is_file()
+
+
+def test_long_validation_refusals(tmp_path: Path):
+    run = make_run(tmp_path, [1000, 2000])
+    with pytest.raises(DataError, match="no dataset at"):
+        select(run, long_val=[tmp_path / "nowhere"], evaluator=fake_evaluator({}, []))
+    test_only = make_long_val(tmp_path, part="test", name="fb_small")
+    with pytest.raises(ConfigError, match="long.part=val"):
+        select(run, long_val=[test_only], evaluator=fake_evaluator({}, []))
+    ds = make_long_val(tmp_path)
+    with pytest.raises(ConfigError, match="give each once"):
+        select(run, long_val=[ds, ds], evaluator=fake_evaluator({}, []))

@@ -7,7 +7,9 @@ hypercube over the configured range, each run with `packings_per_velocity` diffe
 new velocities. Every record's packing seed is derived from (parameters.seed, record index).
 
 Splits: `velocity` puts whole velocities (all their packings) into train/val/test, as the paper does;
-`long` lists the long trajectories as test.
+`long` lists the long trajectories in `long.part` (test; val for a long validation set). A table of long
+trajectories only (`n_velocities: 0`, e.g. data=fb_small_longval) adds long statistics to a dataset without
+changing its table: a model trained on fb_small is scored on it with `evaluate dataset_dir=...`.
 
 Resume: DPMFoam writes its time directories into runs/<sim_id>; a killed datagen restarts that case from
 its latest complete time directory (see neuraldem.scenes.fluidized_bed.solver), converts it into sims/<sim_id>.h5 when
@@ -46,6 +48,7 @@ from neuraldem.scenes.fluidized_bed.store import FbFile, write_fb_file
 from neuraldem.sim import openfoam
 
 FAILED_MARKER = "FAILED"
+LONG_PARTS = ("test", "val")  # where a dataset's long trajectories go (data.parameters.long.part)
 
 
 @dataclass
@@ -140,7 +143,7 @@ class FluidizedBedPipeline(DataConfigPipeline):
                       lo_open=True)
         checks.number("data.parameters.inlet_velocity[1]", hi, lo=VELOCITY_LIMITS[0], hi=VELOCITY_LIMITS[1])
         self.velocity_range = (lo, hi)
-        self.n_velocities = checks.positive_int("data.parameters.n_velocities", p.n_velocities)
+        self.n_velocities = checks.positive_int("data.parameters.n_velocities", p.n_velocities, allow_zero=True)
         self.packings = checks.positive_int("data.parameters.packings_per_velocity", p.packings_per_velocity)
         self.duration = self._duration("data.parameters.duration", p.duration)
         long = p.get("long") or {}
@@ -152,6 +155,11 @@ class FluidizedBedPipeline(DataConfigPipeline):
         if self.long_velocities and self.long_duration <= self.duration:
             raise ConfigError(f"config value data.parameters.long.duration={self.long_duration} is invalid: must "
                               f"be longer than data.parameters.duration={self.duration}")
+        self.long_part = checks.one_of("data.parameters.long.part", long.get("part", "test"), LONG_PARTS)
+        if self.n_velocities == 0 and not self.long_velocities:
+            raise ConfigError("config value data.parameters.n_velocities=0 is invalid: a table without regular "
+                              "velocities needs long trajectories (set data.parameters.long.inlet_velocities, "
+                              "or n_velocities >= 1)")
         self.fields = FieldSettings.from_config(c.get("fields"), "data.fields")
         self.metrics = FbMetricSettings.from_config(c.get("metrics"), "data.metrics")
         half, bx = self.scene.cells[0] / 2, self.metrics.lacey_block[0]
@@ -191,7 +199,8 @@ class FluidizedBedPipeline(DataConfigPipeline):
                 "ranges": {"inlet_velocity": list(self.velocity_range)}, "sampling": "latin_hypercube",
                 "seed": self.seed, "n_velocities": self.n_velocities, "packings_per_velocity": self.packings,
                 "duration": self.duration,
-                "long": {"inlet_velocities": self.long_velocities, "duration": self.long_duration},
+                "long": {"inlet_velocities": self.long_velocities, "duration": self.long_duration,
+                         "part": self.long_part},
                 "minimum_fluidization_velocity_wen_yu": self.scene.minimum_fluidization_velocity,
                 "metrics": self.metric_record()}
 
@@ -230,6 +239,12 @@ class FluidizedBedPipeline(DataConfigPipeline):
     def parameter_sequence(self, count: int) -> list[dict[str, float]]:
         """The first `count` entries of the deterministic parameter table (module docstring)."""
         out: list[dict[str, float]] = []
+        if self.n_velocities == 0:  # long trajectories only: the table cannot grow
+            if count > len(self.long_velocities):
+                raise ConfigError(f"config value n_sims={count} is invalid: data.parameters.n_velocities=0 leaves "
+                                  f"{len(self.long_velocities)} long trajectories (set n_sims="
+                                  f"{len(self.long_velocities)} or add data.parameters.long.inlet_velocities)")
+            return [self._long_params(v) for v in self.long_velocities][:count]
         batch = 0
         while len(out) < count:
             velocities = latin_hypercube({"inlet_velocity": self.velocity_range}, self.n_velocities, self.seed,
@@ -238,10 +253,12 @@ class FluidizedBedPipeline(DataConfigPipeline):
                 out += [{"inlet_velocity": v, "packing": float(j), "duration": self.duration}
                         for j in range(self.packings)]
             if batch == 0:
-                out += [{"inlet_velocity": float(v), "packing": 0.0, "duration": self.long_duration}
-                        for v in self.long_velocities]
+                out += [self._long_params(v) for v in self.long_velocities]
             batch += 1
         return out[:count]
+
+    def _long_params(self, velocity: float) -> dict[str, float]:
+        return {"inlet_velocity": float(velocity), "packing": 0.0, "duration": self.long_duration}
 
     def new_parameters(self, n: int, batch: int) -> list[dict[str, float]]:
         return self.parameter_sequence(self._existing + n)[self._existing:]
@@ -287,7 +304,8 @@ class FluidizedBedPipeline(DataConfigPipeline):
         for r in usable:
             if not self.is_long(r):
                 out["velocity"][part_of[_velocity_key(r)]].append(r.sim_id)
-        out["long"] = {"train": [], "val": [], "test": sorted(r.sim_id for r in usable if self.is_long(r))}
+        out["long"] = {"train": [], "val": [], "test": []}
+        out["long"][self.long_part] = sorted(r.sim_id for r in usable if self.is_long(r))
         m.split_info["velocity"] = {part: [float(v) for v in vs] for part, vs in parts.items()}
         return out
 

@@ -271,8 +271,9 @@ def evaluate_trajectory(path: Path, sim_id: str, velocity: float, stepper: Stepp
 
 
 def held_out(m: Manifest, split: str, part: str, max_sims: int | None) -> list[SimRecord]:
-    """One trajectory per held-out velocity (the first by id), then the long test trajectories."""
-    ids = m.split_ids(split, part) + (m.splits.get("long", {}).get(part, []) if part == "test" else [])
+    """One trajectory per held-out velocity (the first by id), then the part's long trajectories (the long test
+    ones; a long validation set, data.parameters.long.part=val, lists its own as val)."""
+    ids = m.split_ids(split, part) + m.splits.get("long", {}).get(part, [])
     chosen: dict[float, SimRecord] = {}
     for rec in sorted((m.record(i) for i in ids), key=lambda r: r.sim_id):
         if rec.usable:
@@ -385,6 +386,15 @@ def aggregate(results: list[dict[str, Any]]) -> dict[str, Any]:
         out[f"stable_at_{h['multiple']}x"] = sum(
             next(x["stable"] for x in r["stability"]["horizons"] if x["multiple"] == h["multiple"]) for r in results)
     return out
+
+
+POOLED_SCORE_KEYS = ("pooled_solid_fraction_mean_rel_l2", "pooled_solid_fraction_std_rel_l2", "pooled_lacey_mae")
+
+
+def pooled_sum(terms: Sequence[float | None]) -> float | None:
+    """The one number the bed's tables report and `report fb-select` ranks by: rel. L2 of the per-cell time mean
+    + rel. L2 of the std field + Lacey MAE, each against every CFD-DEM run at the velocity (None if one is missing)."""
+    return None if any(t is None for t in terms) else float(sum(terms))
 
 
 def markdown_report(result: dict[str, Any]) -> str:

@@ -49,6 +49,10 @@ from neuraldem.scenes.fluidized_bed.stability import FbStability
 
 
 class FluidizedBedModule(SurrogateModule):
+    # set from the dataset, not model.net: the grid's channel count (4, or 7 with the solids flux of experiment=fb);
+    # a resumed run is not refused for them (`neuraldem.train.check_resume_checkpoint`)
+    DATA_DERIVED_NET_KEYS = frozenset({"fluid_channels"})
+
     def __init__(self, net: DictConfig | dict, datamodule: FluidizedBedDataModule | None = None,
                  optimizer: DictConfig | dict | None = None, scheduler: DictConfig | dict | None = None,
                  loss_weights: DictConfig | dict | None = None, chunk_size: int | None = None,

@@ -17,6 +17,13 @@ options, e.g. noise3_corr1; metrics.json, report, plots; `neuraldem report fb-ta
 them side by side); a finished one is not repeated, so a killed selection resumes. The ranking is
 RUN_DIR/selection/OPTIONS/selection.md (+ .json). Validation runs only: the test part stays
 untouched until the choice is made.
+
+`--long-val DATASET_DIR` adds a dataset of long validation trajectories of the same scene (e.g. data=fb_small_longval:
+30 s of CFD-DEM at a validation velocity, `data.parameters.long.part: val`): each checkpoint is also rolled out
+against it (`evaluate dataset_dir=... part=val`, into .../stepNNNNNN_seedS/<dataset name>/evaluation/) and the ranking
+is the mean over every validation velocity of both (each velocity weighs the same). Why: a bed whose statistics
+drift after a few seconds (stop 41: one seed at 2.05 m/s, 3 mm too high from 3 s on) matches 3 s of CFD-DEM but not
+30. The ranking is then selection_<dataset name>.md (+ .json), per-source sums beside it.
 """
 
 from __future__ import annotations
@@ -33,14 +40,16 @@ from pathlib import Path
 import numpy as np
 
 from neuraldem.cli import doc_parser, report_user_errors
-from neuraldem.config import checks
+from neuraldem.data.manifest import require_dataset
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError, DataError
-from neuraldem.scenes.fluidized_bed.stability import MAX_ROLLOUT_NOISE
+from neuraldem.scenes.fluidized_bed.evaluation import POOLED_SCORE_KEYS as SCORE_KEYS
+from neuraldem.scenes.fluidized_bed.evaluation import pooled_sum
+from neuraldem.scenes.fluidized_bed.rollout_flags import add_rollout_flags, check_rollout_flags
 
 STEP_CKPT = re.compile(r"^step(\d+)\.ckpt$")
-SCORE_KEYS = ("pooled_solid_fraction_mean_rel_l2", "pooled_solid_fraction_std_rel_l2", "pooled_lacey_mae")
 SELECTED = "selected.ckpt"
+VAL_SOURCE = "val"  # the run's own validation part, beside the --long-val datasets
 
 # (checkpoint, output folder, evaluate overrides) -> the evaluation's metrics.json
 Evaluator = Callable[[Path, Path, list[str]], Path]
@@ -89,6 +98,20 @@ def rollout_overrides(rollout_noise: float | None, advection_correction: float |
     return out
 
 
+def long_val_datasets(paths: Sequence[Path]) -> dict[str, Path]:
+    """--long-val datasets by name, each with long validation trajectories (refused in one line otherwise)."""
+    out: dict[str, Path] = {}
+    for path in paths:
+        m = require_dataset(Path(path), Path(path).name)
+        if not m.splits.get("long", {}).get("val"):
+            raise ConfigError(f"--long-val {path}: dataset {m.name!r} lists no long validation trajectory; give one "
+                              "made with data.parameters.long.part=val (e.g. data=fb_small_longval)")
+        if m.name in out or m.name == VAL_SOURCE:
+            raise ConfigError(f"--long-val {path}: a second dataset named {m.name!r}; give each once")
+        out[m.name] = Path(path).resolve()
+    return out
+
+
 def run_evaluate(ckpt: Path, out: Path, overrides: list[str]) -> Path:
     """`neuraldem.evaluate` on the validation part, in its own process (as a user would run it)."""
     cmd = [sys.executable, "-m", "neuraldem.evaluate", f"ckpt={ckpt}", "part=val", "vtk=false", *overrides,
@@ -101,41 +124,62 @@ def run_evaluate(ckpt: Path, out: Path, overrides: list[str]) -> Path:
 
 
 def pooled_score(metrics: dict, where: Path) -> dict[str, float]:
+    """One evaluation's pooled terms, their sum (inf when a rollout diverged: it never wins) and its number of
+    velocities (`n`, the weight when evaluations are combined)."""
     a = metrics.get("aggregate", {})
     missing = [k for k in SCORE_KEYS if a.get(k) is None]
     if missing:
         raise DataError(f"{where}: aggregate lacks {missing}; re-run it with the current neuraldem.evaluate "
                         "(delete the folder)")
     terms = {k: float(a[k]) for k in SCORE_KEYS}
-    stable = a.get("stable_at_10x", a.get("n_trajectories")) == a.get("n_trajectories")
-    terms["sum"] = sum(terms.values()) if stable else float("inf")  # a diverged rollout never wins
+    n = int(a.get("n_trajectories", 1))
+    stable = a.get("stable_at_10x", n) == n
+    terms["sum"] = pooled_sum(list(terms.values())) if stable else float("inf")
+    terms["n"] = n
     return terms
+
+
+def combined_score(parts: Sequence[dict[str, float]]) -> dict[str, float]:
+    """Several evaluations of one checkpoint as one: each term the mean over all their velocities."""
+    n = sum(p["n"] for p in parts)
+    out = {k: sum(p[k] * p["n"] for p in parts) / n for k in SCORE_KEYS}
+    stable = all(np.isfinite(p["sum"]) for p in parts)
+    out["sum"] = pooled_sum([out[k] for k in SCORE_KEYS]) if stable else float("inf")
+    out["n"] = n
+    return out
 
 
 def select(run_dir: Path, from_step: int = 0, rollout_noise: float | None = None,
            advection_correction: float | None = None, seeds: Sequence[int] = (0,),
-           evaluator: Evaluator = run_evaluate, mirror_alternate: bool | None = None) -> dict:
+           evaluator: Evaluator = run_evaluate, mirror_alternate: bool | None = None,
+           long_val: Sequence[Path] = ()) -> dict:
     """Score every kept checkpoint from `from_step` on (resumable), write the ranking, copy the winner."""
-    if rollout_noise is not None:  # the same checks as the benches' and rollout's flags
-        checks.number("--rollout-noise", rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE)
-    if advection_correction is not None:
-        checks.number("--advection-correction", advection_correction, lo=0.0, hi=1.0)
+    check_rollout_flags(rollout_noise, advection_correction)  # the same checks as the benches' and rollout's
     if not seeds or any(s < 0 for s in seeds):
         raise ConfigError(f"--seeds {list(seeds)}: give one or more rollout seeds >= 0 (e.g. --seeds 0 1)")
+    longs = long_val_datasets(long_val)
     ckpts = step_checkpoints(run_dir, from_step)
     sel = run_dir / "selection" / options_tag(rollout_noise, advection_correction, mirror_alternate)
     rows = []
     for step, ckpt in ckpts.items():
         per_seed = []
         for seed in seeds:
-            out = sel / f"step{step:06d}_seed{seed}" / "evaluation"  # where the tables look (fb-table)
-            metrics = out / "metrics.json"
-            if not metrics.is_file():
-                metrics = evaluator(ckpt, out, rollout_overrides(rollout_noise, advection_correction, seed,
-                                                                 mirror_alternate))
-            per_seed.append(pooled_score(json.loads(metrics.read_text()), metrics))
+            base = sel / f"step{step:06d}_seed{seed}"
+            overrides = rollout_overrides(rollout_noise, advection_correction, seed, mirror_alternate)
+            sources = {VAL_SOURCE: (base / "evaluation", [])}  # where the tables look (fb-table)
+            sources |= {name: (base / name / "evaluation", [f"dataset_dir={path}"]) for name, path in longs.items()}
+            parts = {}
+            for name, (out, extra) in sources.items():
+                metrics = out / "metrics.json"
+                if not metrics.is_file():
+                    metrics = evaluator(ckpt, out, overrides + extra)
+                parts[name] = pooled_score(json.loads(metrics.read_text()), metrics)
+            per_seed.append({**combined_score(list(parts.values())),
+                             "by_source": {k: v["sum"] for k, v in parts.items()}})
         mean = {k: float(np.mean([s[k] for s in per_seed])) for k in (*SCORE_KEYS, "sum")}
-        rows.append({"step": step, "checkpoint": str(ckpt), **mean, "sum_per_seed": [s["sum"] for s in per_seed]})
+        by_source = {k: float(np.mean([s["by_source"][k] for s in per_seed])) for k in per_seed[0]["by_source"]}
+        rows.append({"step": step, "checkpoint": str(ckpt), **mean, "sum_per_seed": [s["sum"] for s in per_seed],
+                     "sum_by_source": by_source, "n_velocities": per_seed[0]["n"]})
     best = min(rows, key=lambda r: (r["sum"], -r["step"]))  # a tie goes to the longer-trained net
     target = run_dir / "checkpoints" / SELECTED
     tmp = target.with_suffix(".tmp")
@@ -143,11 +187,12 @@ def select(run_dir: Path, from_step: int = 0, rollout_noise: float | None = None
     tmp.replace(target)
     doc = {"run_dir": str(run_dir), "from_step": from_step, "rollout_noise": rollout_noise,
            "advection_correction": advection_correction, "mirror_alternate": mirror_alternate,
-           "seeds": list(seeds), "rows": rows,
+           "seeds": list(seeds), "long_val": {k: str(v) for k, v in longs.items()}, "rows": rows,
            "selected": {"step": best["step"], "checkpoint": best["checkpoint"], "copied_to": str(target)},
            "date_utc": datetime.now(UTC).isoformat(timespec="seconds")}
-    atomic_write_json(sel / "selection.json", doc)
-    (sel / "selection.md").write_text(render(doc))
+    stem = "selection" + "".join(f"_{k}" for k in longs)
+    atomic_write_json(sel / f"{stem}.json", doc)
+    (sel / f"{stem}.md").write_text(render(doc))
     return doc
 
 
@@ -158,16 +203,20 @@ def render(doc: dict) -> str:
     mirror = {None: "as trained", True: "on", False: "off"}[doc.get("mirror_alternate")]
     opts = (f"rollout noise {opt('rollout_noise')}, advection correction {opt('advection_correction')}, "
             f"mirror-alternating steps {mirror}, rollout seeds {doc['seeds']}")
+    longs = list(doc.get("long_val") or {})
+    where = "Validation part" + "".join(f" + the long validation trajectories of {k}" for k in longs)
     lines = [f"# Checkpoint selection: {doc['run_dir']}", "",
-             f"Validation part, 3000-step rollouts, {opts}; pooled against every CFD-DEM run at each velocity, "
+             f"{where}, 3000-step rollouts, {opts}; pooled against every CFD-DEM run at each velocity, "
              "means over the velocities (and seeds). Selected: step "
              f"{doc['selected']['step']} -> {doc['selected']['copied_to']}.", "",
-             "| step | rel. L2 mean solid fraction | rel. L2 std solid fraction | Lacey MAE | sum | sum per seed |",
-             "|---|---|---|---|---|---|"]
+             "| step | rel. L2 mean solid fraction | rel. L2 std solid fraction | Lacey MAE | sum | sum per seed |"
+             + "".join(f" sum {k} |" for k in [VAL_SOURCE, *longs] if longs),
+             "|---|---|---|---|---|---|" + "---|" * (len(longs) + 1 if longs else 0)]
     for r in doc["rows"]:
         mark = " **selected**" if r["step"] == doc["selected"]["step"] else ""
+        by_source = "".join(f" {r['sum_by_source'][k]:.3f} |" for k in [VAL_SOURCE, *longs] if longs)
         lines.append(f"| {r['step']}{mark} | {r[SCORE_KEYS[0]]:.3f} | {r[SCORE_KEYS[1]]:.3f} | {r[SCORE_KEYS[2]]:.3f} "
-                     f"| {r['sum']:.3f} | {' / '.join(f'{s:.3f}' for s in r['sum_per_seed'])} |")
+                     f"| {r['sum']:.3f} | {' / '.join(f'{s:.3f}' for s in r['sum_per_seed'])} |{by_source}")
     return "\n".join(lines) + "\n"
 
 
@@ -176,16 +225,14 @@ def main(argv: list[str] | None = None) -> int:
     p = doc_parser("neuraldem.scenes.fluidized_bed.select", __doc__)
     p.add_argument("run_dir", type=Path, help="a fluidized-bed training run (hydra.run.dir of neuraldem.train)")
     p.add_argument("--from-step", type=int, default=0, help="skip checkpoints before this training step")
-    p.add_argument("--rollout-noise", type=float, default=None,
-                   help="fluidized_bed.rollout_noise (default: as trained)")
-    p.add_argument("--advection-correction", type=float, default=None,
-                   help="fluidized_bed.advection_correction (default: as trained)")
-    p.add_argument("--mirror-alternate", action="store_true", default=None,
-                   help="fluidized_bed.mirror_alternate=true (default: as trained)")
+    add_rollout_flags(p)
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="rollout seeds to average over")
+    p.add_argument("--long-val", type=Path, nargs="+", default=[],
+                   help="datasets of long validation trajectories of the same scene (data.parameters.long.part=val), "
+                        "pooled into the ranking")
     a = p.parse_args(argv)
     doc = select(a.run_dir, a.from_step, a.rollout_noise, a.advection_correction, a.seeds,
-                 mirror_alternate=a.mirror_alternate)
+                 mirror_alternate=a.mirror_alternate, long_val=a.long_val)
     print(render(doc), end="")
     return 0
 

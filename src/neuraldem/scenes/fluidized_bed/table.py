@@ -18,7 +18,7 @@ import numpy as np
 from neuraldem.cli import report_user_errors
 from neuraldem.errors import DataError
 from neuraldem.eval.run_results import find_results, table_main
-from neuraldem.scenes.fluidized_bed.evaluation import aggregate
+from neuraldem.scenes.fluidized_bed.evaluation import POOLED_SCORE_KEYS, aggregate, pooled_sum
 
 
 def run_name(result: dict) -> str:
@@ -175,7 +175,7 @@ def pooled_table(results: list[dict]) -> list[str]:
         q = x["pooled"]
         lr = q.get("structure") or {}  # how much of the bubbling reaches the walls (metrics.wall_share)
         tm, sd, lm = q["rel_l2"]["solid_fraction_mean"], q["rel_l2"]["solid_fraction_std"], q["lacey_mae"]
-        total = None if None in (tm, sd, lm) else tm + sd + lm
+        total = pooled_sum((tm, sd, lm))
         lines.append(f"| {run_name(r)} | {x['inlet_velocity']:.3f} | {len(q['sims'])} ({q['snapshots']}) "
                      f"| {q['pred_snapshots']} | {_f(tm, '.3f')} | {_f(sd, '.3f')} | {_f(lm, '.3f')} "
                      f"| {_f(total, '.3f')} | {_f(lr.get('std_wall_share_pred'), '.3f')} / "
@@ -186,8 +186,8 @@ def pooled_table(results: list[dict]) -> list[str]:
         a = r["aggregate"]  # the evaluation's own means (`evaluation.aggregate`: pooled_* when every run has it)
         if "pooled_lacey_mae" not in a:
             continue
-        means = [a["pooled_solid_fraction_mean_rel_l2"], a["pooled_solid_fraction_std_rel_l2"], a["pooled_lacey_mae"]]
-        total = None if None in means else sum(means)
+        means = [a[k] for k in POOLED_SCORE_KEYS]
+        total = pooled_sum(means)
         lines.append(f"| {run_name(r)} | {len(r['trajectories'])} | " + " | ".join(_f(v, ".3f") for v in means)
                      + f" | {_f(total, '.3f')} |")
     return lines

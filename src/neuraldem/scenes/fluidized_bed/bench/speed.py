@@ -46,8 +46,8 @@ from neuraldem.scenes.fluidized_bed.rollout import (
     load_fb_checkpoint,
     rollout,
 )
+from neuraldem.scenes.fluidized_bed.rollout_flags import add_rollout_flags, check_rollout_flags
 from neuraldem.scenes.fluidized_bed.solver import STATUS_OK, FluidizedBedScene, run_fluidized_bed
-from neuraldem.scenes.fluidized_bed.stability import MAX_ROLLOUT_NOISE
 from neuraldem.scenes.fluidized_bed.store import FbFile
 
 NAME = "fb_speed"
@@ -274,8 +274,7 @@ def prepare(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: i
     if rollout_steps is not None:
         checks.positive_int("--rollout-steps", rollout_steps)
     checks.positive_int("--seed", seed, allow_zero=True)
-    if rollout_noise is not None:
-        checks.number("--rollout-noise", rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE)
+    check_rollout_flags(rollout_noise)
     threads = parse_threads(threads)
     t0 = time.perf_counter()
     module = load_fb_checkpoint(Path(ckpt))  # refuses other kinds with a message
@@ -337,10 +336,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--reuse-dataset", action="store_true",
                    help="run no DPMFoam: compare with the costs the manifest recorded (labelled in the output)")
     p.add_argument("--seed", type=int, default=0, help="seed of the rollout's particle re-sampling")
-    p.add_argument("--rollout-noise", type=float, default=None,
-                   help="the rollouts' rollout_noise (default: as the checkpoint was trained)")
-    p.add_argument("--mirror-alternate", action="store_true", default=None,
-                   help="every second step in the mirror image of the bed (default: as the checkpoint was trained)")
+    add_rollout_flags(p, correction=False)
     p.add_argument("--workdir", type=Path, default=None, help=f"DPMFoam runs (default <data dir>/bench/{NAME})")
     p.add_argument("--keep-runs", action="store_true", help="keep the DPMFoam case folders")
     p.add_argument("--out", type=Path, default=None,

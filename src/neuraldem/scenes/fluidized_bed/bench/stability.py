@@ -43,7 +43,7 @@ from neuraldem.scenes.fluidized_bed.rollout import (
     load_fb_checkpoint,
     rollout,
 )
-from neuraldem.scenes.fluidized_bed.stability import MAX_ROLLOUT_NOISE
+from neuraldem.scenes.fluidized_bed.rollout_flags import add_rollout_flags, check_rollout_flags
 from neuraldem.scenes.fluidized_bed.store import FbFile
 
 NAME = "fb_stability"
@@ -117,10 +117,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
     labels = check_options(ckpts, labels, velocities, steps, drift_limit_pct, seed)
     checks.positive_int("--n-velocities", n_velocities)
     limits = limits or DivergenceLimits()
-    if rollout_noise is not None:
-        checks.number("--rollout-noise", rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE)
-    if advection_correction is not None:
-        checks.number("--advection-correction", advection_correction, lo=0.0, hi=1.0)
+    check_rollout_flags(rollout_noise, advection_correction)
     modules = [load_fb_checkpoint(Path(c)) for c in ckpts]  # refuses other kinds before any rollout
     ranges = [(m.norm.velocity_lo, m.norm.velocity_hi) for m in modules]
     grid = sorted({round(float(v), 6) for v in velocities}) if velocities else \
@@ -200,12 +197,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--dataset", type=Path, default=None,
                    help="dataset dir of the checkpoints' scene (default: <data dir>/datasets/<data name>)")
     p.add_argument("--seed", type=int, default=0, help="seed of the rollouts' particle re-sampling")
-    p.add_argument("--rollout-noise", type=float, default=None,
-                   help="the rollouts' rollout_noise (default: as each checkpoint was trained)")
-    p.add_argument("--advection-correction", type=float, default=None,
-                   help="the mixing advection's flux correction, 0 .. 1 (default: as each checkpoint was trained)")
-    p.add_argument("--mirror-alternate", action="store_true", default=None,
-                   help="every second step in the mirror image of the bed (default: as each checkpoint was trained)")
+    add_rollout_flags(p, default="as each checkpoint was trained")
     p.add_argument("--out", type=Path, default=None,
                    help=f"results JSON, or a folder for {NAME}.json (default results/bench/{NAME}.json); "
                         ".png beside it")
