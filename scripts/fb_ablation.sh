@@ -27,7 +27,12 @@
 # options: alt = mirror-alternating rollouts (fluidized_bed.mirror_alternate=true), noiseX = the net reads each
 # state + noise of X times its one-step error (fluidized_bed.rollout_noise=X), corrX = the mixing advection's flux
 # correction X in [0, 1] (fluidized_bed.advection_correction=X; 1 = full FCT, the least numerical mixing). The same net with and without
-# them, where mirror_alt trains a second net (its checkpoint chosen on alternating rollouts).
+# them, where mirror_alt trains a second net (its checkpoint chosen on alternating rollouts). sel chooses the
+# checkpoint first, under those rollout options (`neuraldem report fb-select`, its ranking in
+# RUNS_DIR/<trained variant>/selection/, the winner copied to RUNS_DIR/<variant>/selected.ckpt), and scores that one:
+# "full+noise3+corr1+alt+sel"; SELECT_FROM (training step, default 0), SELECT_SEEDS (rollout seeds, default "0 1")
+# and LONG_VAL (datasets of long validation trajectories, e.g. $NEURALDEM_DATA/datasets/fb_small_longval) are
+# passed on as --from-step, --seeds and --long-val.
 # Runs land in RUNS_DIR/<variant>/ (logs beside them), the table in RUNS_DIR/table.md (+ .json). A finished
 # training (RUNS_DIR/<variant>/.trained) is not repeated and a finished evaluation is skipped, so a killed sweep
 # resumes.
@@ -86,7 +91,19 @@ rollout_options() {  # "full+alt+noise1" -> the evaluate overrides of its rollou
       alt) out="$out fluidized_bed.mirror_alternate=true" ;;
       noise[0-9]*) out="$out fluidized_bed.rollout_noise=${opt#noise}" ;;
       corr[0-9]*) out="$out fluidized_bed.advection_correction=${opt#corr}" ;;
-      *) echo "fb_ablation: unknown rollout option '$opt' in '$1' (known: alt, noiseX e.g. noise1, corrX e.g. corr1)" >&2; return 2 ;;
+      sel) ;;
+      *) echo "fb_ablation: unknown rollout option '$opt' in '$1' (known: alt, noiseX e.g. noise1, corrX e.g. corr1, sel)" >&2; return 2 ;;
+    esac
+  done
+  echo "$out"
+}
+select_flags() {  # "full+noise3+corr1+alt+sel" -> fb-select's flags for the same rollout options
+  local rest=${1#*+} opt out=""
+  for opt in ${rest//+/ }; do
+    case "$opt" in
+      alt) out="$out --mirror-alternate" ;;
+      noise[0-9]*) out="$out --rollout-noise ${opt#noise}" ;;
+      corr[0-9]*) out="$out --advection-correction ${opt#corr}" ;;
     esac
   done
   echo "$out"
@@ -148,6 +165,15 @@ for v in $VARIANTS; do  # the trained nets again, with other rollout options
   slot
   echo "start $v"
   (
+    case "+${v#*+}+" in *+sel+*)
+      ckpt="$runs/$v/selected.ckpt"
+      if [ ! -f "$ckpt" ]; then
+        # shellcheck disable=SC2046,SC2086
+        "$PY" -m neuraldem.scenes.fluidized_bed.select "$runs/$b" $(select_flags "$v") \
+          --from-step "${SELECT_FROM:-0}" --seeds ${SELECT_SEEDS:-0 1} ${LONG_VAL:+--long-val $LONG_VAL} \
+          --copy-to "$ckpt" || exit 1
+      fi ;;
+    esac
     if [ "$TEST" = 1 ] && [ ! -f "$runs/$v/evaluation/metrics.json" ]; then
       # shellcheck disable=SC2086
       "$PY" -m neuraldem.evaluate ckpt="$ckpt" vtk=false $opts \

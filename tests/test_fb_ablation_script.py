@@ -130,3 +130,31 @@ def test_rollout_options_combine_after_the_trained_variant(tmp_path: Path):
     (tmp_path / "plain").mkdir()
     proc, calls = _run(tmp_path / "plain", "full full+stir")
     assert proc.returncode == 2 and "unknown rollout option 'stir'" in proc.stderr and calls == []
+
+
+def test_sel_chooses_the_checkpoint_under_the_rollout_options_then_scores_it(tmp_path: Path):
+    longval = str(tmp_path / "fb_small_longval")
+    proc, calls = _run(tmp_path, "full full+noise3+corr1+alt+sel", VAL="1", SELECT_FROM="4500",
+                       LONG_VAL=longval)
+    assert proc.returncode == 0, proc.stderr
+    assert [c[1] for c in calls] == ["neuraldem.train", "neuraldem.evaluate", "neuraldem.scenes.fluidized_bed.select",
+                                     "neuraldem.evaluate", "neuraldem.evaluate", "neuraldem.scenes.fluidized_bed.table",
+                                     "neuraldem.scenes.fluidized_bed.table"]
+    runs = tmp_path / "runs"
+    chosen = runs / "full+noise3+corr1+alt+sel" / "selected.ckpt"
+    select = calls[2]
+    assert select[2] == str(runs / "full")
+    flags = " ".join(select[3:])
+    assert "--mirror-alternate" in flags and "--rollout-noise 3" in flags and "--advection-correction 1" in flags
+    assert "--from-step 4500" in flags and "--seeds 0 1" in flags and f"--long-val {longval}" in flags
+    assert f"--copy-to {chosen}" in flags
+    test_eval, val_eval = calls[3:5]  # the chosen checkpoint, not last.ckpt, with the same rollout options
+    for c in (test_eval, val_eval):
+        assert f"ckpt={chosen}" in c
+        assert {"fluidized_bed.rollout_noise=3", "fluidized_bed.advection_correction=1",
+                "fluidized_bed.mirror_alternate=true"} <= set(c)
+    assert "part=val" in val_eval and "part=val" not in test_eval
+    (tmp_path / "plain").mkdir()  # without LONG_VAL: no --long-val
+    _, calls = _run(tmp_path / "plain", "full full+sel")
+    (select,) = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.select"]
+    assert "--long-val" not in select and "--rollout-noise" not in select and "--from-step" in select

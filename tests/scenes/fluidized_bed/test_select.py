@@ -170,9 +170,11 @@ def test_long_validation_counts_as_one_more_velocity(tmp_path: Path):
     md = (sel / "selection_fb_small_longval.md").read_text()
     assert "long validation trajectories of fb_small_longval" in md and "| 1000 **selected** |" in md
     assert "0.600 |" in md
-    # the 3-s evaluations are shared with a selection without it (resumed, not repeated)
+    # the 3-s evaluations are shared with a selection without it (resumed, not repeated); its winner copied elsewhere
     again: list = []
-    assert select(run, rollout_noise=3, evaluator=fake_evaluator(short, again))["selected"]["step"] == 2000
+    doc = select(run, rollout_noise=3, evaluator=fake_evaluator(short, again), copy_to=tmp_path / "v" / "sel.ckpt")
+    assert doc["selected"]["step"] == 2000 and (tmp_path / "v" / "sel.ckpt").read_bytes() == b"weights of step 2000"
+    assert (run / "checkpoints" / SELECTED).read_bytes() == b"weights of step 1000"  # the first choice stays
     assert again == [] and (sel / "selection.md").is_file()
 
 

@@ -10,7 +10,7 @@ part=val` (3000-step rollouts from every validation velocity) under `--rollout-n
 `--mirror-alternate`, ranks them by the pooled score -- rel. L2 of the per-cell time mean + rel. L2 of the std
 field + Lacey MAE, each against every CFD-DEM run at the velocity, the sum the tables report
 (`scenes.fluidized_bed.table`) -- averaged over `--seeds` (rollout seeds: the noise draws and particle samples),
-and copies the winner to RUN_DIR/checkpoints/selected.ckpt.
+and copies the winner to RUN_DIR/checkpoints/selected.ckpt (or `--copy-to`).
 
 Each evaluation lands in RUN_DIR/selection/OPTIONS/stepNNNNNN_seedS/evaluation/ (OPTIONS names the rollout
 options, e.g. noise3_corr1; metrics.json, report, plots; `neuraldem report fb-table RUN_DIR/selection/OPTIONS` puts
@@ -152,7 +152,7 @@ def combined_score(parts: Sequence[dict[str, float]]) -> dict[str, float]:
 def select(run_dir: Path, from_step: int = 0, rollout_noise: float | None = None,
            advection_correction: float | None = None, seeds: Sequence[int] = (0,),
            evaluator: Evaluator = run_evaluate, mirror_alternate: bool | None = None,
-           long_val: Sequence[Path] = ()) -> dict:
+           long_val: Sequence[Path] = (), copy_to: Path | None = None) -> dict:
     """Score every kept checkpoint from `from_step` on (resumable), write the ranking, copy the winner."""
     check_rollout_flags(rollout_noise, advection_correction)  # the same checks as the benches' and rollout's
     if not seeds or any(s < 0 for s in seeds):
@@ -181,7 +181,8 @@ def select(run_dir: Path, from_step: int = 0, rollout_noise: float | None = None
         rows.append({"step": step, "checkpoint": str(ckpt), **mean, "sum_per_seed": [s["sum"] for s in per_seed],
                      "sum_by_source": by_source, "n_velocities": per_seed[0]["n"]})
     best = min(rows, key=lambda r: (r["sum"], -r["step"]))  # a tie goes to the longer-trained net
-    target = run_dir / "checkpoints" / SELECTED
+    target = Path(copy_to) if copy_to else run_dir / "checkpoints" / SELECTED
+    target.parent.mkdir(parents=True, exist_ok=True)
     tmp = target.with_suffix(".tmp")
     shutil.copyfile(best["checkpoint"], tmp)
     tmp.replace(target)
@@ -230,9 +231,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--long-val", type=Path, nargs="+", default=[],
                    help="datasets of long validation trajectories of the same scene (data.parameters.long.part=val), "
                         "pooled into the ranking")
+    p.add_argument("--copy-to", type=Path, default=None,
+                   help=f"where the winner is copied (default RUN_DIR/checkpoints/{SELECTED}; one file per set of "
+                        "options when several selections of one run are kept, as scripts/fb_ablation.sh does)")
     a = p.parse_args(argv)
     doc = select(a.run_dir, a.from_step, a.rollout_noise, a.advection_correction, a.seeds,
-                 mirror_alternate=a.mirror_alternate, long_val=a.long_val)
+                 mirror_alternate=a.mirror_alternate, long_val=a.long_val, copy_to=a.copy_to)
     print(render(doc), end="")
     return 0
 
