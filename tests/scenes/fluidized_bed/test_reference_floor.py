@@ -71,3 +71,26 @@ def test_cli_writes_markdown_and_json_and_refuses_bad_input(fb_tiny_dataset: Pat
         main([str(fb_tiny_dataset), "--out", str(out), "--window", "1", "--sims", "sim_0000"])
     err = capsys.readouterr().err
     assert stop.value.code == 2 and "--window 1" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_long_validation_set_is_measured_with_its_tables_window(fb_tiny_dataset: Path, tmp_path: Path):
+    """A set of long trajectories only (data=fb_small_longval: no training runs, long.part val) gives its long
+    val trajectories and takes the window from its table's regular duration. Built from fb_tiny's real files with
+    a relisted manifest (said so): sim_0002 as the long validation run, duration 0.05 s = 5 snapshots."""
+    import shutil
+
+    from neuraldem.data.manifest import Manifest
+
+    ds = tmp_path / "longval"
+    shutil.copytree(fb_tiny_dataset, ds, ignore=shutil.ignore_patterns("runs", "*.lock"))
+    m = Manifest.load(ds)
+    m.parameters = {**m.parameters, "n_velocities": 0, "duration": 0.05}
+    m.splits = {"velocity": {"train": [], "val": [], "test": []},
+                "long": {"train": [], "val": ["sim_0002"], "test": []}}
+    m.save(ds)
+    doc = measure(ds)
+    assert doc["window"] == 5 and [r["sim_id"] for r in doc["trajectories"]] == ["sim_0002"]
+    m.parameters["n_velocities"] = 3  # a regular table without finished training runs still needs --window
+    m.save(ds)
+    with pytest.raises(DataError, match="--window"):
+        measure(ds)

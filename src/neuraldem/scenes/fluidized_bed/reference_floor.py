@@ -77,23 +77,25 @@ def trajectory_floor(s: FieldSeries, window: int, pool: int) -> dict[str, Any]:
 
 
 def long_records(m: Manifest, sims: tuple[str, ...]) -> list[SimRecord]:
-    """The named finished trajectories, else the dataset's long test trajectories."""
+    """The named finished trajectories, else the dataset's long trajectories (test; val in a long validation set)."""
     if sims:
         unknown = sorted(set(sims) - {r.sim_id for r in m.usable()})
         if unknown:
             raise DataError(f"--sims {' '.join(unknown)}: not finished trajectories of this dataset",
                             fix="choose from the manifest's finished runs, e.g. its long test trajectories")
         return [m.record(i) for i in sims]
-    long_ids = set(m.splits.get("long", {}).get("test", []))
+    long_ids = {i for part in m.splits.get("long", {}).values() for i in part}
     return [r for r in m.usable() if r.sim_id in long_ids]
 
 
 def training_steps(m: Manifest, dataset_dir: Path) -> int:
     """Steps of the shortest training trajectory (= snapshots from snapshot 1 on, what a model's rollout is
-    compared over)."""
+    compared over); a set of long trajectories only (fb_small_longval) has the regular length in its table."""
     dt = float(m.scene["fluidized_bed"]["snapshot_interval"])
     steps = [round(float(m.record(i).params["duration"]) / dt) for i in m.split_ids("velocity", "train")
              if m.record(i).usable]
+    if not steps and m.parameters.get("n_velocities") == 0 and m.parameters.get("duration"):
+        steps = [round(float(m.parameters["duration"]) / dt)]
     if not steps:
         raise DataError(f"no finished training trajectories in {dataset_dir} to take the window length from",
                         fix="give --window SNAPSHOTS")
