@@ -207,7 +207,8 @@ def render(doc: dict) -> str:
     longs = list(doc.get("long_val") or {})
     where = "Validation part" + "".join(f" + the long validation trajectories of {k}" for k in longs)
     lines = [f"# Checkpoint selection: {doc['run_dir']}", "",
-             f"{where}, 3000-step rollouts, {opts}; pooled against every CFD-DEM run at each velocity, "
+             f"{where}, rollouts of 10x the training horizon (3000 steps on fb_small), {opts}; "
+             "pooled against every CFD-DEM run at each velocity, "
              "means over the velocities (and seeds). Selected: step "
              f"{doc['selected']['step']} -> {doc['selected']['copied_to']}.", "",
              "| step | rel. L2 mean solid fraction | rel. L2 std solid fraction | Lacey MAE | sum | sum per seed |"
