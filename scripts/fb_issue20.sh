@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# Issue 20's must-show in one resumable command, for a recipe and its seeds: train each seed (experiment=fb, every
+# validated checkpoint kept), choose each net's checkpoint on validation (3-s validation velocities + the 30-s
+# long validation trajectory of fb_small_longval) under the rollout options it is used with, score the chosen
+# one once on the test part (the 30-s test trajectories included), then the baselines, the tables, the stability
+# map and the speed ratio against DPMFoam. Nothing here chooses anything on test runs.
+#   [SEEDS="0 1"] [OPTIONS=noise3+corr1+alt] [SELECT_FROM=4500] [LONG_VAL=DIR] bash scripts/fb_issue20.sh RUNS_DIR [train overrides...]
+# e.g. bash scripts/fb_issue20.sh $NEURALDEM_DATA/fb42 trainer=cpu logger=csv
+# Needs the data first (resumable, background, one job per core):
+#   python -m neuraldem.datagen data=fb_small workers=2; python -m neuraldem.datagen data=fb_small_longval
+# Layout: RUNS_DIR/seedS/ (scripts/fb_ablation.sh runs: full = the net and its checkpoint kept by the training's own
+# rollout validation, full+OPTIONS+sel = the one fb-select chose, each scored on val and test; their tables),
+# RUNS_DIR/baselines/ and RUNS_DIR/baselines-val/ (constant / nearest / interpolated CFD-DEM, another packing),
+# RUNS_DIR/table.md (test), RUNS_DIR/table-val.md, RUNS_DIR/fb_stability.json (+ .png), RUNS_DIR/fb_speed.json.
+# Cost on 2 cores: ~25 min training (seeds in parallel), ~1 h selection per seed (8 checkpoints x 2 rollout seeds x
+# 5 velocities of 3000 steps), ~10 min test per seed, ~15 min stability map, ~5 min speed. Killed, it resumes.
+set -uo pipefail
+ROOT=$(cd "$(dirname "$0")/.." && pwd)
+PY=${PYTHON:-python}
+SEEDS=${SEEDS:-"0 1"}
+OPTIONS=${OPTIONS:-noise3+corr1+alt}
+DATA=${NEURALDEM_DATA:-$HOME/.local/share/neuraldem}
+LONG_VAL=${LONG_VAL-$DATA/datasets/fb_small_longval}
+[ $# -ge 1 ] || { echo "usage: bash scripts/fb_issue20.sh RUNS_DIR [train overrides...]" >&2; exit 2; }
+runs=$1; shift
+if [ -n "$LONG_VAL" ] && [ ! -f "$LONG_VAL/manifest.json" ]; then
+  echo "fb_issue20: no long validation set at $LONG_VAL: generate it (python -m neuraldem.datagen" \
+       "data=fb_small_longval) or set LONG_VAL= to choose on the 3-s validation part alone" >&2
+  exit 2
+fi
+# fb-select's flags for OPTIONS, the same words as scripts/fb_ablation.sh's rollout options
+flags="" speed_flags=""  # the speed bench times the net's steps: no mixing option
+for opt in ${OPTIONS//+/ }; do
+  case "$opt" in
+    alt) flags="$flags --mirror-alternate"; speed_flags="$speed_flags --mirror-alternate" ;;
+    noise[0-9]*) flags="$flags --rollout-noise ${opt#noise}"; speed_flags="$speed_flags --rollout-noise ${opt#noise}" ;;
+    corr[0-9]*) flags="$flags --advection-correction ${opt#corr}" ;;
+    *) echo "fb_issue20: unknown rollout option '$opt' in OPTIONS=$OPTIONS (known: alt, noiseX, corrX)" >&2; exit 2 ;;
+  esac
+done
+chosen="full+$OPTIONS+sel"
+mkdir -p "$runs"
+failed=0
+pids=()
+for S in $SEEDS; do  # one process per seed: the seeds train side by side, one core each
+  JOBS=1 VAL=1 TEST=1 VARIANTS="full $chosen" SELECT_FROM="${SELECT_FROM:-4500}" SELECT_SEEDS="0 1" \
+    LONG_VAL="$LONG_VAL" PYTHON="$PY" bash "$ROOT/scripts/fb_ablation.sh" "$runs/seed$S" seed="$S" "$@" \
+    > "$runs/seed$S.log" 2>&1 &
+  pids+=($!)
+done
+for p in "${pids[@]}"; do wait "$p" || failed=$((failed + 1)); done
+[ -f "$runs/baselines/constant/evaluation/metrics.json" ] \
+  || "$PY" -m neuraldem.scenes.fluidized_bed.baselines fb_small --part test --out "$runs/baselines" || failed=$((failed + 1))
+[ -f "$runs/baselines-val/constant/evaluation/metrics.json" ] \
+  || "$PY" -m neuraldem.scenes.fluidized_bed.baselines fb_small --part val --out "$runs/baselines-val" || failed=$((failed + 1))
+tests=() vals=() ckpts=() labels=()
+for S in $SEEDS; do
+  tests+=("$runs/seed$S"); vals+=("$runs/seed$S-val")
+  ckpts+=("$runs/seed$S/$chosen/selected.ckpt"); labels+=("seed$S")
+done
+"$PY" -m neuraldem.scenes.fluidized_bed.table "${tests[@]}" "$runs/baselines" --out "$runs/table.md" || failed=$((failed + 1))
+"$PY" -m neuraldem.scenes.fluidized_bed.table "${vals[@]}" "$runs/baselines-val" --out "$runs/table-val.md" \
+  || failed=$((failed + 1))
+# shellcheck disable=SC2086
+[ -f "$runs/fb_stability.json" ] || "$PY" -m neuraldem.bench fb_stability --ckpt "${ckpts[@]}" --labels "${labels[@]}" \
+  $flags --n-velocities 5 --steps 3000 --out "$runs/fb_stability.json" || failed=$((failed + 1))
+# shellcheck disable=SC2086
+[ -f "$runs/fb_speed.json" ] || "$PY" -m neuraldem.bench fb_speed --ckpt "${ckpts[0]}" --reuse-dataset --threads 1 \
+  --repeats 5 $speed_flags --out "$runs/fb_speed.json" || failed=$((failed + 1))
+[ "$failed" -eq 0 ] || echo "fb_issue20: $failed step(s) failed; see $runs/seed*.log and $runs/seed*/*.log" >&2
+exit "$failed"
