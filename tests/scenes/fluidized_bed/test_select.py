@@ -188,3 +188,14 @@ def test_long_validation_refusals(tmp_path: Path):
     ds = make_long_val(tmp_path)
     with pytest.raises(ConfigError, match="give each once"):
         select(run, long_val=[ds, ds], evaluator=fake_evaluator({}, []))
+
+
+def test_long_validation_set_by_name_under_the_data_dir(tmp_path: Path, monkeypatch):
+    monkeypatch.setenv("NEURALDEM_DATA", str(tmp_path / "data"))
+    make_long_val(tmp_path / "data" / "datasets")
+    run = make_run(tmp_path, [1000, 2000])
+    calls: list = []
+    doc = select(run, evaluator=fake_evaluator({(1000, 0): 0.3, (2000, 0): 0.2}, calls, {(1000, 0): 0.2,
+                                                                                         (2000, 0): 0.2}),
+                 long_val=[Path("fb_small_longval")])
+    assert doc["long_val"] == {"fb_small_longval": str(tmp_path / "data" / "datasets" / "fb_small_longval")}

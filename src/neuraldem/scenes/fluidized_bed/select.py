@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from neuraldem.cli import doc_parser, report_user_errors
-from neuraldem.data.manifest import require_dataset
+from neuraldem.data.manifest import find_dataset, require_dataset
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.scenes.fluidized_bed.evaluation import POOLED_SCORE_KEYS as SCORE_KEYS
@@ -101,13 +101,14 @@ def rollout_overrides(rollout_noise: float | None, advection_correction: float |
 def long_val_datasets(paths: Sequence[Path]) -> dict[str, Path]:
     """--long-val datasets by name, each with long validation trajectories (refused in one line otherwise)."""
     out: dict[str, Path] = {}
-    for path in paths:
-        m = require_dataset(Path(path), Path(path).name)
+    for given in paths:
+        path = find_dataset(str(given))  # a folder, or a name under <data dir>/datasets
+        m = require_dataset(path, Path(given).name)
         if not m.splits.get("long", {}).get("val"):
-            raise ConfigError(f"--long-val {path}: dataset {m.name!r} lists no long validation trajectory; give one "
+            raise ConfigError(f"--long-val {given}: dataset {m.name!r} lists no long validation trajectory; give one "
                               "made with data.parameters.long.part=val (e.g. data=fb_small_longval)")
         if m.name in out or m.name == VAL_SOURCE:
-            raise ConfigError(f"--long-val {path}: a second dataset named {m.name!r}; give each once")
+            raise ConfigError(f"--long-val {given}: a second dataset named {m.name!r}; give each once")
         out[m.name] = Path(path).resolve()
     return out
 
@@ -230,8 +231,9 @@ def main(argv: list[str] | None = None) -> int:
     add_rollout_flags(p)
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="rollout seeds to average over")
     p.add_argument("--long-val", type=Path, nargs="+", default=[],
-                   help="datasets of long validation trajectories of the same scene (data.parameters.long.part=val), "
-                        "pooled into the ranking")
+                   help="datasets (folders or names under <data dir>/datasets, e.g. fb_small_longval) of long "
+                        "validation trajectories of the same scene (data.parameters.long.part=val), pooled into the "
+                        "ranking")
     p.add_argument("--copy-to", type=Path, default=None,
                    help=f"where the winner is copied (default RUN_DIR/checkpoints/{SELECTED}; one file per set of "
                         "options when several selections of one run are kept, as scripts/fb_ablation.sh does)")
