@@ -101,3 +101,36 @@ def test_the_other_packing_is_the_seed_spread_where_a_twin_exists(fb_tiny_datase
     assert twin["trajectories"][0]["rel_l2"]["solid_fraction_mean"] > 0.0
     alone = evaluate_baselines(fb_tiny_dataset, tmp_path / "test", part="test", baselines=("nearest", "other_packing"))
     assert set(alone) == {"nearest"} and not (tmp_path / "test" / "baseline_other_packing").exists()
+
+
+def test_baselines_of_a_long_validation_set_come_from_the_training_dataset(fb_tiny_dataset: Path, tmp_path: Path):
+    """A set of long trajectories only (like fb_small_longval) has no training runs: `train_dir` takes them, and the
+    other packings at its velocity, from the dataset the models trained on. Built from fb_tiny's real files with a
+    relisted manifest (said so): sim_0001 (1.23 m/s) as the long set's one run, listed in its part."""
+    import shutil
+
+    from neuraldem.data.manifest import Manifest
+    from neuraldem.errors import DataError
+
+    lv = tmp_path / "longval"
+    shutil.copytree(fb_tiny_dataset, lv, ignore=shutil.ignore_patterns("runs", "*.lock"))
+    m = Manifest.load(lv)
+    m.simulations = [r for r in m.simulations if r.sim_id == "sim_0001"]
+    m.splits = {"velocity": {"train": [], "val": [], "test": []},
+                "long": {"train": ["sim_0001"], "val": [], "test": []}}
+    m.save(lv)
+    with pytest.raises(DataError, match="no finished training trajectories"):  # none of its own
+        evaluate_baselines(lv, tmp_path / "own", part="train")
+    docs = evaluate_baselines(lv, tmp_path / "b", part="train", baselines=("nearest", "other_packing"),
+                              train_dir=fb_tiny_dataset)
+    near, twin = docs["nearest"], docs["other_packing"]
+    assert near["training_dataset"] == str(fb_tiny_dataset) and near["training_velocities"] == pytest.approx(
+        [1.228531, 1.228531])
+    # the other packing is fb_tiny's sim_0000 (a run of another dataset, so the pooled reference keeps lv's run)
+    assert twin["trajectories"][0]["rel_l2"] == near["trajectories"][0]["rel_l2"]
+    assert twin["trajectories"][0]["pooled"]["sims"] == ["sim_0001"]
+    assert twin["trajectories"][0]["rel_l2"]["solid_fraction_mean"] > 0.0
+    m.scene = {**m.scene, "fluidized_bed": {**m.scene["fluidized_bed"], "n_particles": 7}}
+    m.save(lv)
+    with pytest.raises(DataError, match="scene differs"):
+        evaluate_baselines(lv, tmp_path / "c", part="train", train_dir=fb_tiny_dataset)

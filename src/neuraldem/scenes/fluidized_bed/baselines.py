@@ -22,6 +22,10 @@ Every result also holds `pooled` (`evaluation.compare_pooled`): the replayed ser
 the held-out velocity together, leaving out the one replayed (`other_packing`: 3 s of one packing against the
 other two). `--only SIM_ID...` scores just the named held-out trajectories (those a paired model was scored on).
 
+`--train-dataset fb_small` takes the training trajectories (and other packings at the held-out velocity, of the same
+part) from another dataset of the same scene: the baselines of a long validation set (`data=fb_small_longval`,
+`--part val`), scored as a model trained on fb_small is scored there.
+
 Each baseline is written as DIR/<baseline>/evaluation/metrics.json in the layout `neuraldem.evaluate` writes,
 so `python -m neuraldem.scenes.fluidized_bed.table` puts them in one table with the models.
 """
@@ -138,38 +142,64 @@ def held_out_ids(m: Manifest, split: str, part: str, only: tuple[str, ...], data
     return sorted(records, key=lambda r: (r.params.get("duration", 0.0), r.params["inlet_velocity"], r.sim_id))
 
 
+def training_manifest(train_dir: Path, m: Manifest) -> Manifest:
+    """The manifest of --train-dataset, refused when its scene differs from the scored dataset's."""
+    if not (Path(train_dir) / "manifest.json").is_file():
+        raise DataError(f"--train-dataset {train_dir}: no dataset there",
+                        fix="give a dataset folder or name, e.g. --train-dataset fb_small")
+    tm = Manifest.load(train_dir)
+    if tm.scene != m.scene:
+        raise DataError(f"--train-dataset {train_dir}: its scene differs from {m.name!r}'s",
+                        fix="take the training runs from a dataset of the same scene "
+                            "(e.g. fb_small for fb_small_longval)")
+    return tm
+
+
+def part_runs(m: Manifest, dataset_dir: Path, split: str, part: str) -> list[tuple[Path, SimRecord]]:
+    """The finished runs of one part of a split (with their dataset folder), by id."""
+    ids = m.split_ids(split, part) if split in m.splits else []
+    return sorted(((dataset_dir, r) for r in (m.record(i) for i in ids) if r.usable), key=lambda t: t[1].sim_id)
+
+
 def evaluate_baselines(dataset_dir: Path, out_dir: Path, split: str = "velocity", part: str = "test",
                        baselines: tuple[str, ...] = BASELINES, init_snapshot: int = DEFAULT_INIT_SNAPSHOT,
                        max_sims: int | None = None, exclude: tuple[str, ...] = (),
-                       only: tuple[str, ...] = ()) -> dict[str, dict[str, Any]]:
+                       only: tuple[str, ...] = (), train_dir: Path | None = None) -> dict[str, dict[str, Any]]:
     """Score every baseline on the held-out trajectories (`only`: just these, e.g. the ones a paired model was
-    scored on); write <out>/<baseline>/evaluation/metrics.json."""
+    scored on), built from the training trajectories of `train_dir` (default: the same dataset); write
+    <out>/<baseline>/evaluation/metrics.json."""
     for b in baselines:
         if b not in BASELINES:
             raise DataError(f"unknown fluidized-bed baseline {b!r}", fix=f"choose from {', '.join(BASELINES)}")
     m = Manifest.load(dataset_dir)
     settings = metric_settings(m)
-    train = training_series(m, dataset_dir, split, exclude)
+    train_dir = Path(train_dir) if train_dir else Path(dataset_dir)
+    tm = m if train_dir == Path(dataset_dir) else training_manifest(train_dir, m)
+    train = training_series(tm, train_dir, split, exclude)
     train = [(v, s.since(init_snapshot)) for v, s in train]
     records = held_out(m, split, part, max_sims) if not only else held_out_ids(m, split, part, only, dataset_dir)
     if not records:
         raise DataError(f"no finished {part} trajectories in split {split!r} of {dataset_dir}")
     per_baseline: dict[str, list[dict[str, Any]]] = {b: [] for b in baselines}
-    twins = {r.sim_id: r for r in (m.record(i) for i in m.split_ids(split, part)) if r.usable}
+    twins = part_runs(m, Path(dataset_dir), split, part)
+    if tm is not m:  # other packings at the velocity from the training dataset's same part
+        twins += part_runs(tm, train_dir, split, part)
     for rec in records:
         v = velocity(rec)
         truth = load_series(dataset_dir / str(rec.file)).since(init_snapshot)
         pooled_ids, pooled_series = pooled_reference(m, dataset_dir, rec, init_snapshot)  # read once per run
         for b in baselines:
             if b == "other_packing":
-                twin = next((r for i, r in sorted(twins.items()) if i != rec.sim_id and velocity(r) == v), None)
-                if twin is None:  # one packing of this velocity so far
+                twin_at = next(((d, r) for d, r in twins if (d, r.sim_id) != (Path(dataset_dir), rec.sim_id)
+                                and round(velocity(r), 6) == round(v, 6)), None)
+                if twin_at is None:  # one packing of this velocity so far
                     continue
-                pred = load_series(dataset_dir / str(twin.file)).since(init_snapshot)
+                twin_dir, twin = twin_at
+                pred = load_series(twin_dir / str(twin.file)).since(init_snapshot)
             else:
                 pred = baseline_series(b, train, v)
             # pooled reference: every CFD-DEM run at the velocity, but the one replayed as the answer
-            replayed = twin.sim_id if b == "other_packing" else None
+            replayed = twin.sim_id if b == "other_packing" and twin_dir == Path(dataset_dir) else None
             kept = [(i, x) for i, x in zip(pooled_ids, pooled_series, strict=True) if i != replayed]
             ids, reference = [i for i, _ in kept], [x for _, x in kept]
             steps = len(pred.times) - 1
@@ -187,6 +217,7 @@ def evaluate_baselines(dataset_dir: Path, out_dir: Path, split: str = "velocity"
             continue
         doc = {
             "baseline": b, "description": DESCRIPTIONS[b], "dataset": str(dataset_dir), "split": split,
+            "training_dataset": str(train_dir),
             "part": part, "trained_velocity_range": [train[0][0], train[-1][0]],
             "training_velocities": [v for v, _ in train], "excluded": list(exclude),
             "training": {"parameters": 0, "baseline": DESCRIPTIONS[b]},
@@ -217,9 +248,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--only", nargs="+", default=[], metavar="SIM_ID",
                    help="score just these held-out trajectories of --part (e.g. those a paired model was scored on; "
                         "default: the first of every held-out velocity)")
+    p.add_argument("--train-dataset", default=None,
+                   help="take the training runs (and other packings) from this dataset of the same scene (e.g. "
+                        "fb_small, to score the baselines of fb_small_longval); default: the dataset itself")
     a = p.parse_args(argv)
+    train_dir = resolve_dataset(a.train_dataset) if a.train_dataset else None
     docs = evaluate_baselines(resolve_dataset(a.dataset), a.out, a.split, a.part, tuple(a.baselines),
-                              a.init_snapshot, exclude=tuple(a.exclude), only=tuple(a.only))
+                              a.init_snapshot, exclude=tuple(a.exclude), only=tuple(a.only), train_dir=train_dir)
     for b, d in docs.items():
         g = d["aggregate"]
         print(f"{b:13s} mean rel L2 {g['solid_fraction_mean_rel_l2']:.3f}  Lacey MAE {g['lacey_mae']:.3f}  "
