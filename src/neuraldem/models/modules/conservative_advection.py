@@ -29,6 +29,7 @@ hold the same volume, as the volume projection guarantees).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -80,7 +81,13 @@ def net_outflow(faces: dict[int, torch.Tensor], dt: float, spacing: Sequence[flo
 
 
 def _neumann_eigenvalues(shape: Sequence[int], spacing: Sequence[float]) -> np.ndarray:
-    """Eigenvalues (<= 0) of the cell-centred Neumann Laplacian in the DCT-II basis."""
+    """Eigenvalues (<= 0) of the cell-centred Neumann Laplacian in the DCT-II basis (a fresh copy: the caller
+    may change it; computed once per grid, as a rollout asks every step)."""
+    return _eigenvalues(tuple(int(n) for n in shape), tuple(float(h) for h in spacing)).copy()
+
+
+@functools.lru_cache(maxsize=16)
+def _eigenvalues(shape: tuple[int, ...], spacing: tuple[float, ...]) -> np.ndarray:
     lam = np.zeros(tuple(shape))
     for a, n in enumerate(shape):
         k = np.arange(n).reshape([-1 if b == a else 1 for b in range(len(shape))])
