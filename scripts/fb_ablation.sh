@@ -84,27 +84,18 @@ overrides() {
   esac
 }
 trained_of() { echo "${1%%+*}"; }
-rollout_options() {  # "full+alt+noise1" -> the evaluate overrides of its rollout options
-  local rest=${1#*+} opt out=""
+rollout_options() {  # "full+alt+noise1" [flags] -> the evaluate overrides of its rollout options (with "flags":
+                     # fb-select's flags for the same options); one table, so both always agree
+  local rest=${1#*+} opt out="" override flag
   for opt in ${rest//+/ }; do
     case "$opt" in
-      alt) out="$out fluidized_bed.mirror_alternate=true" ;;
-      noise[0-9]*) out="$out fluidized_bed.rollout_noise=${opt#noise}" ;;
-      corr[0-9]*) out="$out fluidized_bed.advection_correction=${opt#corr}" ;;
-      sel) ;;
+      alt) override="fluidized_bed.mirror_alternate=true" flag="--mirror-alternate" ;;
+      noise[0-9]*) override="fluidized_bed.rollout_noise=${opt#noise}" flag="--rollout-noise ${opt#noise}" ;;
+      corr[0-9]*) override="fluidized_bed.advection_correction=${opt#corr}" flag="--advection-correction ${opt#corr}" ;;
+      sel) override="" flag="" ;;
       *) echo "fb_ablation: unknown rollout option '$opt' in '$1' (known: alt, noiseX e.g. noise1, corrX e.g. corr1, sel)" >&2; return 2 ;;
     esac
-  done
-  echo "$out"
-}
-select_flags() {  # "full+noise3+corr1+alt+sel" -> fb-select's flags for the same rollout options
-  local rest=${1#*+} opt out=""
-  for opt in ${rest//+/ }; do
-    case "$opt" in
-      alt) out="$out --mirror-alternate" ;;
-      noise[0-9]*) out="$out --rollout-noise ${opt#noise}" ;;
-      corr[0-9]*) out="$out --advection-correction ${opt#corr}" ;;
-    esac
+    if [ "${2:-}" = flags ]; then out="$out $flag"; else out="$out $override"; fi
   done
   echo "$out"
 }
@@ -169,7 +160,7 @@ for v in $VARIANTS; do  # the trained nets again, with other rollout options
       ckpt="$runs/$v/selected.ckpt"
       if [ ! -f "$ckpt" ]; then
         # shellcheck disable=SC2046,SC2086
-        "$PY" -m neuraldem.scenes.fluidized_bed.select "$runs/$b" $(select_flags "$v") \
+        "$PY" -m neuraldem.scenes.fluidized_bed.select "$runs/$b" $(rollout_options "$v" flags) \
           --from-step "${SELECT_FROM:-0}" --seeds ${SELECT_SEEDS:-0 1} ${LONG_VAL:+--long-val $LONG_VAL} \
           --copy-to "$ckpt" || exit 1
       fi ;;
