@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from neuraldem.cli import doc_parser, report_user_errors
-from neuraldem.data.manifest import Manifest, SimRecord
+from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.machine import machine_info
@@ -144,7 +144,7 @@ def held_out_ids(m: Manifest, split: str, part: str, only: tuple[str, ...], data
 
 def training_manifest(train_dir: Path, m: Manifest) -> Manifest:
     """The manifest of --train-dataset, refused when its scene differs from the scored dataset's."""
-    if not (Path(train_dir) / "manifest.json").is_file():
+    if not (Path(train_dir) / MANIFEST_NAME).is_file():
         raise DataError(f"--train-dataset {train_dir}: no dataset there",
                         fix="give a dataset folder or name, e.g. --train-dataset fb_small")
     tm = Manifest.load(train_dir)
