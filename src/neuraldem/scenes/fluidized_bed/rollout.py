@@ -185,7 +185,9 @@ class ModelStepper:
         lo_x, hi_x = self.norm.box_lo[0], self.norm.box_hi[0]
         return mirror_state(self._step(mirror_state(state, lo_x, hi_x)), lo_x, hi_x)
 
-    @torch.inference_mode()  # not just no_grad: no version counters or view tracking, ~15 % less time per step
+    # inference_mode, not just no_grad: no version counters or view tracking (fb_speed, stop 42: 0.832 -> 0.791 s
+    # per simulated second at one thread, fields bit-identical)
+    @torch.inference_mode()
     def _step(self, state: FbState) -> FbState:
         norm = self.norm
         if self.solid_volume is None:
