@@ -84,21 +84,9 @@ overrides() {
   esac
 }
 trained_of() { echo "${1%%+*}"; }
-rollout_options() {  # "full+alt+noise1" [flags] -> the evaluate overrides of its rollout options (with "flags":
-                     # fb-select's flags for the same options); one table, so both always agree
-  local rest=${1#*+} opt out="" override flag
-  for opt in ${rest//+/ }; do
-    case "$opt" in
-      alt) override="fluidized_bed.mirror_alternate=true" flag="--mirror-alternate" ;;
-      noise[0-9]*) override="fluidized_bed.rollout_noise=${opt#noise}" flag="--rollout-noise ${opt#noise}" ;;
-      corr[0-9]*) override="fluidized_bed.advection_correction=${opt#corr}" flag="--advection-correction ${opt#corr}" ;;
-      sel) override="" flag="" ;;
-      *) echo "fb_ablation: unknown rollout option '$opt' in '$1' (known: alt, noiseX e.g. noise1, corrX e.g. corr1, sel)" >&2; return 2 ;;
-    esac
-    if [ "${2:-}" = flags ]; then out="$out $flag"; else out="$out $override"; fi
-  done
-  echo "$out"
-}
+# rollout_options "full+alt+noise1" [flags]: the evaluate overrides (or fb-select's flags) of its rollout options
+# shellcheck source=lib/fb_rollout_options.sh
+source "$ROOT/scripts/lib/fb_rollout_options.sh"
 for v in $VARIANTS; do
   overrides "$(trained_of "$v")" > /dev/null || exit 2
   case "$v" in *+*)

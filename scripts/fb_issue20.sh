@@ -28,16 +28,12 @@ if [ -n "$LONG_VAL" ] && [ ! -f "$LONG_VAL/manifest.json" ]; then
        "data=fb_small_longval) or set LONG_VAL= to choose on the 3-s validation part alone" >&2
   exit 2
 fi
-# fb-select's flags for OPTIONS, the same words as scripts/fb_ablation.sh's rollout options
-flags="" speed_flags=""  # the speed bench times the net's steps: no mixing option
-for opt in ${OPTIONS//+/ }; do
-  case "$opt" in
-    alt) flags="$flags --mirror-alternate"; speed_flags="$speed_flags --mirror-alternate" ;;
-    noise[0-9]*) flags="$flags --rollout-noise ${opt#noise}"; speed_flags="$speed_flags --rollout-noise ${opt#noise}" ;;
-    corr[0-9]*) flags="$flags --advection-correction ${opt#corr}" ;;
-    *) echo "fb_issue20: unknown rollout option '$opt' in OPTIONS=$OPTIONS (known: alt, noiseX, corrX)" >&2; exit 2 ;;
-  esac
-done
+# fb-select's and fb_stability's flags for OPTIONS, and fb_speed's (it times the net's steps: no mixing option);
+# the same words as scripts/fb_ablation.sh's variants, from one table
+# shellcheck source=lib/fb_rollout_options.sh
+source "$ROOT/scripts/lib/fb_rollout_options.sh"
+flags=$(rollout_options "x+$OPTIONS" flags) || { echo "fb_issue20: OPTIONS=$OPTIONS" >&2; exit 2; }
+speed_flags=$(rollout_options "x+$OPTIONS" speed) || exit 2
 chosen="full+$OPTIONS+sel"
 mkdir -p "$runs"
 failed=0
