@@ -18,7 +18,7 @@ from neuraldem.cli import hydra_app
 from neuraldem.config import checks
 from neuraldem.eval.checkpoints import resolve_device
 from neuraldem.scenes.fluidized_bed.rollout import DivergenceLimits, run_rollout
-from neuraldem.scenes.fluidized_bed.stability import MAX_ROLLOUT_NOISE, MIXING_MODES
+from neuraldem.scenes.fluidized_bed.stability import MIXING_MODES, check_rollout_value
 
 
 @hydra_app("rollout")
@@ -39,10 +39,10 @@ def main(cfg: DictConfig) -> None:
         mixing=None if cfg.get("mixing") is None else checks.one_of("mixing", cfg.mixing, MIXING_MODES),
         mirror_alternate=None if cfg.get("mirror_alternate") is None else checks.boolean(
             "mirror_alternate", cfg.mirror_alternate),
-        rollout_noise=None if cfg.get("rollout_noise") is None else checks.number(
-            "rollout_noise", cfg.rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE),
-        advection_correction=None if cfg.get("advection_correction") is None else checks.number(
-            "advection_correction", cfg.advection_correction, lo=0.0, hi=1.0))
+        rollout_noise=None if cfg.get("rollout_noise") is None else check_rollout_value(
+            "rollout_noise", cfg.rollout_noise),
+        advection_correction=None if cfg.get("advection_correction") is None else check_rollout_value(
+            "advection_correction", cfg.advection_correction))
     print(summary["message"])
     if summary["extrapolation"]:
         lo, hi = summary["trained_velocity_range"]

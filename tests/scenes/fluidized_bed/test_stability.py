@@ -7,7 +7,13 @@ import pytest
 
 from neuraldem.errors import ConfigError
 from neuraldem.paths import config_dir
-from neuraldem.scenes.fluidized_bed.stability import FbStability, rollout_overrides
+from neuraldem.scenes.fluidized_bed.rollout_flags import check_rollout_flags
+from neuraldem.scenes.fluidized_bed.stability import (
+    ROLLOUT_RANGES,
+    FbStability,
+    check_rollout_value,
+    rollout_overrides,
+)
 
 FB_EXPERIMENTS = sorted(p.stem for p in (config_dir() / "experiment").glob("fb*.yaml"))
 FB_MODELS = sorted(p.stem for p in (config_dir() / "model").glob("fb_*.yaml"))
@@ -93,3 +99,19 @@ def test_rollout_overrides_are_validated_and_keep_the_rest():
     assert rollout_overrides(base, mirror_alternate=True).mirror_alternate and not base.mirror_alternate
     with pytest.raises(ConfigError, match="mirror_alternate=1 is invalid"):
         rollout_overrides(base, mirror_alternate=1)
+
+
+@pytest.mark.parametrize("option", sorted(ROLLOUT_RANGES))
+def test_every_spelling_of_a_rollout_option_has_one_range(option):
+    """model.stability.*, the tools' --flags and the evaluate / rollout keys take the same bounds, each error
+    naming the spelling that was typed."""
+    lo, hi = ROLLOUT_RANGES[option]
+    assert check_rollout_value(option, hi) == hi and check_rollout_value(option, lo) == lo
+    above, below = hi + 0.5, lo - 0.5
+    with pytest.raises(ConfigError, match=rf"model\.stability\.{option}={above} is invalid"):
+        FbStability.from_config({option: above})
+    flags = {"rollout_noise": (above, None), "advection_correction": (None, above)}[option]
+    with pytest.raises(ConfigError, match=rf"--{option.replace('_', '-')}={above} is invalid"):
+        check_rollout_flags(*flags)
+    with pytest.raises(ConfigError, match=rf"fluidized_bed\.{option}={below} is invalid"):
+        check_rollout_value(option, below, f"fluidized_bed.{option}")

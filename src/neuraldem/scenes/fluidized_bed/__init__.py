@@ -21,7 +21,7 @@ def pipeline(data_cfg: DictConfig) -> Any:
 def evaluate(cfg: DictConfig) -> None:
     from neuraldem.scenes.fluidized_bed.evaluation import evaluate_checkpoint
     from neuraldem.scenes.fluidized_bed.rollout import DivergenceLimits
-    from neuraldem.scenes.fluidized_bed.stability import ADVECTION_FLUXES, MAX_ROLLOUT_NOISE, MIXING_MODES
+    from neuraldem.scenes.fluidized_bed.stability import ADVECTION_FLUXES, MIXING_MODES, check_rollout_value
 
     fb = cfg.fluidized_bed
     conserve = fb.conserve_solid_volume
@@ -35,14 +35,14 @@ def evaluate(cfg: DictConfig) -> None:
                                                                            conserve),
         mixing=None if fb.get("mixing") is None else checks.one_of("fluidized_bed.mixing", fb.mixing, MIXING_MODES),
         init_snapshot=checks.positive_int("fluidized_bed.init_snapshot", fb.get("init_snapshot", 1), allow_zero=True),
-        advection_correction=None if correction is None else checks.number(
-            "fluidized_bed.advection_correction", correction, lo=0.0, hi=1.0),
+        advection_correction=None if correction is None else check_rollout_value(
+            "advection_correction", correction, "fluidized_bed.advection_correction"),
         advection_flux=None if fb.get("advection_flux") is None else checks.one_of(
             "fluidized_bed.advection_flux", fb.advection_flux, ADVECTION_FLUXES),
         mirror_alternate=None if fb.get("mirror_alternate") is None else checks.boolean(
             "fluidized_bed.mirror_alternate", fb.mirror_alternate),
-        rollout_noise=None if fb.get("rollout_noise") is None else checks.number(
-            "fluidized_bed.rollout_noise", fb.rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE))
+        rollout_noise=None if fb.get("rollout_noise") is None else check_rollout_value(
+            "rollout_noise", fb.rollout_noise, "fluidized_bed.rollout_noise"))
     agg = result["aggregate"]
     print((Path(cfg.paths.output_dir) / "report.md").read_text())
     which = "held-out velocities" if cfg.part == "test" else f"{cfg.part} trajectories"

@@ -6,8 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from neuraldem.config import checks
-from neuraldem.scenes.fluidized_bed.stability import MAX_ROLLOUT_NOISE
+from neuraldem.scenes.fluidized_bed.stability import MAX_ROLLOUT_NOISE, check_rollout_value
 
 
 def add_rollout_flags(p: argparse.ArgumentParser, *, correction: bool = True,
@@ -26,6 +25,6 @@ def add_rollout_flags(p: argparse.ArgumentParser, *, correction: bool = True,
 def check_rollout_flags(rollout_noise: float | None, advection_correction: float | None = None) -> None:
     """One line naming the flag for a value outside its range (None: as trained, always fine)."""
     if rollout_noise is not None:
-        checks.number("--rollout-noise", rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE)
+        check_rollout_value("rollout_noise", rollout_noise, "--rollout-noise")
     if advection_correction is not None:
-        checks.number("--advection-correction", advection_correction, lo=0.0, hi=1.0)
+        check_rollout_value("advection_correction", advection_correction, "--advection-correction")

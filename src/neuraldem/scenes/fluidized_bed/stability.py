@@ -69,6 +69,16 @@ ADVECTION_FLUXES = ("predicted", "consistent")
 LOSS_ON = ("every", "last")
 MAX_ENSEMBLE = 16
 MAX_ROLLOUT_NOISE = 10.0  # times the one-step error: beyond it the net reads noise, not a state
+# the numeric options a rollout may override, and their ranges: every spelling of them (model.stability.*, the
+# evaluate and rollout keys, the tools' --flags) is checked here, so the bounds cannot drift apart
+ROLLOUT_RANGES = {"rollout_noise": (0.0, MAX_ROLLOUT_NOISE), "advection_correction": (0.0, 1.0)}
+
+
+def check_rollout_value(option: str, value: Any, key: str | None = None) -> float:
+    """`value` of the rollout option `option` (a ROLLOUT_RANGES name) inside its range; the error names `key`,
+    the spelling the user typed (default: the option's own name)."""
+    lo, hi = ROLLOUT_RANGES[option]
+    return checks.number(key or option, value, lo=lo, hi=hi)
 
 
 @dataclass(frozen=True)
@@ -116,7 +126,7 @@ class FbStability:
         checks.boolean(f"{KEY}.conserve_volume", self.conserve_volume)
         checks.one_of(f"{KEY}.mixing", self.mixing, MIXING_MODES)
         checks.one_of(f"{KEY}.advection_scheme", self.advection_scheme, SCHEMES)
-        checks.number(f"{KEY}.advection_correction", self.advection_correction, lo=0.0, hi=1.0)
+        check_rollout_value("advection_correction", self.advection_correction, f"{KEY}.advection_correction")
         checks.one_of(f"{KEY}.advection_flux", self.advection_flux, ADVECTION_FLUXES)
         if self.advection_flux == "consistent" and self.mixing == "advect" and not self.conserve_volume:
             raise ConfigError(f"config value {KEY}.advection_flux=consistent needs {KEY}.conserve_volume=true: "
@@ -124,7 +134,7 @@ class FbStability:
                               f"{KEY}.advection_flux=predicted)")
         checks.number(f"{KEY}.flux_consistency", self.flux_consistency, lo=0.0, hi=100.0)
         checks.boolean(f"{KEY}.mirror_alternate", self.mirror_alternate)
-        checks.number(f"{KEY}.rollout_noise", self.rollout_noise, lo=0.0, hi=MAX_ROLLOUT_NOISE)
+        check_rollout_value("rollout_noise", self.rollout_noise, f"{KEY}.rollout_noise")
         if isinstance(self.ensemble, bool) or not isinstance(self.ensemble, int) or self.ensemble < 1:
             raise ConfigError(f"config value {KEY}.ensemble={self.ensemble!r} is invalid: must be an integer >= 1 "
                               f"(1 = deterministic; 2 = a stochastic model trained with CRPS, e.g. {KEY}.ensemble=2)")
