@@ -239,3 +239,30 @@ def test_flux_consistency_adds_the_continuity_loss(fb_tiny_dataset: Path):
     assert losses["continuity"] > 0
     losses["continuity"].backward()
     assert sum(p.grad.abs().sum() for p in on.net.parameters() if p.grad is not None) > 0
+
+
+def test_an_advected_rollout_step_skips_the_mixing_decoder_and_changes_nothing(fb_tiny_dataset: Path):
+    """With mixing=advect the step replaces the decoded mixing grid by the advected one: the rollout step leaves
+    the mixing decoder out (a third of the decoding) and its next state is the one of the full decode, bit for
+    bit."""
+    from neuraldem.scenes.fluidized_bed.autoregressive import advance, apply_stability, decode_grid, next_inputs
+
+    torch.manual_seed(0)
+    module, dm = _module(fb_tiny_dataset, solids_flux=True,
+                         stability={"mixing": "advect", "conserve_volume": True, "advection_flux": "consistent"})
+    dm.setup()
+    module.eval()
+    x = module.inputs(next(iter(dm.test_dataloader())))
+    calls = []
+    module.net.decoders["mixing"].register_forward_hook(lambda *args: calls.append(1))
+    with torch.no_grad():
+        fast = advance(module.net, x, module.norm, n_particles=30, generator=torch.Generator().manual_seed(3),
+                       stability=module.stability)
+        assert not calls
+        tokens, cond = module.net.latents(x)
+        full = apply_stability(decode_grid(module.net, tokens, cond, x), x, module.norm, module.stability, None)
+        assert calls  # the reference decoded the mixing grid, and threw it away
+        ref = next_inputs(module.net, tokens, cond, full, x, module.norm, 30, torch.Generator().manual_seed(3))
+    for name in ("grid", "mixing_grid", "particle_pos", "particle_features"):
+        torch.testing.assert_close(getattr(fast, name), getattr(ref, name), rtol=0, atol=0)
+    assert not torch.equal(ref.mixing_grid, x.mixing_grid)  # the advection moved something

@@ -178,19 +178,26 @@ def next_grid_fields(out: dict[str, torch.Tensor], inputs: OperatorInputs,
                      step_scales: dict[str, torch.Tensor] | None) -> dict[str, torch.Tensor]:
     """The decoded grid branches (B, cells, C) as next states, model units: the output itself, or for a
     residual model (`step_scales` given) the input plus the output times the step scale."""
+    grids = {"fluid": inputs.grid, "mixing": inputs.mixing_grid}
     if step_scales is None:
-        return {"fluid": out["fluid"], "mixing": out["mixing"]}
+        return {name: out[name] for name in grids if name in out}
     return {name: grid_cells(grid) + out[name] * step_scales[name].to(out[name].device)
-            for name, grid in (("fluid", inputs.grid), ("mixing", inputs.mixing_grid))}
+            for name, grid in grids.items() if name in out}
 
 
 def decode_grid(net: MultiBranchOperator, tokens: dict[str, torch.Tensor], cond: torch.Tensor,
                 inputs: OperatorInputs, chunk_size: int | None = None,
-                step_scales: dict[str, torch.Tensor] | None = None) -> dict[str, torch.Tensor]:
-    """Next fluid (B, cells, C) and mixing (B, cells, 1) states, model units, before the stability options."""
+                step_scales: dict[str, torch.Tensor] | None = None, mixing: bool = True) -> dict[str, torch.Tensor]:
+    """Next fluid (B, cells, C) and mixing (B, cells, 1) states, model units, before the stability options.
+    mixing=False leaves the mixing decoder out and passes the input's mixing grid on: for a step whose
+    stability options replace it (mixing=advect), where decoding it only cost time (a third of the decoding)."""
     queries = grid_queries(inputs)
-    return next_grid_fields(net.decode(tokens, cond, {"fluid": queries, "mixing": queries}, chunk_size=chunk_size),
-                            inputs, step_scales)
+    branches = ("fluid", "mixing") if mixing else ("fluid",)
+    out = next_grid_fields(net.decode(tokens, cond, {b: queries for b in branches}, chunk_size=chunk_size),
+                           inputs, step_scales)
+    if not mixing:
+        out["mixing"] = grid_cells(inputs.mixing_grid)
+    return out
 
 
 def apply_stability(fields: dict[str, torch.Tensor], inputs: OperatorInputs, norm: FbNormalizer,
@@ -255,6 +262,7 @@ def advance(net: MultiBranchOperator, inputs: OperatorInputs, norm: FbNormalizer
     what the net reads instead of `inputs` (a perturbed copy, `stability.rollout_noise`); the stability options
     and a residual model's base still use `inputs`."""
     tokens, cond = net.latents(inputs if net_view is None else net_view)
-    fields = apply_stability(decode_grid(net, tokens, cond, inputs, chunk_size, step_scales), inputs, norm,
-                             stability, volume)
+    advected = stability is not None and stability.mixing == "advect"  # replaces the decoded mixing grid
+    fields = apply_stability(decode_grid(net, tokens, cond, inputs, chunk_size, step_scales, mixing=not advected),
+                             inputs, norm, stability, volume)
     return next_inputs(net, tokens, cond, fields, inputs, norm, n_particles, generator, chunk_size)
