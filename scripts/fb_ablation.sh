@@ -34,8 +34,8 @@
 # and LONG_VAL (datasets of long validation trajectories, e.g. $NEURALDEM_DATA/datasets/fb_small_longval) are
 # passed on as --from-step, --seeds and --long-val.
 # Runs land in RUNS_DIR/<variant>/ (logs beside them), the table in RUNS_DIR/table.md (+ .json). A finished
-# training (RUNS_DIR/<variant>/.trained) is not repeated and a finished evaluation is skipped, so a killed sweep
-# resumes.
+# training (RUNS_DIR/<variant>/.trained) is not repeated, a killed one goes on from its checkpoints/latest.ckpt
+# (ckpt_path=...) and a finished evaluation is skipped, so a killed sweep resumes.
 # VAL=1 also scores each run's kept checkpoint (checkpoints/last.ckpt) on the validation part into
 # RUNS_DIR-val/<variant>/evaluation (3000-step rollouts, against each validation trajectory and pooled over every
 # run at its velocity) with its own table RUNS_DIR-val/table.md: choose between variants there, not on the test.
@@ -122,9 +122,10 @@ for v in $VARIANTS; do
   # shellcheck disable=SC2046
   (
     if [ ! -f "$run/.trained" ] && [ ! -f "$run/evaluation/metrics.json" ]; then
-      rm -rf "$run"
+      resume=()  # a killed training goes on from its newest state (written at every validation)
+      if [ -f "$run/checkpoints/latest.ckpt" ]; then resume=(ckpt_path="$run/checkpoints/latest.ckpt"); else rm -rf "$run"; fi
       "$PY" -m neuraldem.train experiment=fb $(overrides "$v") hydra.run.dir="$run" callbacks.progress=null \
-        "${test_off[@]}" "$@" || exit 1
+        "${test_off[@]}" "$@" "${resume[@]}" || exit 1
       mkdir -p "$run" && touch "$run/.trained"
     elif [ "$TEST" = 1 ] && [ ! -f "$run/evaluation/metrics.json" ]; then
       "$PY" -m neuraldem.evaluate ckpt="$run/checkpoints/last.ckpt" vtk=false hydra.run.dir="$run/evaluation" || exit 1

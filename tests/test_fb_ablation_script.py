@@ -158,3 +158,20 @@ def test_sel_chooses_the_checkpoint_under_the_rollout_options_then_scores_it(tmp
     _, calls = _run(tmp_path / "plain", "full full+sel")
     (select,) = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.select"]
     assert "--long-val" not in select and "--rollout-noise" not in select and "--from-step" in select
+
+
+def test_a_killed_training_goes_on_from_its_latest_state(tmp_path: Path):
+    """A run folder with checkpoints/latest.ckpt and no .trained mark resumes (ckpt_path=..., folder kept); one
+    without a checkpoint starts afresh in an emptied folder."""
+    killed = tmp_path / "runs" / "full"
+    (killed / "checkpoints").mkdir(parents=True)
+    (killed / "checkpoints" / "latest.ckpt").write_text("state")
+    fresh = tmp_path / "runs" / "no_ema"
+    fresh.mkdir(parents=True)
+    (fresh / "stale.txt").write_text("half a run without a checkpoint")
+    proc, calls = _run(tmp_path, "full no_ema", TEST="0")
+    assert proc.returncode == 0, proc.stderr
+    full, no_ema = [c for c in calls if c[:2] == ["-m", "neuraldem.train"]]
+    assert full[-1] == f"ckpt_path={killed / 'checkpoints' / 'latest.ckpt'}"
+    assert (killed / "checkpoints" / "latest.ckpt").exists()
+    assert not any(a.startswith("ckpt_path=") for a in no_ema) and not (fresh / "stale.txt").exists()
