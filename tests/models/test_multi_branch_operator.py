@@ -91,6 +91,24 @@ def test_off_branch_inputs_do_not_change_main_outputs():
         assert torch.equal(changed[name], out[name])
 
 
+def test_latents_without_the_off_branches_are_the_main_tokens_bit_for_bit():
+    """A caller that decodes no off-branch (a rollout that advects the mixing) may leave them out: the main
+    tokens are the same, and the off-branch's encoder is never run."""
+    model = activate_modulations(tiny()).eval()
+    x = inputs(model)
+    calls = []
+    model.encoders["mixing"].register_forward_hook(lambda *args: calls.append(1))
+    full, cond = model.latents(x)
+    assert calls == [1]
+    main, cond_main = model.latents(x, off_branches=False)
+    assert calls == [1] and set(main) == set(MAIN_BRANCHES) and set(full) == set(MAIN_BRANCHES) | {"mixing"}
+    assert torch.equal(cond, cond_main)
+    for name in MAIN_BRANCHES:
+        assert torch.equal(main[name], full[name])
+    torch.testing.assert_close(model.decode(main, cond, {"fluid": x.query_pos["fluid"]})["fluid"],
+                               model(x)["fluid"], rtol=0, atol=0)
+
+
 def test_off_branch_reads_main_branches():
     model = activate_modulations(tiny())
     x = inputs(model)

@@ -103,22 +103,28 @@ class MultiBranchOperator(nn.Module):
             for name in self.branches
         })
 
-    def encode(self, inputs: OperatorInputs) -> dict[str, torch.Tensor]:
-        """Input fields -> tokens {branch: (B, n_tokens_branch, dim)}."""
+    def encode(self, inputs: OperatorInputs, off_branches: bool = True) -> dict[str, torch.Tensor]:
+        """Input fields -> tokens {branch: (B, n_tokens_branch, dim)} (the main branches' alone without
+        `off_branches`)."""
         tokens = {}
         if self.particle_branch:
             tokens["particles"] = self.encoders["particles"](inputs.particle_pos, inputs.particle_features,
                                                              inputs.supernode_idx)
-        return tokens | {"fluid": self.encoders["fluid"](inputs.grid),
-                         "mixing": self.encoders["mixing"](inputs.mixing_grid)}
+        tokens["fluid"] = self.encoders["fluid"](inputs.grid)
+        if off_branches:
+            tokens["mixing"] = self.encoders["mixing"](inputs.mixing_grid)
+        return tokens
 
     def forward(self, inputs: OperatorInputs, chunk_size: int | None = None) -> dict[str, torch.Tensor]:
         tokens, cond = self.latents(inputs)
         return self.decode(tokens, cond, inputs.query_pos, chunk_size=chunk_size)
 
-    def latents(self, inputs: OperatorInputs) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+    def latents(self, inputs: OperatorInputs,
+                off_branches: bool = True) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """Tokens after the last block and the conditioning vector: decode them once or in several calls
-        (a rollout decodes the grid first, then the particles at positions sampled from the new grid)."""
+        (a rollout decodes the grid first, then the particles at positions sampled from the new grid).
+        off_branches=False computes the main branches alone, for a caller that decodes no off-branch: they
+        are the same either way (an off-branch only reads the main tokens)."""
         cond = self.conditioner(inputs.scalars)
         if self.noise_embed is not None:
             z = inputs.noise
@@ -127,9 +133,9 @@ class MultiBranchOperator(nn.Module):
             if z.shape != (cond.shape[0], self.noise_dim):
                 raise ValueError(f"noise of shape {tuple(z.shape)}; expected ({cond.shape[0]}, {self.noise_dim})")
             cond = cond + self.noise_embed(z)
-        tokens = self.encode(inputs)
+        tokens = self.encode(inputs, off_branches)
         for block in [*self.encoder_blocks, *self.approximator_blocks, *self.decoder_blocks]:
-            tokens = block(tokens, cond)
+            tokens = block(tokens, cond, off_branches)
         return tokens, cond
 
     def decode(self, tokens: Mapping[str, torch.Tensor], cond: torch.Tensor,

@@ -74,13 +74,16 @@ class MultiBranchTransformerBlock(nn.Module):
         self.off = nn.ModuleDict({name: OffBranchLayers(dim, cond_dim, mlp_ratio)
                                   for name in self.off_branches})
 
-    def forward(self, tokens: Mapping[str, torch.Tensor], cond: torch.Tensor) -> dict[str, torch.Tensor]:
-        missing = [b for b in self.main_branches + self.off_branches if b not in tokens]
+    def forward(self, tokens: Mapping[str, torch.Tensor], cond: torch.Tensor,
+                off_branches: bool = True) -> dict[str, torch.Tensor]:
+        """off_branches=False: the main branches alone (their outputs never depend on an off-branch)."""
+        off = self.off_branches if off_branches else []
+        missing = [b for b in self.main_branches + off if b not in tokens]
         if missing:
             raise ValueError(f"tokens for branches {missing} are missing (got {sorted(tokens)})")
         out = self._main_forward(tokens, cond)
         context = [tokens[name].detach() for name in self.main_branches]
-        for name in self.off_branches:
+        for name in off:
             out[name] = self._off_forward(self.off[name], tokens[name], context, cond.detach())
         return out
 

@@ -261,8 +261,9 @@ def advance(net: MultiBranchOperator, inputs: OperatorInputs, norm: FbNormalizer
     `step_scales` (`grid_step_scales`) for a residual model, whose grid outputs are scaled changes. `net_view`:
     what the net reads instead of `inputs` (a perturbed copy, `stability.rollout_noise`); the stability options
     and a residual model's base still use `inputs`."""
-    tokens, cond = net.latents(inputs if net_view is None else net_view)
-    advected = stability is not None and stability.mixing == "advect"  # replaces the decoded mixing grid
+    # with mixing=advect the step replaces the decoded mixing grid: the mixing off-branch is left out altogether
+    advected = stability is not None and stability.mixing == "advect"
+    tokens, cond = net.latents(inputs if net_view is None else net_view, off_branches=not advected)
     fields = apply_stability(decode_grid(net, tokens, cond, inputs, chunk_size, step_scales, mixing=not advected),
                              inputs, norm, stability, volume)
     return next_inputs(net, tokens, cond, fields, inputs, norm, n_particles, generator, chunk_size)
