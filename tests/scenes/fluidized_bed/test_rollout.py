@@ -323,7 +323,7 @@ def test_rollout_noise_perturbs_what_the_net_reads_and_nothing_else(fb_tiny_flux
         assert r.solid_fraction.max() <= module.norm.solid_fraction_max * (1 + 1e-5)
     # what the net read: the state plus noise of 3 x the running error, per channel
     read, latents = [], module.net.latents
-    module.net.latents = lambda x: read.append(x.grid.clone()) or latents(x)
+    module.net.latents = lambda x, **kw: read.append(x.grid.clone()) or latents(x, **kw)
     stepper = ModelStepper(module, TRAINED_VELOCITY, 0, rollout_noise=3.0)
     clean = torch.from_numpy(grid_input(module.norm, state.fluid_velocity, state.solid_fraction, state.solids_flux))
     stepper.step(state)
