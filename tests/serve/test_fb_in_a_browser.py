@@ -57,8 +57,12 @@ def test_a_slider_move_shows_predicts_numbers_then_the_exact_rollout(bed, use_fb
     done = bed.wait_field_numbers(v, timeout=90)
     assert done["field"] == printed["field"]["summary"]
     assert all(done["text"][k][1] == shown(k, printed["field"]["summary"][k], q) for k in q)
+    from neuraldem.serve.browser import wait_for
+
     title = bed.wait_shown(v)
-    assert bed.status("shown") == repr(v) and "(exact)" in title
+    # the status line is another element, updated in the same draw: it may reach the DOM a moment after the title
+    wait_for(lambda: bed.status("shown") == repr(v), 30, f"the status naming the rollout at {v:g} m/s")
+    assert "(exact)" in title
     bed.screenshot(tmp_path / "exact_rollout.png")
 
 
