@@ -15,7 +15,9 @@
 # model.stability.mirror_alternate, in the run's rollout validation and evaluation too), mirror_both (mirrored
 # training samples + alternating rollouts), noise_sel (rollout noise 3, model.stability.rollout_noise, in the run's
 # rollout validation, so the checkpoint is chosen on noisy rollouts, and in its evaluation), noise_pooled (noise_sel
-# + that validation scored against every CFD-DEM run at the velocity, callbacks.rollout_validation.reference=pooled).
+# + that validation scored against every CFD-DEM run at the velocity, callbacks.rollout_validation.reference=pooled),
+# cond10 (the inlet velocity's sin-cos embedding at scale 10 instead of the positions' 1000,
+# model.net.scalar_coord_scale=10: nearby velocities get nearby conditioning; stop 43).
 # The options before issue 20 (one-step training, absolute mixing, no projection,
 # no flux channels): base (no noise), noise (input noise 0.01), grid_only (no particle branch), residual (the grid
 # branches predict the scaled change per step), grid_residual (both). Push-forward scored only at t + k (the old
@@ -80,7 +82,8 @@ overrides() {
     mirror_both) echo "data.datamodule.mirror=true model.stability.mirror_alternate=true" ;;
     noise_sel) echo "model.stability.rollout_noise=3" ;;
     noise_pooled) echo "model.stability.rollout_noise=3 callbacks.rollout_validation.reference=pooled" ;;
-    *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror continuity long short mirror_alt mirror_both noise_sel noise_pooled base noise grid_only residual grid_residual)" >&2; return 2 ;;
+    cond10) echo "model.net.scalar_coord_scale=10" ;;
+    *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror continuity long short mirror_alt mirror_both noise_sel noise_pooled cond10 base noise grid_only residual grid_residual)" >&2; return 2 ;;
   esac
 }
 trained_of() { echo "${1%%+*}"; }

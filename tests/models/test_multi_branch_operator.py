@@ -157,3 +157,25 @@ def test_overfits_a_tiny_batch():
     losses = fit(model, lambda: loss_against(model, x, target), steps=60, lr=3e-3)
     assert losses[-1] < losses[0] / 10, losses[::10]
     print(f"loss {losses[0]:.3g} -> {losses[-1]:.3g}")
+
+
+def test_the_scalar_embedding_scale_sets_how_fast_the_conditioning_turns():
+    """With the positions' coord_scale (1000, the default: every bed net trained before stop 43) the inlet
+    velocity's embedding moves between two velocities 0.002 of the range apart about as far as between two 0.1
+    apart, so a net can answer one unseen velocity unlike its neighbours; scalar_coord_scale=10 keeps nearby
+    velocities nearby. An old net's config (no scalar_coord_scale) builds the same net as before."""
+    def turn(net: MultiBranchOperator) -> float:
+        e = net.conditioner.embeds[0](torch.tensor([[0.860], [0.862], [0.960]]))
+        return float((e[0] - e[1]).norm() / (e[0] - e[2]).norm())
+
+    assert turn(tiny(scalar_coord_scale=10.0)) < 0.05
+    assert turn(tiny()) > 0.3
+    assert tiny().conditioner.embeds[0].coord_scale == 1000.0
+
+
+def test_scalar_coord_scale_is_checked():
+    from neuraldem.errors import ConfigError
+    from neuraldem.models.schemas import MultiBranchOperatorNet
+
+    with pytest.raises(ConfigError, match=r"model\.net\.scalar_coord_scale=0 is invalid"):
+        MultiBranchOperatorNet.validate({"scalar_coord_scale": 0})

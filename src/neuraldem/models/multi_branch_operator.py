@@ -17,6 +17,7 @@ from neuraldem.models.modules.mlp import Mlp
 from neuraldem.models.modules.multi_branch_block import MultiBranchTransformerBlock
 from neuraldem.models.modules.patch_embedding import PatchEmbedding, cell_centres
 from neuraldem.models.modules.perceiver_decoder import PerceiverDecoder
+from neuraldem.models.modules.position_embedding import DEFAULT_COORD_SCALE
 from neuraldem.models.modules.scalar_conditioner import ScalarConditioner
 from neuraldem.models.modules.supernode_pooling import SupernodePooling
 
@@ -63,6 +64,10 @@ class MultiBranchOperator(nn.Module):
         noise_dim: > 0 makes the net stochastic: a Gaussian noise vector of this size, embedded by an MLP, is
         added to the conditioning vector (so it reaches every block through the DiT modulation); members of an
         ensemble differ only in their noise (trained with CRPS, `neuraldem.scenes.fluidized_bed.stability`).
+        scalar_coord_scale: sin-cos scale of the scalars (normalised to [0, 1]); the default is the positions'
+        1000, with which the embedding turns by ~2 rad per 0.002 of the range, so a net may answer one unseen
+        velocity unlike its neighbours (stop 43: a bed that collapsed at exactly 2.050 m/s); a small scale
+        (e.g. 10, the hopper's) keeps nearby scalars nearby.
 
     forward(inputs: OperatorInputs, chunk_size=None) -> {branch: (B, Q_branch, channels)} for the branches in
     `inputs.query_pos`.
@@ -74,13 +79,13 @@ class MultiBranchOperator(nn.Module):
                  n_supernodes: int = 256, n_supernodes_eval: int | None = None, radius: float = 0.05,
                  max_neighbours: int = 32, position_mode: str = "both",
                  patch_size: Sequence[int] = (2, 1, 2), mlp_ratio: float = 4.0, particle_branch: bool = True,
-                 noise_dim: int = 0) -> None:
+                 noise_dim: int = 0, scalar_coord_scale: float = DEFAULT_COORD_SCALE) -> None:
         super().__init__()
         self.noise_dim, self.n_scalars, self.particle_branch = noise_dim, n_scalars, bool(particle_branch)
         self.main_branches = MAIN_BRANCHES if self.particle_branch else ("fluid",)
         self.branches = self.main_branches + OFF_BRANCHES
         self.channels = {"particles": particle_channels, "fluid": fluid_channels, "mixing": mixing_channels}
-        self.conditioner = ScalarConditioner(n_scalars, dim, cond_dim)
+        self.conditioner = ScalarConditioner(n_scalars, dim, cond_dim, coord_scales=scalar_coord_scale)
         self.noise_embed = Mlp(noise_dim, cond_dim, cond_dim) if noise_dim else None
         self.encoders = nn.ModuleDict()
         if self.particle_branch:

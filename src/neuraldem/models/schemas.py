@@ -129,6 +129,7 @@ class MultiBranchOperatorNet(AttentionNet):
     patch_size: list[int] = _check(_patch_size)
     particle_branch: bool = _check(checks.boolean)
     noise_dim: int = _check(checks.positive_int, allow_zero=True)
+    scalar_coord_scale: float = _check(checks.positive)
 
 
 @dataclass(frozen=True)
