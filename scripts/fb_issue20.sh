@@ -32,9 +32,9 @@ fi
 # the same words as scripts/fb_ablation.sh's variants, from one table
 # shellcheck source=lib/fb_rollout_options.sh
 source "$ROOT/scripts/lib/fb_rollout_options.sh"
-flags=$(rollout_options "x+$OPTIONS" flags) || { echo "fb_issue20: OPTIONS=$OPTIONS" >&2; exit 2; }
-speed_flags=$(rollout_options "x+$OPTIONS" speed) || exit 2
-chosen="full+$OPTIONS+sel"
+chosen="full+$OPTIONS+sel"  # the variant each seed's chosen checkpoint is scored as (scripts/fb_ablation.sh)
+flags=$(rollout_options "$chosen" flags) || { echo "fb_issue20: OPTIONS=$OPTIONS" >&2; exit 2; }
+speed_flags=$(rollout_options "$chosen" speed) || exit 2
 mkdir -p "$runs"
 failed=0
 pids=()

@@ -161,10 +161,11 @@ def advect_tagged(solid_fraction: torch.Tensor, concentration: torch.Tensor, flu
     n = n_substeps or substeps(j, dt, spacing, alpha)
     # the sub-steps in NumPy: ~100 elementwise operations each on a few hundred cells, where a torch call costs
     # several times a NumPy one (the mixing advection was a fifth of a bed rollout step); elementwise float64
-    # arithmetic in the same order, so the result is bit-identical to the same scheme in torch
+    # arithmetic in the same order, so the result is bit-identical to the same scheme in torch (no gradient flows
+    # through it, as none did through the flux correction's transform: every caller advects under no_grad)
     device = alpha.device
-    a_np, b_np = alpha.cpu().numpy(), beta.cpu().numpy()
-    s_np, f_np = share.cpu().numpy(), {a: f.cpu().numpy() for a, f in faces.items()}
+    a_np, b_np = alpha.detach().cpu().numpy(), beta.detach().cpu().numpy()
+    s_np, f_np = share.detach().cpu().numpy(), {a: f.detach().cpu().numpy() for a, f in faces.items()}
     for _ in range(n):
         a_np, b_np = _substep(a_np, b_np, s_np, f_np, dt / n, spacing, correction if scheme == "fct" else 0.0)
     alpha, beta = torch.from_numpy(a_np).to(device), torch.from_numpy(b_np).to(device)
