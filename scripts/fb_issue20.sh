@@ -4,16 +4,21 @@
 # long validation trajectory of fb_small_longval) under the rollout options it is used with, score the chosen
 # one once on the test part (the 30-s test trajectories included), then the baselines, the tables, the stability
 # map and the speed ratio against DPMFoam. Nothing here chooses anything on test runs.
-#   [SEEDS="0 1"] [OPTIONS=noise3+corr1+alt] [SELECT_FROM=4500] [LONG_VAL=DIR] bash scripts/fb_issue20.sh RUNS_DIR [train overrides...]
+#   [SEEDS="0 1"] [BASE=full] [OPTIONS=noise3+corr1+alt] [SELECT_FROM=4500] [LONG_VAL=DIR] [FINE_STEP=0.005] \
+#     bash scripts/fb_issue20.sh RUNS_DIR [train overrides...]
 # e.g. bash scripts/fb_issue20.sh $NEURALDEM_DATA/fb42 trainer=cpu logger=csv
+# BASE is the trained variant of scripts/fb_ablation.sh (full = experiment=fb; cond10 = its velocity embedding at
+# scale 10, stop 44). The stability map is drawn twice: RUNS_DIR/fb_stability.json (7 velocities from 0.8x to 1.2x
+# the trained range, 3000 steps) and RUNS_DIR/fb_stability_fine.json (every FINE_STEP m/s across the trained range,
+# 500 steps, bed height against CFD-DEM's: stop 43's net collapsed 0.004 m/s away from a training velocity).
 # Needs the data first (resumable, background, one job per core):
 #   python -m neuraldem.datagen data=fb_small workers=2; python -m neuraldem.datagen data=fb_small_longval
 # Layout: RUNS_DIR/seedS/ (scripts/fb_ablation.sh runs: full = the net and its checkpoint kept by the training's own
 # rollout validation, full+OPTIONS+sel = the one fb-select chose, each scored on val and test; their tables),
 # RUNS_DIR/baselines/ and RUNS_DIR/baselines-val/ (constant / nearest / interpolated CFD-DEM, another packing),
-# RUNS_DIR/table.md (test), RUNS_DIR/table-val.md, RUNS_DIR/fb_stability.json (+ .png), RUNS_DIR/fb_speed.json.
-# Cost on 2 cores: ~25 min training (seeds in parallel), ~1 h selection per seed (8 checkpoints x 2 rollout seeds x
-# 5 velocities of 3000 steps), ~10 min test per seed, ~15 min stability map, ~5 min speed. Killed, it resumes.
+# RUNS_DIR/table.md (test), RUNS_DIR/table-val.md, RUNS_DIR/fb_stability{,_fine}.json (+ .png), RUNS_DIR/fb_speed.json.
+# Cost on 2 cores (stop 43): ~50 min training (seeds in parallel), ~35 min selection per seed (15 checkpoints x 2
+# rollout seeds), ~10 min test per seed, ~15 min stability map, ~25 min fine map, ~5 min speed. Killed, it resumes.
 set -uo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 PY=${PYTHON:-python}
@@ -32,14 +37,16 @@ fi
 # the same words as scripts/fb_ablation.sh's variants, from one table
 # shellcheck source=lib/fb_rollout_options.sh
 source "$ROOT/scripts/lib/fb_rollout_options.sh"
-chosen="full+$OPTIONS+sel"  # the variant each seed's chosen checkpoint is scored as (scripts/fb_ablation.sh)
+BASE=${BASE:-full}
+case "$BASE" in *+*|*/*|"") echo "fb_issue20: BASE=$BASE: give one trained variant of scripts/fb_ablation.sh (full, cond10, ...)" >&2; exit 2 ;; esac
+chosen="$BASE+$OPTIONS+sel"  # the variant each seed's chosen checkpoint is scored as (scripts/fb_ablation.sh)
 flags=$(rollout_options "$chosen" flags) || { echo "fb_issue20: OPTIONS=$OPTIONS" >&2; exit 2; }
 speed_flags=$(rollout_options "$chosen" speed) || exit 2
 mkdir -p "$runs"
 failed=0
 pids=()
 for S in $SEEDS; do  # one process per seed: the seeds train side by side, one core each
-  JOBS=1 VAL=1 TEST=1 VARIANTS="full $chosen" SELECT_FROM="${SELECT_FROM:-4500}" SELECT_SEEDS="0 1" \
+  JOBS=1 VAL=1 TEST=1 VARIANTS="$BASE $chosen" SELECT_FROM="${SELECT_FROM:-4500}" SELECT_SEEDS="0 1" \
     LONG_VAL="$LONG_VAL" PYTHON="$PY" bash "$ROOT/scripts/fb_ablation.sh" "$runs/seed$S" seed="$S" "$@" \
     > "$runs/seed$S.log" 2>&1 &
   pids+=($!)
@@ -60,6 +67,10 @@ done
 # shellcheck disable=SC2086
 [ -f "$runs/fb_stability.json" ] || "$PY" -m neuraldem.bench fb_stability --ckpt "${ckpts[@]}" --labels "${labels[@]}" \
   $flags --n-velocities 5 --steps 3000 --out "$runs/fb_stability.json" || failed=$((failed + 1))
+# shellcheck disable=SC2046,SC2086
+[ -f "$runs/fb_stability_fine.json" ] || "$PY" -m neuraldem.bench fb_stability --ckpt "${ckpts[@]}" \
+  --labels "${labels[@]}" $flags --velocity-step "${FINE_STEP:-0.005}" --steps 500 \
+  --out "$runs/fb_stability_fine.json" || failed=$((failed + 1))
 # shellcheck disable=SC2086
 [ -f "$runs/fb_speed.json" ] || "$PY" -m neuraldem.bench fb_speed --ckpt "${ckpts[0]}" --reuse-dataset --threads 1 \
   --repeats 5 $speed_flags --out "$runs/fb_speed.json" || failed=$((failed + 1))

@@ -47,12 +47,29 @@ def test_the_protocol_for_two_seeds(tmp_path: Path):
     assert [c[c.index("--part") + 1] for c in baselines] == ["test", "val"]
     table = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.table" and f"{runs}/table.md" in c]
     assert table and table[0][2:5] == [f"{runs}/seed0", f"{runs}/seed1", f"{runs}/baselines"]
-    (stab,) = [c for c in calls if c[1:3] == ["neuraldem.bench", "fb_stability"]]
-    assert [str(p) for p in chosen] == stab[stab.index("--ckpt") + 1:stab.index("--ckpt") + 3]
-    assert {"--mirror-alternate", "--advection-correction", "--steps"} <= set(stab)
+    stab, fine = [c for c in calls if c[1:3] == ["neuraldem.bench", "fb_stability"]]
+    for c in (stab, fine):
+        assert [str(p) for p in chosen] == c[c.index("--ckpt") + 1:c.index("--ckpt") + 3]
+        assert {"--mirror-alternate", "--advection-correction", "--steps"} <= set(c)
+    assert "--velocity-step" not in stab and fine[fine.index("--velocity-step") + 1] == "0.005"
+    assert fine[fine.index("--out") + 1] == f"{runs}/fb_stability_fine.json"
     (speed,) = [c for c in calls if c[1:3] == ["neuraldem.bench", "fb_speed"]]
     assert str(chosen[0]) in speed and "--rollout-noise" in speed and "--advection-correction" not in speed
     assert "--threads" in speed and speed[speed.index("--threads") + 1] == "1"
+
+
+def test_another_base_variant_is_trained_chosen_and_scored(tmp_path: Path):
+    proc, calls = _run(tmp_path, LONG_VAL="", SEEDS="0", BASE="cond10")
+    assert proc.returncode == 0, proc.stderr
+    (train,) = [c for c in calls if c[1] == "neuraldem.train"]
+    assert "model.net.scalar_coord_scale=10" in train
+    (select,) = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.select"]
+    assert select[2] == str(tmp_path / "runs" / "seed0" / "cond10")
+    (stab, _) = [c for c in calls if c[1:3] == ["neuraldem.bench", "fb_stability"]]
+    assert str(tmp_path / "runs" / "seed0" / "cond10+noise3+corr1+alt+sel" / "selected.ckpt") in stab
+    (tmp_path / "bad").mkdir()
+    proc, calls = _run(tmp_path / "bad", LONG_VAL="", BASE="cond10+alt")
+    assert proc.returncode == 2 and "BASE=cond10+alt" in proc.stderr and calls == []
 
 
 def test_missing_long_validation_or_unknown_option_runs_nothing(tmp_path: Path):

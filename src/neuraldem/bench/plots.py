@@ -165,16 +165,19 @@ def fb_speed_figure(results: dict[str, Any], path: Path) -> Path:
 
 def fb_stability_figure(results: dict[str, Any], path: Path) -> Path:
     """Stability map, velocity on x. Top: steps until failure (divergence or drift beyond the limit; open
-    markers: no failure within the requested steps). Bottom: solid-volume drift at the end or at the last
-    state before divergence. Trained velocity ranges shaded."""
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    markers: no failure within the requested steps; squares: a bed height off CFD-DEM's). Middle: solid-volume
+    drift at the end or at the last state before divergence. Bottom (where measured): the rollouts' time-mean bed
+    height against CFD-DEM's training runs and the band of the bed limit. Trained velocity ranges shaded."""
+    beds = [s for s in results["series"] if any(p.get("bed_height_mm") is not None for p in s["points"])]
+    fig, axes = plt.subplots(3 if beds else 2, 1, figsize=(8, 10 if beds else 7), sharex=True)
+    top, middle = axes[0], axes[1]
     ranges = {tuple(s["trained_velocity_range"]) for s in results["series"]}
     for k, s in enumerate(results["series"]):
         color = f"C{k}"
         lo, hi = s["trained_velocity_range"]
         label = "trained range" if len(ranges) == 1 else f"trained range ({s['label']})"
         if k == 0 or len(ranges) > 1:
-            for ax in (top, bottom):
+            for ax in axes:
                 if hi > lo:
                     ax.axvspan(lo, hi, color="0.5" if len(ranges) == 1 else color, alpha=0.15,
                                label=label if ax is top else None)
@@ -184,30 +187,49 @@ def fb_stability_figure(results: dict[str, Any], path: Path) -> Path:
         pts = s["points"]
         v = [p["inlet_velocity"] for p in pts]
         top.plot(v, [p["steps_stable"] for p in pts], "-", color=color, alpha=0.6)
-        ok = [p for p in pts if not p["failed"]]
+        ok = [p for p in pts if p.get("ok", not p["failed"])]
         bad = [p for p in pts if p["failed"]]
+        off = [p for p in pts if p.get("bed_failed") and not p["failed"]]
         if ok:
             top.plot([p["inlet_velocity"] for p in ok], [p["steps_stable"] for p in ok], "o", mfc="none",
                      color=color, label=f"{s['label']}: stable ({len(ok)})")
         if bad:
             top.plot([p["inlet_velocity"] for p in bad], [p["steps_to_failure"] for p in bad], "x", color=color,
                      ms=8, label=f"{s['label']}: failed ({len(bad)})")
-        bottom.plot(v, [p["drift_pct_end"] for p in pts], "o-", color=color, label=s["label"])
+        if off:
+            top.plot([p["inlet_velocity"] for p in off], [p["steps_stable"] for p in off], "s", color=color,
+                     ms=7, label=f"{s['label']}: bed off CFD-DEM ({len(off)})")
+        middle.plot(v, [p["drift_pct_end"] for p in pts], "o-", color=color, label=s["label"])
+        if s in beds:
+            h = [(p["inlet_velocity"], p["bed_height_mm"]) for p in pts if p.get("bed_height_mm") is not None]
+            axes[2].plot(*zip(*h, strict=False), ".-", color=color, label=f"{s['label']} (rollout)")
     steps = results["steps"]
     top.axhline(steps, color="k", ls=":", lw=1, label=f"requested {steps} steps")
     horizon = results["series"][0]["training_horizon_steps"]
     if horizon < steps:
         top.axhline(horizon, color="k", ls="--", lw=0.8, alpha=0.5, label=f"training horizon {horizon} steps")
+    bed_rule = f" or bed height beyond {results['bed_limit_pct']:g} %" if beds else ""
     top.set(ylabel="steps until failure", ylim=(0, 1.08 * steps),
-            title="rollout stability: divergence or solid-volume drift beyond "
-                  f"{results['drift_limit_pct']:g} %")
+            title="rollout stability: divergence, solid-volume drift beyond "
+                  f"{results['drift_limit_pct']:g} %{bed_rule}")
     top.legend(fontsize=7)
     limit = results["drift_limit_pct"]
     for sign in (1, -1):
-        bottom.axhline(sign * limit, color="C3", ls="--", lw=1, label="drift limit" if sign > 0 else None)
-    bottom.set(xlabel="inlet velocity U0 [m/s]", ylabel="solid volume drift [%]\n(end, or before divergence)")
-    bottom.legend(fontsize=7)
-    for ax in (top, bottom):
+        middle.axhline(sign * limit, color="C3", ls="--", lw=1, label="drift limit" if sign > 0 else None)
+    middle.set(ylabel="solid volume drift [%]\n(end, or before divergence)")
+    middle.legend(fontsize=7)
+    if beds:
+        ref = beds[0]["bed_reference"]
+        rv, rh = ref["velocities"], ref["bed_height_mm"]
+        if rv:
+            band = results["bed_limit_pct"] / 100.0
+            axes[2].fill_between(rv, [h * (1 - band) for h in rh], [h * (1 + band) for h in rh], color="k", alpha=0.08,
+                                 label=f"CFD-DEM +- {results['bed_limit_pct']:g} %")
+            axes[2].plot(rv, rh, "k^", ms=5, label=f"CFD-DEM training runs ({len(rv)})")
+        axes[2].set(ylabel=f"time-mean bed height [mm]\n(after {ref['settle_steps']} steps)")
+        axes[2].legend(fontsize=7)
+    axes[-1].set(xlabel="inlet velocity U0 [m/s]")
+    for ax in axes:
         ax.grid(True, alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=120)

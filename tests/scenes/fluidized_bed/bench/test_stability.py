@@ -1,18 +1,20 @@
 """Stability map of fluidized-bed surrogates: the velocity grid, the map of two checkpoints on the tiny data,
-an injected divergence and an injected solid-volume drift reported as failures at their step, bad options."""
+an injected divergence and an injected solid-volume drift reported as failures at their step, a collapsed bed
+(finite, mass kept) reported as a failure inside the trained range only, bad options."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
 from neuraldem.bench.__main__ import main as bench_main
 from neuraldem.errors import DataError
 from neuraldem.scenes.fluidized_bed.bench import stability as fb_stability
-from neuraldem.scenes.fluidized_bed.bench.stability import merge_maps
+from neuraldem.scenes.fluidized_bed.bench.stability import BedReference, merge_maps
 from neuraldem.scenes.fluidized_bed.rollout import DataStepper, FbState
 from tests.scenes.fluidized_bed.test_rollout import TRAINED_VELOCITY, Inject, _nan
 
@@ -21,6 +23,11 @@ def test_velocity_grid_spans_beyond_the_trained_range():
     assert fb_stability.velocity_grid(1.0, 2.0, 5) == [0.8, 1.0, 1.2, 1.6, 2.0, 2.4]
     assert fb_stability.velocity_grid(1.5, 1.5, 3) == [1.2, 1.5, 1.8]  # one trained velocity
     assert fb_stability.velocity_grid(1.0, 2.0, 1) == [1.0, 2.0]
+
+
+def test_a_velocity_step_scans_the_trained_range_only():
+    assert fb_stability.velocity_grid(1.0, 1.2, 9, step=0.05) == [1.0, 1.05, 1.1, 1.15, 1.2]
+    assert fb_stability.velocity_grid(1.0, 1.23, 9, step=0.1) == [1.0, 1.1, 1.2, 1.23]  # the trained end kept
 
 
 def test_map_of_two_checkpoints(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tmp_path: Path):
@@ -46,7 +53,10 @@ def test_map_of_two_checkpoints(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path,
             assert p["failed"] == (p["steps_to_failure"] is not None) and p["initial_state"].startswith("fb_tiny/")
             if not p["failed"]:
                 assert p["steps_stable"] == p["steps_done"] == 3 and abs(p["drift_pct_end"]) <= 5.0
-        assert s["n_failed"] == sum(p["failed"] for p in s["points"])
+        assert s["n_failed"] == sum(not p["ok"] for p in s["points"])
+        assert s["bed_reference"]["velocities"] == [v] and s["bed_reference"]["settle_steps"] == 20 // 3
+        for p in s["points"]:  # 3 steps end before the start-up (6 steps) is over: no bed height to judge
+            assert p["bed_height_mm"] is None and not p["bed_checked"] and not p["bed_failed"]
     assert r["series"][0]["points"] == r["series"][1]["points"]  # same model, same seed: same map
     assert out.with_suffix(".png").stat().st_size > 0
 
@@ -118,12 +128,64 @@ def test_solid_volume_drift_beyond_the_limit_is_a_failure(fb_tiny_checkpoint: Pa
         assert p["failure"] == "" and p["steps_stable"] == 6
 
 
+def test_bed_reference_interpolates_inside_the_training_velocities_only():
+    ref = BedReference(np.array([1.0, 2.0]), np.array([0.040, 0.050]), ["a", "b"], 10, 0.95)
+    assert ref.at(1.5) == pytest.approx(0.045) and ref.at(1.0) == pytest.approx(0.040) and ref.at(2.0) == 0.05
+    assert ref.at(0.99) is None and ref.at(2.01) is None
+
+
+class Collapsing:
+    """Replays the stored trajectory with each column's solids settled at the bottom at solid fraction
+    `packing` (a bed compacted below CFD-DEM's): the total solid volume is kept and every value finite and
+    below the divergence limit's maximum packing (0.74), but the bed is lower (fb_tiny: 11.6 mm against 15.0)."""
+
+    def __init__(self, inner: DataStepper, packing: float = 0.72):
+        self.inner, self.packing, self.dt = inner, packing, inner.dt
+
+    def step(self, state: FbState) -> FbState:
+        nxt = self.inner.step(state)
+        a = nxt.solid_fraction
+        layers = a.sum(axis=-1, keepdims=True) / self.packing  # column volume in layers' worth
+        z = np.arange(a.shape[-1])
+        nxt.solid_fraction = self.packing * np.clip(layers - z, 0.0, 1.0)
+        return nxt
+
+
+@pytest.mark.parametrize("collapse", [False, True])
+def test_a_bed_off_cfd_dem_fails_inside_the_trained_range_only(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path,
+                                                               collapse: bool):
+    """The ground truth replayed holds CFD-DEM's bed height (within the limit); squashed, the same replay keeps
+    its volume and stays finite, yet fails on the bed at the trained velocity, and is only reported outside."""
+    def make(module, v, f):
+        replay = DataStepper(f)
+        return Collapsing(replay) if collapse else replay
+
+    r = fb_stability.run([fb_tiny_checkpoint], velocities=[TRAINED_VELOCITY, 2.0], steps=12,
+                         dataset_dir=fb_tiny_dataset, progress=False, make_stepper=make)
+    inside, outside = r["series"][0]["points"]
+    assert r["settle_steps"] == 6 and r["bed_limit_pct"] == 10.0
+    for p in (inside, outside):
+        assert not p["failed"] and abs(p["max_abs_drift_pct"]) < 1e-3 and p["bed_height_mm"] > 0
+    assert inside["bed_checked"] and not outside["bed_checked"] and outside["bed_deviation_pct"] is None
+    assert outside["ok"] and not outside["bed_failed"]
+    if collapse:
+        assert inside["bed_failed"] and not inside["ok"] and inside["bed_deviation_pct"] < -10
+        assert inside["bed_failure"].startswith("bed height ") and "from CFD-DEM's" in inside["bed_failure"]
+        assert r["series"][0]["n_failed"] == r["series"][0]["n_bed_failed"] == 1
+    else:
+        assert abs(inside["bed_deviation_pct"]) < 10 and inside["ok"] and r["series"][0]["n_failed"] == 0
+
+
 @pytest.mark.parametrize(("args", "message"), [
     (["--steps", "0"], "error: config value --steps=0 is invalid: must be a positive integer"),
     (["--labels", "a", "b"], "error: --labels: 2 label(s) for 1 checkpoint(s)"),
     (["--velocities", "1.2", "0"], "error: config value --velocities[1]=0.0 is invalid: must be > 0.0"),
     (["--drift-limit-pct", "0"], "error: config value --drift-limit-pct=0.0 is invalid: must be > 0.0"),
     (["--n-velocities", "0"], "error: config value --n-velocities=0 is invalid"),
+    (["--bed-limit-pct", "-5"], "error: config value --bed-limit-pct=-5.0 is invalid: must be > 0.0"),
+    (["--settle-steps", "-1"], "error: config value --settle-steps=-1 is invalid"),
+    (["--velocity-step", "0"], "error: config value --velocity-step=0.0 is invalid: must be > 0.0"),
+    (["--velocity-step", "0.01", "--velocities", "1.2"], "error: --velocity-step and --velocities both given"),
     (["--rollout-noise", "-1"], "error: config value --rollout-noise=-1.0 is invalid: must be >= 0.0"),
     (["--advection-correction", "2"], "error: config value --advection-correction=2.0 is invalid: must be <= 1.0"),
     (["--out", "map.csv"], "error: --out=map.csv is invalid: pass a .json file or a folder"),
