@@ -52,9 +52,9 @@ for S in $SEEDS; do  # one process per seed: the seeds train side by side, one c
   pids+=($!)
 done
 for p in "${pids[@]}"; do wait "$p" || failed=$((failed + 1)); done
-[ -f "$runs/baselines/constant/evaluation/metrics.json" ] \
+[ -f "$runs/baselines/baseline_constant/evaluation/metrics.json" ] \
   || "$PY" -m neuraldem.scenes.fluidized_bed.baselines fb_small --part test --out "$runs/baselines" || failed=$((failed + 1))
-[ -f "$runs/baselines-val/constant/evaluation/metrics.json" ] \
+[ -f "$runs/baselines-val/baseline_constant/evaluation/metrics.json" ] \
   || "$PY" -m neuraldem.scenes.fluidized_bed.baselines fb_small --part val --out "$runs/baselines-val" || failed=$((failed + 1))
 tests=() vals=() ckpts=() labels=()
 for S in $SEEDS; do

@@ -82,3 +82,13 @@ def test_missing_long_validation_or_unknown_option_runs_nothing(tmp_path: Path):
     assert proc.returncode == 0, proc.stderr
     (select,) = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.select"]
     assert "--long-val" not in select
+
+
+def test_finished_baselines_are_not_repeated(tmp_path: Path):
+    for part in ("baselines", "baselines-val"):
+        done = tmp_path / "runs" / part / "baseline_constant" / "evaluation"
+        done.mkdir(parents=True)
+        (done / "metrics.json").write_text("{}")
+    proc, calls = _run(tmp_path, LONG_VAL="", SEEDS="0")
+    assert proc.returncode == 0, proc.stderr
+    assert not [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.baselines"]
