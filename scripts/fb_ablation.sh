@@ -17,7 +17,8 @@
 # rollout validation, so the checkpoint is chosen on noisy rollouts, and in its evaluation), noise_pooled (noise_sel
 # + that validation scored against every CFD-DEM run at the velocity, callbacks.rollout_validation.reference=pooled),
 # cond10 (the inlet velocity's sin-cos embedding at scale 10 instead of the positions' 1000,
-# model.net.scalar_coord_scale=10: nearby velocities get nearby conditioning; stop 43).
+# model.net.scalar_coord_scale=10: nearby velocities get nearby conditioning; stop 43; experiment=fb's since stop
+# 44, so cond10 = full now), cond1000 (scale 1000: the full of stops 34 - 43).
 # The options before issue 20 (one-step training, absolute mixing, no projection,
 # no flux channels): base (no noise), noise (input noise 0.01), grid_only (no particle branch), residual (the grid
 # branches predict the scaled change per step), grid_residual (both). Push-forward scored only at t + k (the old
@@ -83,7 +84,8 @@ overrides() {
     noise_sel) echo "model.stability.rollout_noise=3" ;;
     noise_pooled) echo "model.stability.rollout_noise=3 callbacks.rollout_validation.reference=pooled" ;;
     cond10) echo "model.net.scalar_coord_scale=10" ;;
-    *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror continuity long short mirror_alt mirror_both noise_sel noise_pooled cond10 base noise grid_only residual grid_residual)" >&2; return 2 ;;
+    cond1000) echo "model.net.scalar_coord_scale=1000" ;;
+    *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror continuity long short mirror_alt mirror_both noise_sel noise_pooled cond10 cond1000 base noise grid_only residual grid_residual)" >&2; return 2 ;;
   esac
 }
 trained_of() { echo "${1%%+*}"; }

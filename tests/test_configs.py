@@ -67,6 +67,15 @@ def test_fb_model_options_are_overridable(override: str, compose_train_cfg):
     assert node is (value == "true")
 
 
+def test_the_bed_recipe_embeds_the_velocity_at_scale_10(compose_train_cfg):
+    """experiment=fb conditions on the inlet velocity at sin-cos scale 10 (stop 44: at the model config's 1000 one
+    net in two collapsed at one velocity between training ones); the old scale stays one override away."""
+    assert compose_train_cfg("experiment=fb").model.net.scalar_coord_scale == 10.0
+    assert compose_train_cfg("model=fb_tiny").model.net.scalar_coord_scale == 1000.0
+    old = compose_train_cfg("experiment=fb", "model.net.scalar_coord_scale=1000")
+    assert old.model.net.scalar_coord_scale == 1000.0
+
+
 @pytest.mark.parametrize("override", ["model.optimizer.name=adamw", "model.net.scalar_coord_scale=10",
                                       "data.datamodule.fold=2", "data.datamodule.tail_share=0.3",
                                       "+callbacks.ema._target_=lightning.pytorch.callbacks.EMAWeightAveraging"])

@@ -50,9 +50,9 @@ def test_each_variant_is_one_training_command(tmp_path: Path):
     assert not any(a.startswith("callbacks.rollout_validation") for a in sel)
     assert {"model.stability.rollout_noise=3", "callbacks.rollout_validation.reference=pooled"} <= set(pooled)
     (tmp_path / "cond").mkdir()
-    proc, calls = _run(tmp_path / "cond", "cond10")
-    (cond,) = [c for c in calls if c[:2] == ["-m", "neuraldem.train"]]
-    assert "model.net.scalar_coord_scale=10" in cond
+    proc, calls = _run(tmp_path / "cond", "cond10 cond1000")
+    cond, old = [c for c in calls if c[:2] == ["-m", "neuraldem.train"]]
+    assert "model.net.scalar_coord_scale=10" in cond and "model.net.scalar_coord_scale=1000" in old
 
 
 def test_val_scores_each_kept_checkpoint_on_the_validation_part(tmp_path: Path):
