@@ -225,7 +225,7 @@ def fb_stability_figure(results: dict[str, Any], path: Path) -> Path:
             band = results["bed_limit_pct"] / 100.0
             axes[2].fill_between(rv, [h * (1 - band) for h in rh], [h * (1 + band) for h in rh], color="k", alpha=0.08,
                                  label=f"CFD-DEM +- {results['bed_limit_pct']:g} %")
-            axes[2].plot(rv, rh, "k^", ms=5, label=f"CFD-DEM training runs ({len(rv)})")
+            axes[2].plot(rv, rh, "k^", ms=5, label=f"CFD-DEM, training runs at {len(rv)} velocities")
         axes[2].set(ylabel=f"time-mean bed height [mm]\n(after {ref['settle_steps']} steps)")
         axes[2].legend(fontsize=7)
     axes[-1].set(xlabel="inlet velocity U0 [m/s]")
