@@ -67,7 +67,7 @@ done
 # shellcheck disable=SC2086
 [ -f "$runs/fb_stability.json" ] || "$PY" -m neuraldem.bench fb_stability --ckpt "${ckpts[@]}" --labels "${labels[@]}" \
   $flags --n-velocities 5 --steps 3000 --out "$runs/fb_stability.json" || failed=$((failed + 1))
-# shellcheck disable=SC2046,SC2086
+# shellcheck disable=SC2086
 [ -f "$runs/fb_stability_fine.json" ] || "$PY" -m neuraldem.bench fb_stability --ckpt "${ckpts[@]}" \
   --labels "${labels[@]}" $flags --velocity-step "${FINE_STEP:-0.005}" --steps 500 \
   --out "$runs/fb_stability_fine.json" || failed=$((failed + 1))

@@ -44,6 +44,7 @@ from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings
 from neuraldem.scenes.fluidized_bed.metrics import bed_height, total_solid_volume
 from neuraldem.scenes.fluidized_bed.module import FluidizedBedModule
 from neuraldem.scenes.fluidized_bed.rollout import (
+    DEFAULT_INIT_SNAPSHOT,
     DivergenceLimits,
     ModelStepper,
     Rollout,
@@ -138,7 +139,7 @@ def mean_bed_height(solid_fraction: np.ndarray, z_edges: np.ndarray, quantile: f
 
 
 def bed_reference(module: FluidizedBedModule, ckpt: Path, dataset_dir: Path | None,
-                  settle_steps: int, init_snapshot: int = 1) -> BedReference:
+                  settle_steps: int, init_snapshot: int = DEFAULT_INIT_SNAPSHOT) -> BedReference:
     """The checkpoint's training trajectories (its recorded `split_ids`, else its split's training part): the
     mean bed height of each after `settle_steps` from the rollouts' initial snapshot."""
     meta = module.metadata
