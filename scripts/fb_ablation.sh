@@ -154,7 +154,7 @@ for v in $VARIANTS; do  # the trained nets again, with other rollout options
       ckpt="$runs/$v/selected.ckpt"
       if [ ! -f "$ckpt" ]; then
         # shellcheck disable=SC2046,SC2086
-        "$PY" -m neuraldem.scenes.fluidized_bed.select "$runs/$b" $(rollout_options "$v" flags) \
+        "$PY" -m neuraldem.scenes.fluidized_bed.surrogate.selection "$runs/$b" $(rollout_options "$v" flags) \
           --from-step "${SELECT_FROM:-0}" --seeds ${SELECT_SEEDS:-0 1} ${LONG_VAL:+--long-val $LONG_VAL} \
           --copy-to "$ckpt" || exit 1
       fi ;;
@@ -171,6 +171,6 @@ for v in $VARIANTS; do  # the trained nets again, with other rollout options
 done
 while [ "$running" -gt 0 ]; do wait -n || failed=$((failed + 1)); running=$((running - 1)); done
 [ "$failed" -eq 0 ] || echo "fb_ablation: $failed run(s) failed; see $runs/*.log" >&2
-"$PY" -m neuraldem.scenes.fluidized_bed.table "$runs" --out "$runs/table.md"
-if [ "${VAL:-0}" = 1 ]; then "$PY" -m neuraldem.scenes.fluidized_bed.table "$runs-val" --out "$runs-val/table.md"; fi
+"$PY" -m neuraldem.scenes.fluidized_bed.analysis.table "$runs" --out "$runs/table.md"
+if [ "${VAL:-0}" = 1 ]; then "$PY" -m neuraldem.scenes.fluidized_bed.analysis.table "$runs-val" --out "$runs-val/table.md"; fi
 exit "$failed"

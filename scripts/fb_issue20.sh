@@ -53,16 +53,16 @@ for S in $SEEDS; do  # one process per seed: the seeds train side by side, one c
 done
 for p in "${pids[@]}"; do wait "$p" || failed=$((failed + 1)); done
 [ -f "$runs/baselines/baseline_constant/evaluation/metrics.json" ] \
-  || "$PY" -m neuraldem.scenes.fluidized_bed.baselines fb_small --part test --out "$runs/baselines" || failed=$((failed + 1))
+  || "$PY" -m neuraldem.scenes.fluidized_bed.analysis.baselines fb_small --part test --out "$runs/baselines" || failed=$((failed + 1))
 [ -f "$runs/baselines-val/baseline_constant/evaluation/metrics.json" ] \
-  || "$PY" -m neuraldem.scenes.fluidized_bed.baselines fb_small --part val --out "$runs/baselines-val" || failed=$((failed + 1))
+  || "$PY" -m neuraldem.scenes.fluidized_bed.analysis.baselines fb_small --part val --out "$runs/baselines-val" || failed=$((failed + 1))
 tests=() vals=() ckpts=() labels=()
 for S in $SEEDS; do
   tests+=("$runs/seed$S"); vals+=("$runs/seed$S-val")
   ckpts+=("$runs/seed$S/$chosen/selected.ckpt"); labels+=("seed$S")
 done
-"$PY" -m neuraldem.scenes.fluidized_bed.table "${tests[@]}" "$runs/baselines" --out "$runs/table.md" || failed=$((failed + 1))
-"$PY" -m neuraldem.scenes.fluidized_bed.table "${vals[@]}" "$runs/baselines-val" --out "$runs/table-val.md" \
+"$PY" -m neuraldem.scenes.fluidized_bed.analysis.table "${tests[@]}" "$runs/baselines" --out "$runs/table.md" || failed=$((failed + 1))
+"$PY" -m neuraldem.scenes.fluidized_bed.analysis.table "${vals[@]}" "$runs/baselines-val" --out "$runs/table-val.md" \
   || failed=$((failed + 1))
 # shellcheck disable=SC2086
 [ -f "$runs/fb_stability.json" ] || "$PY" -m neuraldem.bench fb_stability --ckpt "${ckpts[@]}" --labels "${labels[@]}" \

@@ -8,7 +8,7 @@
 # Runs land in GRID_DIR/<experiment>-<split>/ (logs beside them); the table in GRID_DIR/table4.md (+ .json).
 # A run whose folder already holds evaluation/metrics.json is skipped, so a killed grid resumes.
 # Cross-validation: FOLDS="0 1 2 3 4" trains every fold (data.datamodule.fold=k, runs in
-# GRID_DIR/<experiment>-<split>-f<k>/) and the table is the cross-validated one of neuraldem.scenes.hopper.cv
+# GRID_DIR/<experiment>-<split>-f<k>/) and the table is the cross-validated one of neuraldem.scenes.hopper.analysis.cv
 # (constant, Gaussian process and field model on the same held-out runs; SEED_FLOOR=FILE adds the LIGGGHTS
 # seed-floor row). NEURALDEM_DATASET overrides the dataset dir the table reads (default: hopper_small).
 set -uo pipefail
@@ -47,9 +47,9 @@ elif [ -n "$FOLDS" ]; then
   dataset=${NEURALDEM_DATASET:-$("$PY" -c 'from neuraldem.paths import data_dir; print(data_dir() / "datasets" / "hopper_small")')}
   nsims=$(printf '%s\n' "$@" | sed -n 's/^data.datamodule.n_sims=//p' | tail -1)
   # shellcheck disable=SC2086
-  "$PY" -m neuraldem.scenes.hopper.cv "$grid" --dataset "$dataset" --splits $SPLITS --folds $FOLDS \
+  "$PY" -m neuraldem.scenes.hopper.analysis.cv "$grid" --dataset "$dataset" --splits $SPLITS --folds $FOLDS \
     ${nsims:+--n-sims "$nsims"} ${SEED_FLOOR:+--seed-floor "$SEED_FLOOR"} --out "$grid/table4_cv.md"
 else
-  "$PY" -m neuraldem.scenes.hopper.table "$grid" --out "$grid/table4.md"
+  "$PY" -m neuraldem.scenes.hopper.analysis.table "$grid" --out "$grid/table4.md"
 fi
 exit "$failed"

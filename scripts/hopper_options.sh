@@ -40,5 +40,5 @@ grids=()
 for v in $VARIANTS; do grids+=("$study/$v"); done
 nsims=$(printf '%s\n' "$@" | sed -n 's/^data.datamodule.n_sims=//p' | tail -1)
 # shellcheck disable=SC2086
-"$PY" -m neuraldem.scenes.hopper.cv "${grids[@]}" --dataset "$dataset" --splits random --folds $FOLDS \
+"$PY" -m neuraldem.scenes.hopper.analysis.cv "${grids[@]}" --dataset "$dataset" --splits random --folds $FOLDS \
   ${nsims:+--n-sims "$nsims"} --out "$study/options.md"

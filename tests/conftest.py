@@ -54,7 +54,7 @@ def hopper_tiny_dataset(data_root: Path) -> Path:
     from omegaconf import open_dict
 
     from neuraldem.datagen.driver import DatagenOptions, generate
-    from neuraldem.scenes.hopper.datagen import HopperPipeline
+    from neuraldem.scenes.hopper.dataset.datagen import HopperPipeline
     from tests.helpers import compose_cfg
 
     os.environ["NEURALDEM_DATA"] = str(data_root)
@@ -82,8 +82,8 @@ def train_briefly(module, dm, path: Path) -> Path:
 def tiny_checkpoint(hopper_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A HopperModule trained for 3 steps on the tiny dataset (for evaluation plumbing, not accuracy)."""
     from neuraldem.models.registry import net_config
-    from neuraldem.scenes.hopper.datamodule import HopperDataModule
-    from neuraldem.scenes.hopper.module import HopperModule
+    from neuraldem.scenes.hopper.surrogate.datamodule import HopperDataModule
+    from neuraldem.scenes.hopper.surrogate.module import HopperModule
 
     torch.manual_seed(0)  # as the bed fixtures: the same 3 steps whichever tests ran before
     dm = HopperDataModule(str(hopper_tiny_dataset), "hopper_tiny", ["t", "alpha", "mu_s", "mu_r"], n_queries=32)
@@ -109,8 +109,8 @@ def fb_tiny_case(fb_tiny_dataset: Path) -> Path:
 def fb_tiny_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A FluidizedBedModule trained for 3 steps on fb_tiny (for rollout/evaluation plumbing, not accuracy)."""
     from neuraldem.models.registry import net_config
-    from neuraldem.scenes.fluidized_bed.datamodule import FluidizedBedDataModule
-    from neuraldem.scenes.fluidized_bed.module import FluidizedBedModule
+    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
+    from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
 
     torch.manual_seed(0)
     dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2)
@@ -123,8 +123,8 @@ def fb_tiny_flux_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.Temp
     """Like fb_tiny_checkpoint, with the issue-20 options: solids-flux channels, mixing advected by the predicted
     flux, volume projection, unroll 1-2 steps, auto noise, and a stochastic net (2 CRPS members)."""
     from neuraldem.models.registry import net_config
-    from neuraldem.scenes.fluidized_bed.datamodule import FluidizedBedDataModule
-    from neuraldem.scenes.fluidized_bed.module import FluidizedBedModule
+    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
+    from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
 
     torch.manual_seed(0)
     dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2, push_forward_steps=2,
@@ -159,7 +159,7 @@ def hopper_refill_tiny_dataset(data_root: Path) -> Path:
 def refill_tiny_checkpoint(hopper_refill_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A refill HopperModule trained for 3 steps on hopper_refill_tiny (window 0.25 s; plumbing, not accuracy)."""
     from neuraldem.models.registry import net_config
-    from neuraldem.scenes.hopper.module import HopperModule
+    from neuraldem.scenes.hopper.surrogate.module import HopperModule
     from neuraldem.scenes.hopper_refill.datamodule import RefillDataModule
 
     dm = RefillDataModule(str(hopper_refill_tiny_dataset), "hopper_refill_tiny", ["dt_ref", "alpha", "mu_s", "mu_r"],
@@ -172,7 +172,7 @@ def refill_tiny_checkpoint(hopper_refill_tiny_dataset: Path, tmp_path_factory: p
 # shared bench tests and the hopper's bench adapters)
 def make_run(root: Path, name: str, ckpt: Path, dataset: Path, n_queries: int = 32) -> Path:
     """A run folder as `neuraldem.train evaluate=true` leaves it: checkpoints/, evaluation/, .hydra/."""
-    from neuraldem.scenes.hopper.evaluation import evaluate_checkpoint
+    from neuraldem.scenes.hopper.analysis.evaluation import evaluate_checkpoint
 
     run = root / name
     (run / "checkpoints").mkdir(parents=True)
@@ -198,7 +198,7 @@ def tiny_pretrained(tiny_checkpoint: Path, hopper_tiny_dataset: Path,
                     tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A shipped-model folder built from the tiny checkpoint (`hopper_tiny_test`, plumbing only): what
     `predict --verify` and `scan --verify` run against with LIGGGHTS at the tiny scene."""
-    from neuraldem.pretrained.build import build_hopper
+    from neuraldem.scenes.hopper.release import build_hopper
 
     out = tmp_path_factory.mktemp("pretrained")
     build_hopper(tiny_checkpoint, "hopper_tiny_test", out, hopper_tiny_dataset)
@@ -213,9 +213,9 @@ def fb_tiny_pretrained(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathF
     import json
 
     from neuraldem.models.registry import net_config
-    from neuraldem.pretrained.build_fb import build_fluidized_bed
-    from neuraldem.scenes.fluidized_bed.datamodule import FluidizedBedDataModule
-    from neuraldem.scenes.fluidized_bed.module import FluidizedBedModule
+    from neuraldem.scenes.fluidized_bed.release import build_fluidized_bed
+    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
+    from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
     from tests.helpers import copy_dataset
 
     data = copy_dataset(fb_tiny_dataset, tmp_path_factory.mktemp("fb_whatif") / "fb_tiny")
@@ -231,3 +231,24 @@ def fb_tiny_pretrained(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathF
     out = tmp_path_factory.mktemp("pretrained_fb")
     build_fluidized_bed(ckpt, "fb_tiny_test", out, data, lacey_time=0.1, progress=False)
     return out
+
+
+# the tiny shipped model (built from the tiny real dataset above), for the what-if and explorer tests
+TINY = "hopper_tiny_test"
+
+
+@pytest.fixture(scope="module")
+def tiny_engine(tiny_pretrained: Path):
+    from neuraldem import pretrained
+    from neuraldem.scenes.hopper.explorer.engine import HopperEngine
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("NEURALDEM_PRETRAINED_DIR", str(tiny_pretrained))
+        return HopperEngine(pretrained.load(TINY, "hopper"))
+
+
+@pytest.fixture
+def use_tiny_model(tiny_pretrained: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """`neuraldem predict` and `serve` in this process see the tiny model."""
+    monkeypatch.setenv("NEURALDEM_PRETRAINED_DIR", str(tiny_pretrained))
+    return tiny_pretrained

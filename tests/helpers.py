@@ -56,7 +56,7 @@ def generate_fb_tiny(root: Path, n_sims: int = FB_TINY_SIMS) -> Path:
     from omegaconf import open_dict
 
     from neuraldem.datagen.driver import DatagenOptions, generate
-    from neuraldem.scenes.fluidized_bed.datagen import FluidizedBedPipeline
+    from neuraldem.scenes.fluidized_bed.dataset.datagen import FluidizedBedPipeline
 
     os.environ["NEURALDEM_DATA"] = str(root)
     cfg = compose_cfg("datagen", ["data=fb_tiny"], output_dir=root / "runs")

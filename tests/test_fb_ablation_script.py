@@ -42,7 +42,7 @@ def test_each_variant_is_one_training_command(tmp_path: Path):
     assert "model.stability.flux_consistency=0.2" in continuity and "trainer.max_steps=16000" in long
     assert short[-1] == "trainer.max_steps=7"  # the command line's own value is the last word
     assert "trainer.max_steps=4000" in short
-    assert calls[-1][:2] == ["-m", "neuraldem.scenes.fluidized_bed.table"]  # then the table of all runs
+    assert calls[-1][:2] == ["-m", "neuraldem.scenes.fluidized_bed.analysis.table"]  # then the table of all runs
     (tmp_path / "sel").mkdir()  # the options of the noisy checkpoint selection
     proc, calls = _run(tmp_path / "sel", "noise_sel noise_pooled")
     sel, pooled = [c for c in calls if c[:2] == ["-m", "neuraldem.train"]]
@@ -60,7 +60,7 @@ def test_val_scores_each_kept_checkpoint_on_the_validation_part(tmp_path: Path):
     assert proc.returncode == 0, proc.stderr
     modules = [c[1] for c in calls]
     assert modules == ["neuraldem.train", "neuraldem.evaluate", "neuraldem.train", "neuraldem.evaluate",
-                       "neuraldem.scenes.fluidized_bed.table", "neuraldem.scenes.fluidized_bed.table"]
+                       "neuraldem.scenes.fluidized_bed.analysis.table", "neuraldem.scenes.fluidized_bed.analysis.table"]
     alt, alt_val, both, both_val = calls[:4]
     assert "model.stability.mirror_alternate=true" in alt and "data.datamodule.mirror=true" not in alt
     assert {"data.datamodule.mirror=true", "model.stability.mirror_alternate=true"} <= set(both)
@@ -70,7 +70,7 @@ def test_val_scores_each_kept_checkpoint_on_the_validation_part(tmp_path: Path):
     assert calls[-1][2:] == [f"{runs}-val", "--out", f"{runs}-val/table.md"]
     (tmp_path / "plain").mkdir()
     _, plain = _run(tmp_path / "plain", "mirror_alt")  # without VAL: no validation scoring
-    assert [c[1] for c in plain] == ["neuraldem.train", "neuraldem.scenes.fluidized_bed.table"]
+    assert [c[1] for c in plain] == ["neuraldem.train", "neuraldem.scenes.fluidized_bed.analysis.table"]
 
 
 def test_unknown_variant_or_model_runs_nothing(tmp_path: Path):
@@ -84,7 +84,8 @@ def test_alt_variant_scores_the_trained_net_with_alternating_rollouts(tmp_path: 
     proc, calls = _run(tmp_path, "full full+alt", VAL="1", TEST="0")
     assert proc.returncode == 0, proc.stderr
     assert [c[1] for c in calls] == ["neuraldem.train", "neuraldem.evaluate", "neuraldem.evaluate",
-                                     "neuraldem.scenes.fluidized_bed.table", "neuraldem.scenes.fluidized_bed.table"]
+                                     "neuraldem.scenes.fluidized_bed.analysis.table",
+                                     "neuraldem.scenes.fluidized_bed.analysis.table"]
     train, val, alt_val = calls[:3]
     runs = tmp_path / "runs"
     assert "evaluate=false" in train  # TEST=0: the test part is left for the chosen variant
@@ -141,9 +142,11 @@ def test_sel_chooses_the_checkpoint_under_the_rollout_options_then_scores_it(tmp
     proc, calls = _run(tmp_path, "full full+noise3+corr1+alt+sel", VAL="1", SELECT_FROM="4500",
                        LONG_VAL=longval)
     assert proc.returncode == 0, proc.stderr
-    assert [c[1] for c in calls] == ["neuraldem.train", "neuraldem.evaluate", "neuraldem.scenes.fluidized_bed.select",
-                                     "neuraldem.evaluate", "neuraldem.evaluate", "neuraldem.scenes.fluidized_bed.table",
-                                     "neuraldem.scenes.fluidized_bed.table"]
+    assert [c[1] for c in calls] == ["neuraldem.train", "neuraldem.evaluate",
+                                     "neuraldem.scenes.fluidized_bed.surrogate.selection", "neuraldem.evaluate",
+                                     "neuraldem.evaluate",
+                                     "neuraldem.scenes.fluidized_bed.analysis.table",
+                                     "neuraldem.scenes.fluidized_bed.analysis.table"]
     runs = tmp_path / "runs"
     chosen = runs / "full+noise3+corr1+alt+sel" / "selected.ckpt"
     select = calls[2]
@@ -160,7 +163,7 @@ def test_sel_chooses_the_checkpoint_under_the_rollout_options_then_scores_it(tmp
     assert "part=val" in val_eval and "part=val" not in test_eval
     (tmp_path / "plain").mkdir()  # without LONG_VAL: no --long-val
     _, calls = _run(tmp_path / "plain", "full full+sel")
-    (select,) = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.select"]
+    (select,) = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.surrogate.selection"]
     assert "--long-val" not in select and "--rollout-noise" not in select and "--from-step" in select
 
 

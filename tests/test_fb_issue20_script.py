@@ -34,7 +34,7 @@ def test_the_protocol_for_two_seeds(tmp_path: Path):
     train = sorted((c for c in calls if c[1] == "neuraldem.train"), key=lambda c: "seed=1" in c)
     assert len(train) == 2 and "seed=0" in train[0] and "seed=1" in train[1]
     assert all("experiment=fb" in c and "trainer.max_steps=7" in c for c in train)
-    select = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.select"]
+    select = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.surrogate.selection"]
     assert len(select) == 2
     for c in select:
         flags = " ".join(c)
@@ -43,9 +43,9 @@ def test_the_protocol_for_two_seeds(tmp_path: Path):
     chosen = [runs / f"seed{s}" / "full+noise3+corr1+alt+sel" / "selected.ckpt" for s in (0, 1)]
     tests = [c for c in calls if c[1] == "neuraldem.evaluate" and any(a.startswith(f"ckpt={chosen[0]}") for a in c)]
     assert len(tests) == 2 and sum("part=val" in c for c in tests) == 1  # val and test of the chosen one
-    baselines = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.baselines"]
+    baselines = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.analysis.baselines"]
     assert [c[c.index("--part") + 1] for c in baselines] == ["test", "val"]
-    table = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.table" and f"{runs}/table.md" in c]
+    table = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.analysis.table" and f"{runs}/table.md" in c]
     assert table and table[0][2:5] == [f"{runs}/seed0", f"{runs}/seed1", f"{runs}/baselines"]
     stab, fine = [c for c in calls if c[1:3] == ["neuraldem.bench", "fb_stability"]]
     for c in (stab, fine):
@@ -63,7 +63,7 @@ def test_another_base_variant_is_trained_chosen_and_scored(tmp_path: Path):
     assert proc.returncode == 0, proc.stderr
     (train,) = [c for c in calls if c[1] == "neuraldem.train"]
     assert "model.net.scalar_coord_scale=10" in train
-    (select,) = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.select"]
+    (select,) = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.surrogate.selection"]
     assert select[2] == str(tmp_path / "runs" / "seed0" / "cond10")
     (stab, _) = [c for c in calls if c[1:3] == ["neuraldem.bench", "fb_stability"]]
     assert str(tmp_path / "runs" / "seed0" / "cond10+noise3+corr1+alt+sel" / "selected.ckpt") in stab
@@ -80,7 +80,7 @@ def test_missing_long_validation_or_unknown_option_runs_nothing(tmp_path: Path):
     assert proc.returncode == 2 and "unknown rollout option 'stir'" in proc.stderr and calls == []
     proc, calls = _run(tmp_path, LONG_VAL="", SEEDS="0")  # without the long set: chosen on 3-s validation alone
     assert proc.returncode == 0, proc.stderr
-    (select,) = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.select"]
+    (select,) = [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.surrogate.selection"]
     assert "--long-val" not in select
 
 
@@ -91,4 +91,4 @@ def test_finished_baselines_are_not_repeated(tmp_path: Path):
         (done / "metrics.json").write_text("{}")
     proc, calls = _run(tmp_path, LONG_VAL="", SEEDS="0")
     assert proc.returncode == 0, proc.stderr
-    assert not [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.baselines"]
+    assert not [c for c in calls if c[1] == "neuraldem.scenes.fluidized_bed.analysis.baselines"]

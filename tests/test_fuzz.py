@@ -66,7 +66,7 @@ def _flip_byte(ds: Path, path: Path) -> None:
 
 
 def _open_run(ds: Path, path: Path) -> object:
-    from neuraldem.scenes.hopper.store import HopperFile
+    from neuraldem.scenes.hopper.dataset.store import HopperFile
 
     with HopperFile(path) as f:
         return f.n_particles

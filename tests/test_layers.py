@@ -19,7 +19,9 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 # (layer name, module-name prefixes); the first matching prefix (longest first) decides a module's layer
 LAYERS = [
     ("base", ["neuraldem.errors", "neuraldem.paths", "neuraldem.machine", "neuraldem.cli", "neuraldem.config",
-              "neuraldem.__init__"]),
+              "neuraldem.__init__",
+              # the scene plug-in API: the Scene record, the registry and parameter tables (no scene imported)
+              "neuraldem.scenes.__init__", "neuraldem.scenes.parameters"]),
     ("sim", ["neuraldem.sim"]),
     ("data", ["neuraldem.data", "neuraldem.datagen.driver", "neuraldem.datagen.records", "neuraldem.datagen.sampling",
               "neuraldem.datagen.__init__"]),
@@ -29,13 +31,14 @@ LAYERS = [
     ("bench primitives", ["neuraldem.bench.timing", "neuraldem.bench.pareto", "neuraldem.bench.plots",
                           "neuraldem.bench.report", "neuraldem.bench.model_step", "neuraldem.bench.choices",
                           "neuraldem.bench.__init__"]),
+    ("shipped models", ["neuraldem.pretrained"]),
+    ("explorer primitives", ["neuraldem.serve"]),
     ("scenes", ["neuraldem.scenes"]),
     ("gns", ["neuraldem.gns"]),
     ("export", ["neuraldem.export"]),
     ("composition", ["neuraldem.bench", "neuraldem.datagen", "neuraldem.train", "neuraldem.evaluate",
-                     "neuraldem.rollout", "neuraldem.doctor", "neuraldem.__main__",
-                     "neuraldem.pretrained", "neuraldem.predict", "neuraldem.predict_fb", "neuraldem.scan",
-                     "neuraldem.serve"]),
+                     "neuraldem.rollout", "neuraldem.doctor", "neuraldem.__main__", "neuraldem.release",
+                     "neuraldem.predict", "neuraldem.scan", "neuraldem.serve.__main__"]),
 ]
 
 
@@ -63,7 +66,7 @@ def imports(path: Path) -> list[str]:
         if isinstance(node, ast.Import):
             out += [a.name for a in node.names if a.name.startswith("neuraldem")]
         elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("neuraldem"):
-            # `from neuraldem.scenes.hopper import metrics` imports the module neuraldem.scenes.hopper.metrics
+            # `from neuraldem.scenes.hopper import metrics` imports the module neuraldem.scenes.hopper.analysis.metrics
             for a in node.names:
                 sub = f"{node.module}.{a.name}"
                 out.append(sub if (SRC / (sub.replace(".", "/") + ".py")).exists() else node.module)
@@ -96,11 +99,38 @@ def test_no_module_imports_a_later_layer():
 def test_scenes_do_not_import_each_other_except_refill_from_hopper():
     """A scene is a folder of its own: only the refilling hopper builds on the hopper (same solver, same fields)."""
     allowed = {("hopper_refill", "hopper")}
+    kinds = {p.name for p in (SRC / "neuraldem" / "scenes").iterdir() if (p / "__init__.py").is_file()}
     crossing = []
     for path in sorted((SRC / "neuraldem" / "scenes").glob("*/**/*.py")):
         kind = path.relative_to(SRC / "neuraldem" / "scenes").parts[0]
         for imported in imports(path):
             parts = imported.split(".")
-            if len(parts) > 2 and parts[1] == "scenes" and parts[2] != kind and (kind, parts[2]) not in allowed:
+            if (len(parts) > 2 and parts[1] == "scenes" and parts[2] in kinds and parts[2] != kind
+                    and (kind, parts[2]) not in allowed):
                 crossing.append(f"{module_name(path)} imports {imported}")
     assert not crossing, "\n".join(crossing)
+
+
+def test_no_import_circles():
+    """No module reaches itself through imports (lazy ones included): every circle names its modules."""
+    graph: dict[str, set[str]] = {}
+    for path in sorted((SRC / "neuraldem").rglob("*.py")):
+        graph[as_module(module_name(path)) if path.name != "__init__.py" else module_name(path)] = {
+            as_module(i) for i in imports(path)}
+    circles, state = [], {}
+
+    def visit(node: str, stack: list[str]) -> None:
+        state[node] = 1
+        stack.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                circles.append(" -> ".join(stack[stack.index(nxt):] + [nxt]))
+            elif nxt in graph and nxt not in state:
+                visit(nxt, stack)
+        stack.pop()
+        state[node] = 2
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [])
+    assert not circles, "import circles:\n" + "\n".join(circles)

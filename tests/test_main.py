@@ -31,7 +31,7 @@ def test_groups_unknown_commands_and_help(capsys):
     assert main(["report"]) == 0 and "fb-baselines" in capsys.readouterr().out
     assert main(["report", "nope"]) == 2
     assert "unknown command 'nope': choose from dataset, fb-dataset" in capsys.readouterr().err
-    assert resolve(["report", "fb_table"])[1] == "neuraldem.scenes.fluidized_bed.table"  # _ and - both work
+    assert resolve(["report", "fb_table"])[1] == "neuraldem.scenes.fluidized_bed.analysis.table"  # _ and - both work
 
 
 def test_a_tool_and_a_hydra_command_run_through_the_console_entry():

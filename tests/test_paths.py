@@ -19,8 +19,8 @@ def test_invocation_names_a_package_script_by_its_module(monkeypatch, tmp_path):
     package = paths.Path(paths.__file__).resolve().parent
     argv = [str(package / "train.py"), "experiment=fb", f"hydra.run.dir={tmp_path}/fb/run"]
     assert paths.invocation(argv) == "python -m neuraldem.train experiment=fb hydra.run.dir=$NEURALDEM_DATA/fb/run"
-    argv = [str(package / "scenes/fluidized_bed/baselines.py"), "fb_small"]
-    assert paths.invocation(argv) == "python -m neuraldem.scenes.fluidized_bed.baselines fb_small"
+    argv = [str(package / "scenes/fluidized_bed/analysis/baselines.py"), "fb_small"]
+    assert paths.invocation(argv) == "python -m neuraldem.scenes.fluidized_bed.analysis.baselines fb_small"
     assert paths.invocation([str(package / "datagen/__main__.py")]) == "python -m neuraldem.datagen"
     # a script outside the package keeps its path
     assert paths.invocation(["/opt/tool.py", "-v"]) == "/opt/tool.py -v"
@@ -28,7 +28,8 @@ def test_invocation_names_a_package_script_by_its_module(monkeypatch, tmp_path):
 
 def test_module_command_records_python_m_with_the_arguments_portably(monkeypatch, tmp_path):
     monkeypatch.setenv(paths.ENV_VAR, str(tmp_path))
-    assert paths.module_command("neuraldem.scenes.hopper.cv", ["--out", f"{tmp_path}/cv.md"]) == \
-        "python -m neuraldem.scenes.hopper.cv --out $NEURALDEM_DATA/cv.md"
+    assert paths.module_command("neuraldem.scenes.hopper.analysis.cv", ["--out", f"{tmp_path}/cv.md"]) == \
+        "python -m neuraldem.scenes.hopper.analysis.cv --out $NEURALDEM_DATA/cv.md"
     monkeypatch.setattr(paths.sys, "argv", ["/x/cv.py", "--folds", "1"])  # default: this process's arguments
-    assert paths.module_command("neuraldem.scenes.hopper.cv") == "python -m neuraldem.scenes.hopper.cv --folds 1"
+    assert paths.module_command("neuraldem.scenes.hopper.analysis.cv") == \
+        "python -m neuraldem.scenes.hopper.analysis.cv --folds 1"

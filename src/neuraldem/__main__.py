@@ -1,80 +1,110 @@
-"""`neuraldem COMMAND ...`: one command line for everything the package does.
+"""`neuraldem VERB [OBJECT] key=value ...`: one command line for everything the package does (docs/cli.md).
 
-Two argument styles, one per kind of command:
-- runs composed from the config tree take Hydra overrides (`key=value`, `-m` for sweeps, `--cfg job` to
-  print the composed config): datagen, train, evaluate, rollout;
-- tools that read files take flags (`--out DIR`): import, report, bench, transfer, export, doctor.
-`neuraldem COMMAND --help` shows a command's own options. `python -m neuraldem.<module>` still works for each.
+Twelve verbs, each with one example; everything else is reachable under them (`neuraldem report --help`,
+`neuraldem bench --help`, `neuraldem import --help` list what each holds, by scene). Scene-specific commands come
+from the scenes (`Scene.reports`, `Scene.benchmarks`, `Scene.importer`), so a plug-in scene adds its own.
+Old verbs and names still work for one release and print the new spelling.
 """
 
 from __future__ import annotations
 
 import importlib
 import sys
+from collections.abc import Callable
 
-# command -> (module whose main() runs it, one line of help); a dict value is a group of subcommands
-COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
-    "doctor": ("neuraldem.doctor", "check solvers, torch, torch-cluster and the data dir"),
-    "datagen": ("neuraldem.datagen.__main__", "run the real solvers for a dataset (data=hopper_small n_sims=200)"),
-    "train": ("neuraldem.train", "train a surrogate (experiment=hopper_macro; -m for sweeps)"),
-    "evaluate": ("neuraldem.evaluate", "score a checkpoint against its solver (ckpt=PATH)"),
-    "predict": ("neuraldem.predict", "a what-if answer from a shipped model (hopper alpha=40 mu_s=0.3 mu_r=0.1)"),
-    "scan": ("neuraldem.scan", "a design chart over two parameters (hopper alpha=0:60:31 mu_s=0.05:1:20 mu_r=0.1)"),
-    "serve": ("neuraldem.serve.__main__", "the interactive explorer in your browser (http://127.0.0.1:5006/hopper)"),
-    "rollout": ("neuraldem.rollout", "roll a fluidized-bed model out (ckpt=PATH velocity=1.6 steps=3000)"),
-    "import": {
-        "liggghts": ("neuraldem.scenes.hopper.importer", "LIGGGHTS dump files of your own hopper runs as a dataset"),
-        "foam": ("neuraldem.scenes.fluidized_bed.importer",
-                 "OpenFOAM DPMFoam cases of your own fluidized beds as a dataset"),
-    },
-    "report": {
-        "dataset": ("neuraldem.eval.dataset_report", "what a generated dataset holds and what it cost"),
-        "fb-dataset": ("neuraldem.scenes.fluidized_bed.dataset_report",
-                       "ground-truth report of a fluidized-bed dataset"),
-        "hopper-table": ("neuraldem.scenes.hopper.table", "hopper runs side by side"),
-        "fb-table": ("neuraldem.scenes.fluidized_bed.table", "fluidized-bed runs and baselines side by side"),
-        "refill-table": ("neuraldem.scenes.hopper_refill.table", "refilling-hopper runs side by side"),
-        "fb-select": ("neuraldem.scenes.fluidized_bed.select",
-                      "choose a bed checkpoint on long validation rollouts (RUN_DIR --rollout-noise 3)"),
-        "fb-baselines": ("neuraldem.scenes.fluidized_bed.baselines",
-                         "nearest / interpolated / constant CFD-DEM baselines"),
-        "hopper-cv": ("neuraldem.scenes.hopper.cv",
-                      "the hopper table cross-validated (model, constant, GP, seed floor)"),
-        "occupancy": ("neuraldem.scenes.hopper.occupancy_coverage",
-                      "how well the occupancy field counts hopper material"),
-        "step-displacement": ("neuraldem.gns.step_displacement", "how far particles move per snapshot (GNS step)"),
-        "advection-oracle": ("neuraldem.scenes.fluidized_bed.advection_oracle",
-                             "mixing advection with CFD-DEM's own fields"),
-        "gns-rollout": ("neuraldem.gns.rollout", "roll out and score a GNS (particle) checkpoint"),
-    },
-    "bench": ("neuraldem.bench.__main__", "speed / accuracy benchmarks (results written to files)"),
-    "transfer": ("neuraldem.scenes.hopper.transfer", "pack / unpack compact copies of a hopper dataset"),
-    "export": ("neuraldem.export.__main__", "a dataset for GNS (npz) or LagrangeBench (HDF5): export gns DATASET OUT"),
+# verb -> (module whose main() runs it, one line of help, an example)
+VERBS: dict[str, tuple[str, str, str]] = {
+    "doctor": ("neuraldem.doctor", "check solvers, torch, torch-cluster and the data dir", "neuraldem doctor"),
+    "datagen": ("neuraldem.datagen.__main__", "run the real solvers for a dataset (resumable)",
+                "neuraldem datagen data=hopper_small n_sims=200 workers=2"),
+    "train": ("neuraldem.train", "train a surrogate (Hydra; -m for sweeps)",
+              "neuraldem train experiment=hopper_micro"),
+    "evaluate": ("neuraldem.evaluate", "score a checkpoint against its solver; `evaluate rollout` rolls one out",
+                 "neuraldem evaluate ckpt=RUN/checkpoints/last.ckpt"),
+    "release": ("neuraldem.release", "build a shipped model folder from a checkpoint",
+                "neuraldem release hopper ckpt=RUN/checkpoints/last.ckpt name=my_hopper out=DIR"),
+    "predict": ("neuraldem.predict", "a what-if answer from a shipped model, in about a second",
+                "neuraldem predict hopper alpha=40 mu_s=0.3 mu_r=0.1 verify=true"),
+    "scan": ("neuraldem.scan", "a design chart over two parameters",
+             "neuraldem scan hopper alpha=0:60:31 mu_s=0.05:1:20 mu_r=0.1"),
+    "serve": ("neuraldem.serve.__main__", "the interactive explorer in your browser",
+              "neuraldem serve port=5006   (then http://127.0.0.1:5006/hopper)"),
+    "bench": ("neuraldem.bench.__main__", "speed / accuracy benchmarks, results written to files",
+              "neuraldem bench fb_speed ckpt=RUN/checkpoints/last.ckpt"),
+    "report": ("", "tables and figures of datasets, runs and studies", "neuraldem report hopper-cv dataset=DIR"),
+    "import": ("", "your own solver runs as a dataset", "neuraldem import liggghts dump=DIR ..."),
+    "export": ("neuraldem.export.__main__", "a dataset for GNS / LagrangeBench, or packed for moving",
+               "neuraldem export gns dataset=DIR out=DIR"),
+}
+
+# reports that span scenes; each scene adds its own (`Scene.reports`)
+SHARED_REPORTS: dict[str, tuple[str, str]] = {
+    "dataset": ("neuraldem.eval.dataset_report", "what a generated dataset holds and what it cost"),
+    "step-displacement": ("neuraldem.gns.step_displacement", "how far particles move per snapshot (GNS step)"),
+    "gns-rollout": ("neuraldem.gns.rollout", "roll out and score a GNS (particle) checkpoint"),
+}
+
+# old verb -> the new command line it stands for (kept one release)
+OLD_VERBS: dict[str, list[str]] = {
+    "rollout": ["evaluate", "rollout"],
+    "transfer": ["export"],
 }
 
 
-def usage(group: dict[str, tuple[str, str] | dict[str, tuple[str, str]]], prefix: str) -> str:
-    lines = [f"usage: {prefix} COMMAND [args]   ({prefix} COMMAND --help for its options)", "", "commands:"]
-    for name, entry in group.items():
-        text = entry[1] if isinstance(entry, tuple) else "; ".join(entry)
-        lines.append(f"  {name:<18} {text}")
+def groups() -> dict[str, dict[str, tuple[str, str]]]:
+    """The verbs that are groups of subcommands: name -> (module, what), the scenes' included."""
+    from neuraldem.scenes import registry
+
+    reports, imports = dict(SHARED_REPORTS), {}
+    for s in registry().values():
+        reports |= dict(s.reports)
+        if s.importer is not None:
+            name, module, what = s.importer
+            imports[name] = (module, what)
+    return {"report": reports, "import": imports}
+
+
+def usage() -> str:
+    lines = ["usage: neuraldem VERB [OBJECT] key=value ...   (neuraldem VERB --help for its options)", "",
+             "verbs:"]
+    for name, (_, text, example) in VERBS.items():
+        lines.append(f"  {name:<9} {text}")
+        lines.append(f"  {'':<9}   e.g. {example}")
+    return "\n".join(lines)
+
+
+def group_usage(verb: str, entries: dict[str, tuple[str, str]]) -> str:
+    lines = [f"usage: neuraldem {verb} NAME key=value ...   (neuraldem {verb} NAME --help for its options)", "",
+             f"{verb}s:" if verb != "import" else "formats:"]
+    lines += [f"  {name:<20} {what}" for name, (_, what) in entries.items()]
     return "\n".join(lines)
 
 
 def resolve(argv: list[str]) -> tuple[str, str, list[str]] | str:
     """(program name, module, its arguments) for a command line, or the text to print instead."""
-    group, prefix = COMMANDS, "neuraldem"
-    while True:
-        if not argv or argv[0] in ("-h", "--help"):
-            return usage(group, prefix)
-        name, argv = argv[0], argv[1:]
-        entry = group.get(name) or group.get(name.replace("_", "-"))
-        if entry is None:
-            return f"{prefix}: error: unknown command {name!r}: choose from {', '.join(group)}"
-        prefix = f"{prefix} {name}"
-        if isinstance(entry, tuple):
-            return prefix, entry[0], argv
-        group = entry
+    if not argv or argv[0] in ("-h", "--help"):
+        return usage()
+    verb, rest = argv[0], argv[1:]
+    if verb in OLD_VERBS:
+        new = OLD_VERBS[verb]
+        print(f"neuraldem: note: `neuraldem {verb}` is `neuraldem {' '.join(new)}` now (the old verb goes in the "
+              "next release)", file=sys.stderr)
+        verb, rest = new[0], [*new[1:], *rest]
+    if verb not in VERBS:
+        return f"neuraldem: error: unknown verb {verb!r}: the verbs are {', '.join(VERBS)}"
+    module = VERBS[verb][0]
+    if module:
+        if verb == "evaluate" and rest[:1] == ["rollout"]:
+            return "neuraldem evaluate rollout", "neuraldem.rollout", rest[1:]
+        return f"neuraldem {verb}", module, rest
+    entries = groups()[verb]
+    if not rest or rest[0] in ("-h", "--help"):
+        return group_usage(verb, entries)
+    name = rest[0]
+    entry = entries.get(name) or entries.get(name.replace("_", "-"))
+    if entry is None:
+        return f"neuraldem {verb}: error: unknown {verb} {name!r}: choose from {', '.join(entries)}"
+    return f"neuraldem {verb} {name}", entry[0], rest[1:]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -85,7 +115,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2 if failed else 0
     prog, module, args = resolved
     sys.argv = [prog, *args]  # Hydra and argparse read the command line from here
-    result = importlib.import_module(module).main()
+    entry: Callable[[], int | None] = importlib.import_module(module).main
+    result = entry()
     return result if isinstance(result, int) else 0
 
 

@@ -11,7 +11,7 @@ import pytest
 from neuraldem.bench.__main__ import main as bench_main
 from neuraldem.bench.speed_accuracy import chart, render_markdown, runs_of_one_scene
 from neuraldem.errors import ConfigError
-from neuraldem.scenes.hopper.scoring import HOPPER_ERRORS
+from neuraldem.scenes.hopper.analysis.scoring import HOPPER_ERRORS
 
 
 def _point(method: str, label: str, t: float | None, drain: float, residual: float, outflow: float) -> dict:

@@ -35,7 +35,7 @@ def test_checkpoint_on_rollout_metrics_needs_the_rollout_callback(tmp_path):
 
     ckpt = {"_target_": "lightning.pytorch.callbacks.ModelCheckpoint", "dirpath": str(tmp_path),
             "monitor": "val/rollout_score"}
-    rollout = {"_target_": "neuraldem.scenes.fluidized_bed.rollout_validation.RolloutValidation", "steps": 10}
+    rollout = {"_target_": "neuraldem.scenes.fluidized_bed.surrogate.rollout_validation.RolloutValidation", "steps": 10}
     built = build_callbacks(OmegaConf.create({"checkpoint": ckpt, "rollout_validation": rollout}))
     assert [type(cb).__name__ for cb in built] == ["ModelCheckpoint", "RolloutValidation"]
     import pytest

@@ -17,7 +17,7 @@ from neuraldem.data import integrity
 from neuraldem.data.integrity import dataset_lock, verify_recorded_checksum
 from neuraldem.data.manifest import Manifest
 from neuraldem.errors import DataError
-from neuraldem.scenes.hopper.store import HopperFile
+from neuraldem.scenes.hopper.dataset.store import HopperFile
 from tests.helpers import REPO, flip_byte, run_module
 
 HOLD = ("import sys, time; from neuraldem.data.integrity import dataset_lock\n"

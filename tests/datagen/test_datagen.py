@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from neuraldem.data.manifest import Manifest
-from neuraldem.scenes.hopper.store import HopperFile
+from neuraldem.scenes.hopper.dataset.store import HopperFile
 from tests.helpers import REPO, run_module
 
 pytestmark = pytest.mark.solver

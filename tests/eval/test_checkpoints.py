@@ -13,8 +13,8 @@ import torch
 from neuraldem.errors import DataError
 from neuraldem.eval import checkpoints
 from neuraldem.eval.checkpoints import checkpoint_metadata, read_checkpoint
-from neuraldem.scenes.hopper.evaluation import load_hopper_checkpoint
-from neuraldem.scenes.hopper.module import HopperModule
+from neuraldem.scenes.hopper.analysis.evaluation import load_hopper_checkpoint
+from neuraldem.scenes.hopper.surrogate.module import HopperModule
 
 
 @pytest.fixture

@@ -21,8 +21,8 @@ def ema_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFacto
     from lightning.pytorch.callbacks import EMAWeightAveraging, ModelCheckpoint
 
     from neuraldem.models.registry import net_config
-    from neuraldem.scenes.fluidized_bed.datamodule import FluidizedBedDataModule
-    from neuraldem.scenes.fluidized_bed.module import FluidizedBedModule
+    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
+    from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
 
     torch.manual_seed(0)
     folder = tmp_path_factory.mktemp("ema")

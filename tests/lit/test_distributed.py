@@ -142,7 +142,7 @@ def test_a_masked_mean_over_two_processes_is_the_one_process_mean(tiny_checkpoin
     """The hopper's transport and residence losses average over present particles; with halves of unequal counts
     (here an empty hopper in one half), the mean of the two processes' losses and gradients (what DDP averages)
     is the one-process loss and gradient only with the shared count."""
-    from neuraldem.scenes.hopper.module import HopperModule
+    from neuraldem.scenes.hopper.surrogate.module import HopperModule
 
     module = HopperModule.load_from_checkpoint(tiny_checkpoint)
     g, q = torch.Generator().manual_seed(0), 16

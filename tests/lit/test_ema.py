@@ -26,8 +26,8 @@ def _train(dataset: Path, folder: Path, ema: bool) -> dict:
     from lightning.pytorch.callbacks import ModelCheckpoint
 
     from neuraldem.models.registry import net_config
-    from neuraldem.scenes.fluidized_bed.datamodule import FluidizedBedDataModule
-    from neuraldem.scenes.fluidized_bed.module import FluidizedBedModule
+    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
+    from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
 
     L.seed_everything(0)
     dm = FluidizedBedDataModule(str(dataset), "fb_tiny", batch_size=2)

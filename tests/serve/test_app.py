@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from neuraldem.errors import ConfigError
-from tests.serve.conftest import TINY
+from tests.conftest import TINY
 
 
 @pytest.fixture
@@ -35,7 +35,7 @@ def test_a_missing_model_file_is_one_line_with_the_rebuild_command(model_copy: P
     (model_copy / "field.pt").unlink()
     err = serve_error(capsys)
     assert f"shipped model file {model_copy / 'field.pt'} is missing: rebuild it:" in err
-    assert "python -m neuraldem.pretrained.build" in err
+    assert "python -m neuraldem.scenes.hopper.release" in err
 
 
 def test_a_damaged_model_file_is_one_line(model_copy: Path, capsys):

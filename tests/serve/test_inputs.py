@@ -35,7 +35,7 @@ def test_slider_values_and_typed_values_are_one_point():
 
 
 def test_the_slider_spans_the_trained_range_on_its_step_grid():
-    from neuraldem.serve.hopper_page import slider_range
+    from neuraldem.scenes.hopper.explorer.page import slider_range
 
     assert slider_range(0.166162, 59.812773, 0.5) == (0.5, 59.5)
     assert slider_range(0.051715, 0.997082, 0.01) == (0.06, 0.99)

@@ -93,7 +93,7 @@ def time_moves(page: Any, n: int, pause: float) -> list[dict[str, Any]]:
 
 def docs_screenshot(page: Any, url: str, path: Path) -> None:
     """The page as a new visitor sees it (the default point, t = 1 s), once the field model's numbers are in."""
-    from neuraldem.serve.browser import HopperBrowser
+    from neuraldem.scenes.hopper.explorer.browser import HopperBrowser
 
     fresh = HopperBrowser(page.driver, url, timeout=page.timeout)
     fresh.wait_field_numbers(timeout=120)
@@ -135,7 +135,7 @@ def markdown(result: dict[str, Any]) -> str:
 
 def bed_moves(page: Any, n: int, pause: float) -> list[dict[str, Any]]:
     """`n` steps of the bed's velocity slider to the right (each a velocity not seen before)."""
-    from neuraldem.serve.fb_engine import STEP
+    from neuraldem.scenes.fluidized_bed.explorer.engine import STEP
     from neuraldem.serve.inputs import parameter_value
 
     rows = []
@@ -176,8 +176,8 @@ def bed_markdown(result: dict[str, Any]) -> str:
 
 
 def bed_main(args: Any, argv: list[str]) -> int:
+    from neuraldem.scenes.fluidized_bed.explorer.browser import BedBrowser, page_url
     from neuraldem.serve.browser import ServerProcess, start_chromium, wait_for
-    from neuraldem.serve.fb_browser import BedBrowser, page_url
 
     out = resolve_out(args.out, "serve_latency_fb")
     machine = machine_info()
@@ -213,8 +213,9 @@ def bed_main(args: Any, argv: list[str]) -> int:
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    from neuraldem.serve.browser import HopperBrowser, ServerProcess, chromium_paths, start_chromium
-    from neuraldem.serve.hopper_page import STEPS
+    from neuraldem.scenes.hopper.explorer.browser import HopperBrowser
+    from neuraldem.scenes.hopper.explorer.page import STEPS
+    from neuraldem.serve.browser import ServerProcess, chromium_paths, start_chromium
 
     argv = sys.argv[1:] if argv is None else argv
     p = doc_parser("neuraldem.bench", __doc__)

@@ -8,7 +8,7 @@ answer measured here), LIGGGHTS at cheaper settings scored against the dataset's
 same parameters (`scenes.hopper.bench.solver_variants`), and with `--gns-ckpt` the particle-based GNS baseline rolled
 out over whole test trajectories (`gns.bench.points`). One panel per quantity (drainage time, residual, outflow); the
 Pareto front of each panel is what users should choose from. With `--cv FILE.json` (the cross-validated table
-of `neuraldem.scenes.hopper.cv`) the chart also holds the constant and Gaussian-process baselines and the field
+of `neuraldem.scenes.hopper.analysis.cv`) the chart also holds the constant and Gaussian-process baselines and the field
 model at their cross-validated errors, and LIGGGHTS rerun with another packing seed, drawn as the floor line.
 """
 
@@ -30,10 +30,10 @@ from neuraldem.config import checks
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.gns.bench.points import gns_point, require_hopper_gns
 from neuraldem.paths import data_dir
+from neuraldem.scenes.hopper.analysis.cv import ROWS
 from neuraldem.scenes.hopper.bench.runs import HOPPER_ERRORS, EvaluatedRun, collect_runs, time_to_answer
 from neuraldem.scenes.hopper.bench.solver import dataset_scene, split_records
 from neuraldem.scenes.hopper.bench.solver_variants import DEFAULT_VARIANTS, SolverVariant, score_variant
-from neuraldem.scenes.hopper.cv import ROWS
 from neuraldem.sim.liggghts import find_liggghts
 
 NAME = "speed_accuracy"
@@ -41,15 +41,15 @@ NAME = "speed_accuracy"
 
 def read_cv(path: Path) -> dict[str, Any]:
     if not Path(path).is_file():
-        raise DataError(f"--cv {path} does not exist: make it with python -m neuraldem.scenes.hopper.cv --dataset DIR "
+        raise DataError(f"--cv {path} does not exist: make it with neuraldem report hopper-cv --dataset DIR "
                         "[GRID...] --out FILE.md (pass FILE.json)")
     try:
         cv = json.loads(Path(path).read_text())
     except json.JSONDecodeError as err:
         raise DataError(f"--cv {path} is not valid JSON ({err}): write it again with "
-                        "neuraldem.scenes.hopper.cv") from None
+                        "neuraldem report hopper-cv") from None
     if "summary" not in cv or "folds" not in cv:
-        raise DataError(f"--cv {path} is not a cross-validation result of neuraldem.scenes.hopper.cv (no summary)")
+        raise DataError(f"--cv {path} is not a cross-validation result of neuraldem report hopper-cv (no summary)")
     return cv
 
 
@@ -102,7 +102,8 @@ CV_METHODS = {"constant": "constant (training mean)", "gp": "Gaussian process", 
 
 
 def cv_points(cv: dict[str, Any], split: str, row: str, scene: str) -> tuple[list[dict[str, Any]], dict[str, float]]:
-    """Chart points of a cross-validated table (`neuraldem.scenes.hopper.cv`): every method's mean error over the
+    """Chart points of a cross-validated table (`neuraldem.scenes.hopper.analysis.cv`): every method's mean error over
+    the
     folds at its measured time per answer, and the LIGGGHTS seed floor (its errors per quantity)."""
     summary = cv.get("summary", {}).get(split, {}).get(row)
     if not summary:
@@ -167,7 +168,7 @@ def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
     p.add_argument("--runs", type=Path, nargs="+", default=[], help="folders holding evaluated training runs")
     p.add_argument("--cv", type=Path, default=None,
-                   help="a cross-validated table (python -m neuraldem.scenes.hopper.cv ... --out X.md: pass X.json): "
+                   help="a cross-validated table (neuraldem report hopper-cv ... --out X.md: pass X.json): "
                         "constant, Gaussian process and field model points, and the LIGGGHTS seed floor")
     p.add_argument("--cv-split", default="random", choices=["random", "band"])
     p.add_argument("--cv-row", default="micro", choices=["micro", "macro"])

@@ -148,7 +148,7 @@ def run_all(argv: list[str]) -> int:
 
 def stability_map(out_dir: Path) -> Path | None:
     """The field surrogates' and the GNS's stability maps in one figure (stability_map.png), where both exist."""
-    from neuraldem.scenes.fluidized_bed.bench.stability import merge_maps
+    from neuraldem.scenes.fluidized_bed.bench.stability_map import merge_maps
 
     fb, gns = out_dir / "fb_stability.json", out_dir / "gns_stability.json"
     if not (fb.is_file() and gns.is_file()):
@@ -158,7 +158,8 @@ def stability_map(out_dir: Path) -> Path | None:
 
 
 def render(argv: list[str]) -> int:
-    from neuraldem.bench import hopper_stability, right_sizing, speed_accuracy
+    from neuraldem.bench import right_sizing, speed_accuracy
+    from neuraldem.bench import stability_maps as hopper_stability
     from neuraldem.scenes.fluidized_bed.bench import speed as fb_speed
     from neuraldem.scenes.fluidized_bed.bench import speed_accuracy as fb_speed_accuracy
     from neuraldem.scenes.hopper.bench import speed as hopper_speed

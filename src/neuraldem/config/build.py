@@ -18,7 +18,8 @@ from neuraldem.config import checks
 from neuraldem.errors import ConfigError
 
 ACCELERATORS = ("auto", "cpu", "gpu", "cuda", "mps")
-ROLLOUT_METRICS = "val/rollout_"  # logged by neuraldem.scenes.fluidized_bed.rollout_validation.RolloutValidation
+# logged by neuraldem.scenes.fluidized_bed.surrogate.rollout_validation.RolloutValidation
+ROLLOUT_METRICS = "val/rollout_"
 
 
 def check_trainer(cfg: DictConfig) -> None:

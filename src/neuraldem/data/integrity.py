@@ -22,13 +22,14 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
+import h5py
 from filelock import FileLock, Timeout
 
 from neuraldem.cli import tool_prog
 from neuraldem.data.manifest import MANIFEST_NAME, Manifest
-from neuraldem.data.schema import sha256
+from neuraldem.data.schema import REWRITE_FIX, check_version, sha256
 from neuraldem.errors import DataError
 
 LOCK_NAME = ".writer.lock"
@@ -131,3 +132,55 @@ def verify_recorded_checksum(path: Path) -> None:
 def command_line(module: str) -> str:
     """The command as typed (`neuraldem datagen ...` or `python -m <module> ...`), for the lock's holder record."""
     return " ".join([tool_prog(module), *sys.argv[1:]])
+
+
+class ValidatedH5File:
+    """Base of the dataset readers: opens the file, refuses other schema versions and kinds, and names the
+    file and the field in every error. Subclasses set KIND and implement `_read_meta` and `validate`."""
+
+    KIND: ClassVar[str]
+
+    def __init__(self, path: Path, validate: bool = True):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise DataError(f"dataset file {self.path} does not exist (regenerate with python -m neuraldem.datagen)")
+        verify_recorded_checksum(self.path)
+        try:
+            self.f = h5py.File(self.path, "r")
+        except OSError as err:
+            raise DataError(f"{self.path}: not a readable HDF5 file ({err})", REWRITE_FIX) from None
+        try:
+            check_version(self.f.attrs.get("schema_version"), self.path)
+            if self.f.attrs.get("kind") != self.KIND:
+                raise DataError(f"{self.path}: kind {self.f.attrs.get('kind')!r}, expected {self.KIND!r}")
+            self._read_meta()
+            if validate:
+                self.validate()
+        except DataError as err:
+            self.f.close()
+            if err.fix:
+                raise
+            raise DataError(err.problem, REWRITE_FIX) from None
+        except Exception:
+            self.f.close()
+            raise
+
+    def __enter__(self) -> Any:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.f.close()
+
+    def _field(self, name: str) -> Any:
+        if name not in self.f:
+            raise DataError(f"{self.path}: field /{name} is missing (file from another tool or truncated)")
+        return self.f[name]
+
+    def _read_meta(self) -> None:
+        raise NotImplementedError
+
+    def validate(self) -> None:
+        raise NotImplementedError

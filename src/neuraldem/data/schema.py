@@ -10,7 +10,7 @@ import json
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import h5py
 
@@ -75,57 +75,3 @@ def sha256(path: Path, chunk: int = 1 << 20) -> str:
         while block := fh.read(chunk):
             h.update(block)
     return h.hexdigest()
-
-
-class ValidatedH5File:
-    """Base of the dataset readers: opens the file, refuses other schema versions and kinds, and names the
-    file and the field in every error. Subclasses set KIND and implement `_read_meta` and `validate`."""
-
-    KIND: ClassVar[str]
-
-    def __init__(self, path: Path, validate: bool = True):
-        self.path = Path(path)
-        if not self.path.is_file():
-            raise DataError(f"dataset file {self.path} does not exist (regenerate with python -m neuraldem.datagen)")
-        from neuraldem.data.integrity import verify_recorded_checksum  # integrity imports this module
-
-        verify_recorded_checksum(self.path)
-        try:
-            self.f = h5py.File(self.path, "r")
-        except OSError as err:
-            raise DataError(f"{self.path}: not a readable HDF5 file ({err})", REWRITE_FIX) from None
-        try:
-            check_version(self.f.attrs.get("schema_version"), self.path)
-            if self.f.attrs.get("kind") != self.KIND:
-                raise DataError(f"{self.path}: kind {self.f.attrs.get('kind')!r}, expected {self.KIND!r}")
-            self._read_meta()
-            if validate:
-                self.validate()
-        except DataError as err:
-            self.f.close()
-            if err.fix:
-                raise
-            raise DataError(err.problem, REWRITE_FIX) from None
-        except Exception:
-            self.f.close()
-            raise
-
-    def __enter__(self) -> Any:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def close(self) -> None:
-        self.f.close()
-
-    def _field(self, name: str) -> Any:
-        if name not in self.f:
-            raise DataError(f"{self.path}: field /{name} is missing (file from another tool or truncated)")
-        return self.f[name]
-
-    def _read_meta(self) -> None:
-        raise NotImplementedError
-
-    def validate(self) -> None:
-        raise NotImplementedError

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import copy
 import functools
-import importlib
 import inspect
 import sys
 from dataclasses import dataclass
@@ -17,31 +16,31 @@ import torch
 
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
 from neuraldem.errors import ConfigError, DataError
+from neuraldem.scenes import import_class, registry
+from neuraldem.scenes import scene as scene_of
 
-# Imported runs (neuraldem import ...) record the keys of their scene a user can state: geometry and particle
-# size must match the checkpoint's scene within IMPORT_SCENE_RTOL; the timestep is a numerical setting of the
-# solver, reported when it differs, not refused.
+# Imported runs (neuraldem import ...) record the keys of their scene a user can state (`Scene.import_match_keys`):
+# geometry and particle size must match the checkpoint's scene within IMPORT_SCENE_RTOL; solver settings such as
+# the timestep (`Scene.import_report_keys`) are reported when they differ, not refused.
 IMPORT_SCENE_RTOL = 0.01
-IMPORT_MATCH_KEYS = {
-    "hopper": ("hopper.hopper_diameter", "hopper.outlet_diameter", "hopper.material.diameter"),
-    # a bed model steps by the snapshot interval and reads kernel fields: both must be the ones it learned
-    "fluidized_bed": ("fluidized_bed.width", "fluidized_bed.thickness", "fluidized_bed.height", "fluidized_bed.cells",
-                      "fluidized_bed.diameter", "fluidized_bed.density", "fluidized_bed.snapshot_interval",
-                      "fields.kernel_sigma", "fields.mixing_sigma"),
-}
-IMPORT_REPORT_KEYS = {"hopper": ("hopper.material.dt",), "fluidized_bed": ()}
 
 IMPORTED_SPLIT = "imported (every run)"  # what an evaluation on imported runs reports as its split
 
-TRAIN_HINT = {"hopper": "experiment=hopper_micro", "fluidized_bed": "experiment=fb",
-              "gns": "experiment=gns_hopper (or gns_fb)"}
+# models that are not a scene's own surrogate: the particle-based GNS baseline trains on any scene's store
+OTHER_MODELS = {"gns": ("neuraldem.gns.module:GnsModule", "experiment=gns_hopper (or gns_fb)")}
 
 
-# the LightningModule of each checkpoint kind (imported when a model is built, not when metadata is read)
-MODULES = {"hopper": ("neuraldem.scenes.hopper.module", "HopperModule"),
-           "hopper_refill": ("neuraldem.scenes.hopper.module", "HopperModule"),
-           "fluidized_bed": ("neuraldem.scenes.fluidized_bed.module", "FluidizedBedModule"),
-           "gns": ("neuraldem.gns.module", "GnsModule")}
+def module_class(kind: str) -> Any:
+    """The LightningModule class of a checkpoint kind (imported when a model is built, not when metadata is read)."""
+    if kind in OTHER_MODELS:
+        return import_class(OTHER_MODELS[kind][0])
+    return import_class(scene_of(kind, key="checkpoint kind").module)
+
+
+def train_hint(kind: str) -> str:
+    if kind in OTHER_MODELS:
+        return OTHER_MODELS[kind][1]
+    return scene_of(kind, key="checkpoint kind").experiment if kind in registry() else "experiment=..."
 
 
 @dataclass(frozen=True)
@@ -69,8 +68,7 @@ class Checkpoint:
         `load_from_checkpoint` does: constructor arguments from the hyper-parameters, `on_load_checkpoint`, a
         strict state dict); a checkpoint of another kind is refused with the command that trains one."""
         require_kind(self.metadata, kind, self.path, purpose)
-        module_name, class_name = MODULES[kind]
-        cls = getattr(importlib.import_module(module_name), class_name)
+        cls = module_class(kind)
         accepted = inspect.signature(cls.__init__).parameters
         module = cls(**{k: v for k, v in self.hyper_parameters.items() if k in accepted})
         checkpoint = {**self.raw, "state_dict": dict(self.raw["state_dict"])}  # hooks may add entries
@@ -118,7 +116,7 @@ def require_kind(meta: dict[str, Any], kind: str, path: Path, purpose: str) -> N
     if meta.get("kind") != kind:
         raise DataError(f"{path} is a {meta.get('kind')!r} checkpoint (trained on {meta.get('data_name')!r}); "
                         f"{purpose} needs a {kind} model: train one with python -m neuraldem.train "
-                        f"{TRAIN_HINT.get(kind, 'experiment=...')}")
+                        f"{train_hint(kind)}")
 
 
 def dotted(d: dict[str, Any], key: str) -> Any:
@@ -132,7 +130,7 @@ def imported_scene_differences(kind: str, trained: dict[str, Any], imported: dic
                                rtol: float = IMPORT_SCENE_RTOL) -> list[str]:
     """`key: trained X, imported Y` for every matched key whose values differ by more than rtol (or is missing)."""
     out = []
-    for key in IMPORT_MATCH_KEYS.get(kind, ()) if keys is None else keys:
+    for key in scene_of(kind).import_match_keys if keys is None else keys:
         a, b = dotted(trained, key), dotted(imported, key)
         if isinstance(a, list) or isinstance(b, list):  # grid cells: equal or not
             differs = list(a or []) != list(b or [])
@@ -143,9 +141,9 @@ def imported_scene_differences(kind: str, trained: dict[str, Any], imported: dic
     return out
 
 
-def scene_recorded(kind: str, scene: dict[str, Any]) -> bool:
+def scene_recorded(kind: str, recorded: dict[str, Any]) -> bool:
     """Whether an imported dataset's manifest states its scene (imports from before scenes were recorded do not)."""
-    return any(dotted(scene, k) is not None for k in IMPORT_MATCH_KEYS[kind])
+    return any(dotted(recorded, k) is not None for k in scene_of(kind).import_match_keys)
 
 
 def check_import_joins(m: Manifest, scene: dict[str, Any], dataset: Path, label: str) -> None:
@@ -168,9 +166,10 @@ def check_scene(meta: dict[str, Any], m: Manifest, ckpt: Path, dataset_dir: Path
     imported runs must match its geometry and particle size within IMPORT_SCENE_RTOL."""
     if m.scene.get("imported"):
         kind = meta.get("kind", m.kind)
-        if kind not in IMPORT_MATCH_KEYS:
+        importable = [s.kind for s in registry().values() if s.import_match_keys]
+        if kind not in importable:
             raise DataError(f"{dataset_dir} holds imported {m.kind} runs; scoring a {kind} checkpoint on imported "
-                            f"runs is supported for {' and '.join(IMPORT_MATCH_KEYS)} models")
+                            f"runs is supported for {' and '.join(importable)} models")
         if not scene_recorded(kind, m.scene):
             raise DataError(f"{dataset_dir} was imported without its scene (an import from before scenes were "
                             "recorded)", fix="import the runs again with `neuraldem import liggghts` (or `foam`)")
@@ -179,7 +178,7 @@ def check_scene(meta: dict[str, Any], m: Manifest, ckpt: Path, dataset_dir: Path
             raise DataError(f"checkpoint {ckpt} was trained on another scene than the runs imported into "
                             f"{dataset_dir} (tolerance {100 * IMPORT_SCENE_RTOL:g} %): {'; '.join(diff)}",
                             fix="score it on runs of the scene it was trained on, or train on yours")
-        for note in imported_scene_differences(kind, meta["scene"], m.scene, IMPORT_REPORT_KEYS[kind]):
+        for note in imported_scene_differences(kind, meta["scene"], m.scene, scene_of(kind).import_report_keys):
             print(f"note: {dataset_dir}: {note} (a solver setting: scored anyway)", file=sys.stderr)
         return
     if meta["scene"] != m.scene:

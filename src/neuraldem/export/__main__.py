@@ -23,6 +23,7 @@ Examples:
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import shutil
@@ -307,8 +308,20 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+def scene_exports() -> dict[str, tuple[str, str]]:
+    """What the scenes export besides the particle formats (`Scene.exports`, e.g. the hopper's pack / unpack)."""
+    from neuraldem.scenes import registry
+
+    return {name: entry for s in registry().values() for name, entry in s.exports.items()}
+
+
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    extra = scene_exports()
+    if argv and argv[0] in extra:
+        sys.argv[0] = f"neuraldem export {argv[0]}"
+        return int(importlib.import_module(extra[argv[0]][0]).main(argv) or 0)
     a = parse_args(argv)
     meta = export_dataset(a.format, find_dataset(a.dataset), a.out, a.split, a.exits, a.radius_d,
                           a.material_property, a.force)

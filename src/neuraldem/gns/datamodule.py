@@ -38,9 +38,9 @@ from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
 from neuraldem.data.normalization import DictStats, scaled_scalar
 from neuraldem.data.part_loaders import PartLoaders
 from neuraldem.errors import ConfigError, DataError
-from neuraldem.scenes.fluidized_bed.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.hopper.dataset.store import HopperFile
 from neuraldem.scenes.hopper.solver import HopperGeometry
-from neuraldem.scenes.hopper.store import HopperFile
 
 log = logging.getLogger(__name__)
 

@@ -45,8 +45,8 @@ from neuraldem.eval.checkpoints import checkpoint_dataset, read_checkpoint
 from neuraldem.gns.datamodule import GnsNormalizer, ParticleRun, graph_inputs
 from neuraldem.gns.module import GnsModule
 from neuraldem.paths import data_dir
-from neuraldem.scenes.fluidized_bed.fields import mixing_concentration, particle_volumes, solid_fraction
-from neuraldem.scenes.hopper import metrics as hm
+from neuraldem.scenes.fluidized_bed.dataset.fields import mixing_concentration, particle_volumes, solid_fraction
+from neuraldem.scenes.hopper.analysis import metrics as hm
 
 # (step, one graph's inputs) -> accelerations [m/s^2] of the particles present; tests inject faulty ones
 Accelerator = Callable[[int, dict[str, torch.Tensor]], np.ndarray]
@@ -225,8 +225,8 @@ def score(r: GnsRollout, run: ParticleRun, manifest: Manifest) -> dict[str, Any]
         truth_m = hopper_particle_metrics(run.times[:n], truth, settings)
         return {"pred": pred_m, "truth": truth_m,
                 "abs_error": {k: abs(pred_m[k] - truth_m[k]) for k in pred_m}}
-    from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings
-    from neuraldem.scenes.fluidized_bed.evaluation import FieldSeries, compare
+    from neuraldem.scenes.fluidized_bed.analysis.evaluation import FieldSeries, compare
+    from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
 
     f = run.f
     alpha, mix = fb_particle_fields(run, r.positions[h:])

@@ -63,7 +63,7 @@ class MultiBranchOperator(nn.Module):
         grid-only model whose main branch is the fluid grid, the "single branch" ablation of right-sizing.
         noise_dim: > 0 makes the net stochastic: a Gaussian noise vector of this size, embedded by an MLP, is
         added to the conditioning vector (so it reaches every block through the DiT modulation); members of an
-        ensemble differ only in their noise (trained with CRPS, `neuraldem.scenes.fluidized_bed.stability`).
+        ensemble differ only in their noise (trained with CRPS, `neuraldem.scenes.fluidized_bed.surrogate.options`).
         scalar_coord_scale: sin-cos scale of the scalars (normalised to [0, 1]); the default is the positions'
         1000, with which the embedding turns by ~2 rad per 0.002 of the range, so a net may answer one unseen
         velocity unlike its neighbours (stop 43: a bed that collapsed at exactly 2.050 m/s); a small scale

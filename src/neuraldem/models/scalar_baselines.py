@@ -379,10 +379,10 @@ class ArrayGaussianProcess(ScalarBaseline):
                 data = {k: z[k] for k in z.files}
         except Exception as e:  # a truncated or foreign file fails in many ways, all of them mean "damaged"
             raise DataError(f"GP file {path} is damaged or not a saved GP ({type(e).__name__})",
-                            "rebuild it (python -m neuraldem.pretrained.build)") from None
+                            "rebuild it (neuraldem release)") from None
         if str(data.pop("format", "")) != ARRAY_FORMAT:
             raise DataError(f"{path} is not a GP saved by ArrayGaussianProcess.save_npz",
-                            "rebuild it (python -m neuraldem.pretrained.build)")
+                            "rebuild it (neuraldem release)")
         inputs = [str(n) for n in data.pop("inputs")]
         return cls(inputs, data)
 

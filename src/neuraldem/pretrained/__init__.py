@@ -4,7 +4,7 @@ Each model is a folder `neuraldem/pretrained/<name>/` with its files and a `meta
 the scene kind, the training data (dataset name and the SHA-256 of its manifest, the run ids of each part),
 the config it was trained with, its errors measured on its held-out test runs (beside the constant and the
 solver's seed floor), answers at a few probe points (what a test reproduces), and the commands that rebuild it
-(`python -m neuraldem.pretrained.build`). Every file is checked against the checksum in meta.json before first
+(`neuraldem release`). Every file is checked against the checksum in meta.json before first
 use; a missing or damaged one is refused with its path and the rebuild command.
 
 `NEURALDEM_PRETRAINED_DIR` points the loader at another folder of the same layout (your own rebuilt models).
@@ -45,7 +45,7 @@ class Pretrained:
 
     @property
     def rebuild(self) -> str:
-        return " && ".join(self.meta.get("rebuild", [])) or "python -m neuraldem.pretrained.build --help"
+        return " && ".join(self.meta.get("rebuild", [])) or "neuraldem release --help"
 
     def file(self, role: str) -> Path:
         """The verified path of one of the model's files ('field', 'gp', ...)."""
@@ -76,7 +76,7 @@ def load(name: str, kind: str | None = None) -> Pretrained:
         meta = json.loads((folder / META).read_text())
     except (OSError, json.JSONDecodeError) as err:
         raise DataError(f"{folder / META} is unreadable ({type(err).__name__})",
-                        "reinstall neuraldem or rebuild the model with python -m neuraldem.pretrained.build") from None
+                        "reinstall neuraldem or rebuild the model with neuraldem release") from None
     return Pretrained(name, folder, meta)
 
 
@@ -93,4 +93,4 @@ def default_for(kind: str) -> str:
         if _meta_kind(name) == kind:
             return name
     raise ConfigError(f"no pretrained {kind} model is shipped in {root()}",
-                      "build one with python -m neuraldem.pretrained.build (see its --help)")
+                      "build one with neuraldem release (see its --help)")

@@ -1,21 +1,21 @@
 """`neuraldem serve`: the interactive explorer of the shipped models in your browser.
 
-    neuraldem serve                      # http://127.0.0.1:5006/hopper and /bed
-    neuraldem serve --port 5010 --show   # another port, and open the browser
-    neuraldem serve --model hopper_small --dataset ~/data/hopper_small
+    neuraldem serve                        # http://127.0.0.1:5006/hopper and /bed
+    neuraldem serve port=5010 show=true    # another port, and open the browser
+    neuraldem serve model=hopper_small dataset=~/data/hopper_small
 
 Hopper page: sliders for the cone angle and the two frictions (their trained ranges; type a value beside a
 slider to go beyond: values past what LIGGGHTS can run are clamped with a note, values past the trained range
 get the extrapolation warning of `neuraldem predict`), a time player, the particles in 3D coloured by initial
 layer or residence time, the discharge curve, and the numbers with 95 % intervals: the GP's at once, the field
 model's when its whole discharge is computed (a few seconds), and a stored LIGGGHTS run's when one is within
---near of the point.
+near= of the point.
 
 Bed page: the inlet-velocity slider (same clamping and warnings), the GP's three numbers (mean bed height,
 bubble fraction, Lacey after 1 s) with 95 % intervals at once, animated solid-fraction and mixing maps and the
 bed-height / bubble-fraction / Lacey curves of the nearest rollout already computed (a lattice of 9 velocities
 rolls out in the background at start; the rollout at the slider's velocity replaces it once the slider rests),
-and the held-out errors of both models beside CFD-DEM's own spread. `--page hopper` serves one page only.
+and the held-out errors of both models beside CFD-DEM's own spread. `page=hopper` serves one page only.
 Needs the `serve` extra: pip install -e '.[serve]'.
 """
 
@@ -26,8 +26,8 @@ from pathlib import Path
 
 from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.errors import ConfigError
+from neuraldem.serve.inputs import NEAR
 from neuraldem.serve.ports import check_port
-from neuraldem.serve.stored_runs import NEAR
 
 DEFAULT_PORT = 5006
 
@@ -59,12 +59,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--show", action="store_true", help="open the browser")
     args = p.parse_args(sys.argv[1:] if argv is None else argv)
     if not 0 <= args.near <= 1:
-        raise ConfigError(f"--near {args.near} is invalid", "give a share of the trained range in 0 .. 1, e.g. 0.05")
+        raise ConfigError(f"near={args.near} is invalid", "give a share of the trained range in 0 .. 1, e.g. 0.05")
     port = check_port(args.host, args.port)  # before the slow loading: a port in use is told at once
     require_web_packages()
+    from neuraldem.scenes import registry
     from neuraldem.serve.app import prepare_pages, serve
 
-    pages, notes = prepare_pages(args.model, args.dataset, args.near, args.page)
+    routes = {s.route: (s.kind, s.page) for s in registry().values() if s.page}
+    pages, notes = prepare_pages(routes, args.model, args.dataset, args.near, args.page)
     for note in notes:
         print(f"neuraldem serve: {note}", file=sys.stderr)
     for page in pages:
@@ -73,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
         serve(pages, notes, args.host, port, args.show)
     except OSError as err:  # taken between the check and the start
         raise ConfigError(f"cannot listen on {args.host}:{port} ({err.strerror})",
-                          f"try --port {check_port(args.host, 0)}") from None
+                          f"try port={check_port(args.host, 0)}") from None
     except KeyboardInterrupt:
         pass
     return 0

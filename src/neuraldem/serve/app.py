@@ -1,10 +1,9 @@
-"""The explorer's pages, one module per scene, and the server that serves them.
+"""The explorer's server: it serves the pages the scenes bring, one per scene (`Scene.page`).
 
-A page module has `SCENE_KIND` (the shipped-model kind it shows), `TITLE`, `prepare(model_name, dataset,
-near)` (load once per server: the model, verified, and what its sessions share) and `page(shared)` (one
-browser session's view). Adding a scene (e.g. the fluidized bed) is one more module and one line in PAGES.
-A page whose scene has no shipped model is left out with a note; a model file that is missing or damaged
-stops the server with the one-line DataError.
+A page module has `TITLE`, `prepare(model_name, dataset, near)` (load once per server: the model, verified,
+and what its sessions share) and `page(shared)` (one browser session's view). `neuraldem serve` hands this
+module the pages as {route: (scene kind, page module)}. A page whose scene has no shipped model is left out
+with a note; a model file that is missing or damaged stops the server with the one-line DataError.
 """
 
 from __future__ import annotations
@@ -18,10 +17,7 @@ from typing import Any
 from neuraldem import pretrained
 from neuraldem.errors import ConfigError
 
-PAGES = {  # route -> page module
-    "hopper": "neuraldem.serve.hopper_page",
-    "bed": "neuraldem.serve.fb_page",
-}
+Pages = dict[str, tuple[str, str]]  # route -> (scene kind, page module)
 
 
 @dataclass
@@ -31,13 +27,8 @@ class ServedPage:
     shared: Any
 
 
-def page_module(route: str) -> ModuleType:
-    return importlib.import_module(PAGES[route])
-
-
-def model_for(module: ModuleType, model_name: str | None) -> tuple[str | None, str]:
-    """The model a page shows (`--model` when it is of the page's kind) or None and why the page is off."""
-    kind = module.SCENE_KIND
+def model_for(kind: str, model_name: str | None) -> tuple[str | None, str]:
+    """The model a page shows (`model=` when it is of the page's kind) or None and why the page is off."""
     if model_name is not None and pretrained.load(model_name).kind == kind:
         return model_name, ""
     try:
@@ -46,22 +37,23 @@ def model_for(module: ModuleType, model_name: str | None) -> tuple[str | None, s
         return None, f"page off: {err.problem}"
 
 
-def prepare_pages(model_name: str | None, dataset: Path | None, near: float,
+def prepare_pages(pages: Pages, model_name: str | None, dataset: Path | None, near: float,
                   only: list[str] | None = None) -> tuple[list[ServedPage], list[str]]:
     """Load every page that has a model (or those in `only`); notes say which are off and why."""
     served, notes = [], []
-    for route in only or list(PAGES):
-        if route not in PAGES:
-            raise ConfigError(f"unknown page {route!r}", f"choose from {', '.join(PAGES)}")
-        module = page_module(route)
-        name, why = model_for(module, model_name)
+    for route in only or list(pages):
+        if route not in pages:
+            raise ConfigError(f"unknown page {route!r}", f"choose from {', '.join(pages)}")
+        kind, module_name = pages[route]
+        module = importlib.import_module(module_name)
+        name, why = model_for(kind, model_name)
         if name is None:
             notes.append(f"{route}: {why}")
             continue
         served.append(ServedPage(route, module, module.prepare(name, dataset, near)))
     if not served:
         raise ConfigError("no page can be served: " + "; ".join(notes),
-                          "install neuraldem with its shipped models, or pass --model NAME")
+                          "install neuraldem with its shipped models, or pass model=NAME")
     return served, notes
 
 

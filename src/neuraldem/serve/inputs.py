@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+NEAR = 0.05  # a stored solver run is shown when every parameter is within 5 % of its trained range
 DECIMALS = 6  # parameter values are rounded so a slider's 38.50000000000001 and a typed 38.5 are one point
 
 

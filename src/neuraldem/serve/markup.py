@@ -27,3 +27,15 @@ def notes_html(notes: list[str], element_id: str) -> str:
     items = "".join(f'<li class="{"warn" if n.startswith("warning") or "clamped" in n else "info"}">'
                     f"{html.escape(n)}</li>" for n in notes)
     return f'<ul id="{element_id}" class="nd-notes">{items}</ul>'
+
+
+# the explorer's style, shared by every page
+CSS = """
+.nd-numbers {border-collapse: collapse; font-size: 12px;}
+.nd-numbers td, .nd-numbers th {border-bottom: 1px solid #ddd; padding: 2px 6px; text-align: left;}
+.nd-numbers td + td, .nd-numbers th + th {white-space: nowrap;}
+.nd-numbers td.pending {color: #888; font-style: italic;}
+.nd-notes {margin: 0; padding-left: 18px; font-size: 12px;}
+.nd-notes li.warn {color: #b15c00;}
+.nd-notes li.info {color: #555;}
+"""

@@ -6,14 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from neuraldem.bench import hopper_stability
+from neuraldem.bench import stability_maps as hopper_stability
 from neuraldem.bench.__main__ import main as bench_main
 from neuraldem.data.manifest import require_dataset
 from neuraldem.errors import ConfigError
 from neuraldem.gns.bench.points import exit_times, gns_point
 from neuraldem.gns.datamodule import ParticleRun
 from neuraldem.gns.rollout import load_gns_checkpoint
-from neuraldem.scenes.hopper.scoring import HOPPER_ERRORS
+from neuraldem.scenes.hopper.analysis.scoring import HOPPER_ERRORS
 from tests.helpers import oracle, train_tiny_gns
 
 pytestmark = pytest.mark.solver

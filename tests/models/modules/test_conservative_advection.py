@@ -19,7 +19,7 @@ def _state(seed: int, shape=(2, 12, 1, 30), flux_scale: float = 0.2):
     alpha[..., 20:] = 0.0  # an empty freeboard
     beta = alpha * torch.rand(*shape, generator=g, dtype=torch.float64)  # tagged solid per cell
     share = (beta.flatten(1).sum(1) / alpha.flatten(1).sum(1)).view(-1, 1, 1, 1)
-    conc = (beta + PRIOR * share) / (alpha + PRIOR)  # as the data's mixing field (scenes/fluidized_bed/fields.py)
+    conc = (beta + PRIOR * share) / (alpha + PRIOR)  # as the data's mixing field (dataset/fields.py)
     flux = flux_scale * torch.randn(shape[0], 3, *shape[1:], generator=g, dtype=torch.float64)
     return alpha, conc, flux
 

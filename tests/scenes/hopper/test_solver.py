@@ -71,8 +71,8 @@ def test_flat_sticky_keeps_residue_steep_slippery_empties(flat_sticky, steep_sli
 
 
 def test_flow_regime_indicator_separates_funnel_from_mass_flow(flat_sticky, steep_slippery, scene):
-    from neuraldem.scenes.hopper.datagen import trajectory_metrics
-    from neuraldem.scenes.hopper.metrics import HopperMetricSettings
+    from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings
+    from neuraldem.scenes.hopper.dataset.datagen import trajectory_metrics
 
     settings = HopperMetricSettings()
     funnel = trajectory_metrics(flat_sticky.trajectory, scene.material.diameter, settings)["mass_flow_index"]

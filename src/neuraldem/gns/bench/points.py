@@ -40,11 +40,11 @@ from neuraldem.gns.rollout import (
     rollout,
 )
 from neuraldem.paths import data_dir
+from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings
+from neuraldem.scenes.hopper.analysis.scoring import SimEvaluation, aggregate
 from neuraldem.scenes.hopper.bench.runs import HOPPER_ERRORS
 from neuraldem.scenes.hopper.bench.solver_variants import particle_evaluation
-from neuraldem.scenes.hopper.datagen import trajectory_metrics
-from neuraldem.scenes.hopper.metrics import HopperMetricSettings
-from neuraldem.scenes.hopper.scoring import SimEvaluation, aggregate
+from neuraldem.scenes.hopper.dataset.datagen import trajectory_metrics
 from neuraldem.scenes.hopper.solver import HopperTrajectory
 
 # overlaps are counted (first overlap step recorded) but never stop a rollout of the chart

@@ -36,7 +36,7 @@ from neuraldem.gns.rollout import (
     rollout,
 )
 from neuraldem.paths import data_dir
-from neuraldem.scenes.fluidized_bed.bench.stability import (
+from neuraldem.scenes.fluidized_bed.bench.stability_map import (
     DEFAULT_DRIFT_LIMIT_PCT,
     DEFAULT_HORIZON_MULTIPLE,
     DEFAULT_N_VELOCITIES,
@@ -45,7 +45,7 @@ from neuraldem.scenes.fluidized_bed.bench.stability import (
     velocity_grid,
     write_map,
 )
-from neuraldem.scenes.fluidized_bed.rollout import initial_file
+from neuraldem.scenes.fluidized_bed.surrogate.rollout import initial_file
 
 NAME = "gns_stability"
 

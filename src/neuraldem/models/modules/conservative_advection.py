@@ -16,7 +16,8 @@ sub-step is F = |j_f| dt / dx (cell-volume fraction; j_f = the face average of t
 so c' = beta' / alpha' is a convex combination of the c values around (inside [0, 1] if they are), and sum
 beta' = sum beta to round-off (walls are closed: no flux through the box faces). Where there is (almost) no
 solid, c' tends to the global share p_B through the same prior as the data's mixing field
-(c = (beta + a0 p_B) / (alpha + a0), `neuraldem.scenes.fluidized_bed.fields`). Sub-steps keep the Courant number <= 0.5.
+(c = (beta + a0 p_B) / (alpha + a0), `neuraldem.scenes.fluidized_bed.dataset.fields`). Sub-steps keep the
+Courant number <= 0.5.
 
 Consistent fluxes (`target`): the step's concentration is paired with the next solid fraction of whoever made the
 fluxes (CFD-DEM's kernel field, a model's projected prediction). When the fluxes do not carry the solid there
@@ -138,7 +139,7 @@ def advect_tagged(solid_fraction: torch.Tensor, concentration: torch.Tensor, flu
     it would leave the range of the neighbours; bounded and conservative as well). `correction` in [0, 1] scales
     the flux correction before limiting: 1 = full FCT, 0 = upwind; in between keeps part of the upwind
     scheme's numerical mixing, which stands in for the sub-cell dispersion of the particles (calibrated on
-    training trajectories: `neuraldem.scenes.fluidized_bed.advection_oracle`).
+    training trajectories: `neuraldem.scenes.fluidized_bed.analysis.advection_oracle`).
     target (B, nx, ny, nz): the solid fraction at the end of the step; the fluxes are made consistent with it
     first (`consistent_faces`), and what the limiter kept them from carrying is settled at the end (`_settle`),
     so the carried solid fraction is the target and the tagged volume is kept (both volumes equal).

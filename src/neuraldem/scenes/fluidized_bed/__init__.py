@@ -1,5 +1,5 @@
 """The fluidized bed (OpenFOAM DPMFoam, CFD-DEM): scored by time statistics, bubbles, Lacey mixing, solid
-volume and rollout stability against CFD-DEM (`neuraldem.scenes.fluidized_bed.evaluation`)."""
+volume and rollout stability against CFD-DEM (`neuraldem.scenes.fluidized_bed.analysis.evaluation`)."""
 
 from __future__ import annotations
 
@@ -10,18 +10,19 @@ from omegaconf import DictConfig
 
 from neuraldem.config import checks
 from neuraldem.scenes import Scene
+from neuraldem.scenes.fluidized_bed.parameters import PARAMETERS
 
 
 def pipeline(data_cfg: DictConfig) -> Any:
-    from neuraldem.scenes.fluidized_bed.datagen import FluidizedBedPipeline
+    from neuraldem.scenes.fluidized_bed.dataset.datagen import FluidizedBedPipeline
 
     return FluidizedBedPipeline(data_cfg)
 
 
 def evaluate(cfg: DictConfig) -> None:
-    from neuraldem.scenes.fluidized_bed.evaluation import evaluate_checkpoint
-    from neuraldem.scenes.fluidized_bed.rollout import DivergenceLimits
-    from neuraldem.scenes.fluidized_bed.stability import ADVECTION_FLUXES, MIXING_MODES, check_rollout_value
+    from neuraldem.scenes.fluidized_bed.analysis.evaluation import evaluate_checkpoint
+    from neuraldem.scenes.fluidized_bed.surrogate.options import ADVECTION_FLUXES, MIXING_MODES, check_rollout_value
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout import DivergenceLimits
 
     fb = cfg.fluidized_bed
     conserve = fb.conserve_solid_volume
@@ -53,7 +54,7 @@ def evaluate(cfg: DictConfig) -> None:
 
 
 def evaluate_run(cfg: DictConfig, ckpt: Path) -> dict[str, Any]:
-    from neuraldem.scenes.fluidized_bed.evaluation import evaluate_checkpoint
+    from neuraldem.scenes.fluidized_bed.analysis.evaluation import evaluate_checkpoint
 
     out = Path(cfg.paths.output_dir) / "evaluation"
     result = evaluate_checkpoint(ckpt, out_dir=out, datasets_dir=Path(cfg.paths.datasets_dir),
@@ -62,5 +63,47 @@ def evaluate_run(cfg: DictConfig, ckpt: Path) -> dict[str, Any]:
     return result
 
 
-SCENE = Scene(kind="fluidized_bed", description="OpenFOAM DPMFoam fluidized bed (CFD-DEM)", experiment="experiment=fb",
-              pipeline=pipeline, evaluate=evaluate, evaluate_run=evaluate_run)
+def rollout(cfg: DictConfig) -> None:
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout import rollout_command
+
+    rollout_command(cfg)
+
+
+SCENE = Scene(
+    kind="fluidized_bed", description="OpenFOAM DPMFoam fluidized bed (CFD-DEM)", experiment="experiment=fb",
+    parameters=PARAMETERS, pipeline=pipeline, evaluate=evaluate, evaluate_run=evaluate_run, rollout=rollout,
+    module="neuraldem.scenes.fluidized_bed.surrogate.module:FluidizedBedModule", aliases=("bed", "fb"),
+    whatif="neuraldem.scenes.fluidized_bed.predict", page="neuraldem.scenes.fluidized_bed.explorer.page",
+    release="neuraldem.scenes.fluidized_bed.release",
+    benchmarks={
+        "fb_speed": ("neuraldem.scenes.fluidized_bed.bench.speed",
+                     "DPMFoam vs the fluidized-bed rollout per simulated second, side by side (speed-up ratios)"),
+        "fb_speed_accuracy": ("neuraldem.scenes.fluidized_bed.bench.speed_accuracy",
+                              "rollout cost vs error of time averages and mixing, surrogates and cheaper DPMFoam; "
+                              "Pareto front, right-sizing"),
+        "fb_stability": ("neuraldem.scenes.fluidized_bed.bench.stability_map",
+                         "stability map: divergence, solid volume and bed height against CFD-DEM across velocities"),
+        "whatif_fb": ("neuraldem.scenes.fluidized_bed.bench.predict_timing",
+                      "neuraldem predict fluidized_bed: answer times, and GP / field model vs DPMFoam where "
+                      "verify=true checked"),
+    },
+    reports={
+        "fb-dataset": ("neuraldem.scenes.fluidized_bed.dataset.report",
+                       "ground-truth report of a fluidized-bed dataset"),
+        "fb-table": ("neuraldem.scenes.fluidized_bed.analysis.table", "fluidized-bed runs and baselines side by side"),
+        "fb-select": ("neuraldem.scenes.fluidized_bed.surrogate.selection",
+                      "choose a bed checkpoint on long validation rollouts"),
+        "fb-baselines": ("neuraldem.scenes.fluidized_bed.analysis.baselines",
+                         "nearest / interpolated / constant CFD-DEM baselines"),
+        "fb-reference-floor": ("neuraldem.scenes.fluidized_bed.analysis.reference_floor",
+                               "how well short CFD-DEM series estimate long-run statistics"),
+        "advection-oracle": ("neuraldem.scenes.fluidized_bed.analysis.advection_oracle",
+                             "mixing advection with CFD-DEM's own fields"),
+    },
+    importer=("foam", "neuraldem.scenes.fluidized_bed.dataset.importer",
+              "OpenFOAM DPMFoam cases of your own fluidized beds as a dataset"),
+    # a bed model steps by the snapshot interval and reads kernel fields: both must be the ones it learned
+    import_match_keys=("fluidized_bed.width", "fluidized_bed.thickness", "fluidized_bed.height",
+                       "fluidized_bed.cells", "fluidized_bed.diameter", "fluidized_bed.density",
+                       "fluidized_bed.snapshot_interval", "fields.kernel_sigma", "fields.mixing_sigma"),
+)

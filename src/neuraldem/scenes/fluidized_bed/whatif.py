@@ -26,12 +26,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from neuraldem.errors import DataError
-from neuraldem.scenes.fluidized_bed.metrics import bed_height, bubble_fraction, lacey_from_fields
+from neuraldem.scenes.fluidized_bed.analysis.metrics import bed_height, bubble_fraction, lacey_from_fields
 from neuraldem.sim.foam_reader import BoxGrid
 
 if TYPE_CHECKING:  # torch (rollout) and scipy (datagen) load only when fields are asked for: the GP answers fast
-    from neuraldem.scenes.fluidized_bed.datagen import FbMetricSettings
-    from neuraldem.scenes.fluidized_bed.rollout import FbState
+    from neuraldem.scenes.fluidized_bed.dataset.datagen import FbMetricSettings
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout import FbState
 
 START_SNAPSHOT = 1
 TARGETS = ("bed_height", "bubble_fraction", "lacey")
@@ -112,7 +112,7 @@ def bed_answers(c: BedCurves, window: AnswerWindow) -> dict[str, float]:
 
 def file_answers(path: Path, settings: FbMetricSettings, window: AnswerWindow) -> tuple[dict[str, float], BedCurves]:
     """CFD-DEM's answers: a stored trajectory's fields from snapshot START_SNAPSHOT on."""
-    from neuraldem.scenes.fluidized_bed.store import FbFile  # scipy: not on the GP's path
+    from neuraldem.scenes.fluidized_bed.dataset.store import FbFile  # scipy: not on the GP's path
 
     with FbFile(path) as f:
         sl = slice(START_SNAPSHOT, None)
@@ -139,8 +139,8 @@ class InitialStates:
 
     @classmethod
     def from_files(cls, paths: list[Path]) -> InitialStates:
-        from neuraldem.scenes.fluidized_bed.rollout import initial_state
-        from neuraldem.scenes.fluidized_bed.store import FbFile
+        from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+        from neuraldem.scenes.fluidized_bed.surrogate.rollout import initial_state
 
         states, vols, velocities, ids, grid = [], [], [], [], None
         for p in paths:
@@ -186,11 +186,11 @@ class InitialStates:
                        d["particle_volumes"], grid)
         except Exception as e:  # truncated or foreign: one message
             raise DataError(f"initial-state file {path} is damaged or not a saved set of bed states "
-                            f"({type(e).__name__})", "rebuild it (python -m neuraldem.pretrained.build)") from None
+                            f"({type(e).__name__})", "rebuild it (neuraldem release)") from None
 
     def nearest(self, velocity: float) -> tuple[FbState, float, str]:
         """The state nearest in inlet velocity (padding dropped), its particles' mean volume and its name."""
-        from neuraldem.scenes.fluidized_bed.rollout import FbState
+        from neuraldem.scenes.fluidized_bed.surrogate.rollout import FbState
 
         k = int(np.argmin(np.abs(self.velocities - velocity)))
         ok = np.isfinite(self.arrays["positions"][k]).all(axis=1)
@@ -216,7 +216,7 @@ class FieldAnswer:
 def field_answer(module: Any, states: InitialStates, velocity: float, settings: FbMetricSettings,
                  window: AnswerWindow, seed: int = 0, particles_every: int = 10) -> FieldAnswer:
     """Roll the model out over the answer window from the shipped state nearest in velocity; read the answers."""
-    from neuraldem.scenes.fluidized_bed.rollout import ModelStepper, rollout  # torch: only for fields
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, rollout  # torch: only for fields
 
     t0 = time.perf_counter()
     norm = module.norm
@@ -247,9 +247,9 @@ class SolverAnswer:
 def dpmfoam_answer(scene_record: dict[str, Any], velocity: float, workdir: Path, settings: FbMetricSettings,
                    window: AnswerWindow, seed: int = 0) -> SolverAnswer:
     """DPMFoam at `velocity` for the window's duration, stored and scored like every dataset run."""
-    from neuraldem.scenes.fluidized_bed.datagen import FieldSettings
+    from neuraldem.scenes.fluidized_bed.dataset.datagen import FieldSettings
+    from neuraldem.scenes.fluidized_bed.dataset.store import write_fb_file
     from neuraldem.scenes.fluidized_bed.solver import FluidizedBedScene, run_fluidized_bed
-    from neuraldem.scenes.fluidized_bed.store import write_fb_file
     from neuraldem.sim import openfoam
 
     scene = FluidizedBedScene.from_config(scene_record["fluidized_bed"], "model scene")

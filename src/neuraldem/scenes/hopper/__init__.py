@@ -1,5 +1,5 @@
 """The hopper (LIGGGHTS discharge): particles drain through an orifice; scored by drainage time, residual,
-outflow, flow regime, stripes and residence time (`neuraldem.scenes.hopper.evaluation`)."""
+outflow, flow regime, stripes and residence time (`neuraldem.scenes.hopper.analysis.evaluation`)."""
 
 from __future__ import annotations
 
@@ -9,23 +9,24 @@ from typing import Any
 from omegaconf import DictConfig
 
 from neuraldem.scenes import Scene
+from neuraldem.scenes.hopper.parameters import PARAMETERS
 
 
 def pipeline(data_cfg: DictConfig) -> Any:
-    from neuraldem.scenes.hopper.datagen import HopperPipeline
+    from neuraldem.scenes.hopper.dataset.datagen import HopperPipeline
 
     return HopperPipeline(data_cfg)
 
 
 def print_table(result: dict[str, Any]) -> None:
-    from neuraldem.scenes.hopper.evaluation import TABLE_HEADER
+    from neuraldem.scenes.hopper.analysis.evaluation import TABLE_HEADER
 
     print(TABLE_HEADER)
     print("\n".join(result["table_rows"]))
 
 
 def evaluate(cfg: DictConfig) -> None:
-    from neuraldem.scenes.hopper.evaluation import evaluate_checkpoint
+    from neuraldem.scenes.hopper.analysis.evaluation import evaluate_checkpoint
 
     result = evaluate_checkpoint(
         Path(cfg.ckpt), out_dir=Path(cfg.paths.output_dir), datasets_dir=Path(cfg.paths.datasets_dir),
@@ -45,7 +46,7 @@ def evaluate(cfg: DictConfig) -> None:
 
 
 def evaluate_run(cfg: DictConfig, ckpt: Path) -> dict[str, Any]:
-    from neuraldem.scenes.hopper.evaluation import evaluate_checkpoint
+    from neuraldem.scenes.hopper.analysis.evaluation import evaluate_checkpoint
 
     result = evaluate_checkpoint(ckpt, out_dir=Path(cfg.paths.output_dir) / "evaluation",
                                  datasets_dir=Path(cfg.paths.datasets_dir), dataset_dir=cfg.data.dataset_dir,
@@ -54,5 +55,34 @@ def evaluate_run(cfg: DictConfig, ckpt: Path) -> dict[str, Any]:
     return result
 
 
-SCENE = Scene(kind="hopper", description="LIGGGHTS hopper discharge", experiment="experiment=hopper_micro",
-              pipeline=pipeline, evaluate=evaluate, evaluate_run=evaluate_run)
+SCENE = Scene(
+    kind="hopper", description="LIGGGHTS hopper discharge", experiment="experiment=hopper_micro",
+    parameters=PARAMETERS, pipeline=pipeline, evaluate=evaluate, evaluate_run=evaluate_run,
+    module="neuraldem.scenes.hopper.surrogate.module:HopperModule",
+    whatif="neuraldem.scenes.hopper.predict", scan="neuraldem.scenes.hopper.scan",
+    page="neuraldem.scenes.hopper.explorer.page", release="neuraldem.scenes.hopper.release",
+    benchmarks={
+        "hopper_speed": ("neuraldem.scenes.hopper.bench.speed",
+                         "LIGGGHTS vs the hopper surrogate on the same questions, side by side (speed-up ratios)"),
+        "hopper_scaling": ("neuraldem.scenes.hopper.bench.scaling",
+                           "LIGGGHTS cost vs particle count; surrogate cost vs query points and latent tokens"),
+        "seed_floor": ("neuraldem.scenes.hopper.bench.seed_floor",
+                       "LIGGGHTS rerun with other packing seeds: the noise floor of every hopper quantity"),
+        "whatif": ("neuraldem.scenes.hopper.bench.predict_timing",
+                   "neuraldem predict hopper: answer times, and GP / field model vs LIGGGHTS at random points"),
+    },
+    reports={
+        "hopper-table": ("neuraldem.scenes.hopper.analysis.table", "hopper runs side by side"),
+        "hopper-cv": ("neuraldem.scenes.hopper.analysis.cv",
+                      "the hopper table cross-validated (model, constant, GP, seed floor)"),
+        "occupancy": ("neuraldem.scenes.hopper.dataset.occupancy_coverage",
+                      "how well the occupancy field counts hopper material"),
+    },
+    exports={"pack": ("neuraldem.scenes.hopper.dataset.transfer",
+                      "a compact, exact copy of a hopper dataset in parts, for moving it to a training machine"),
+             "unpack": ("neuraldem.scenes.hopper.dataset.transfer", "a packed hopper dataset back as a dataset")},
+    importer=("liggghts", "neuraldem.scenes.hopper.dataset.importer",
+              "LIGGGHTS dump files of your own hopper runs as a dataset"),
+    import_match_keys=("hopper.hopper_diameter", "hopper.outlet_diameter", "hopper.material.diameter"),
+    import_report_keys=("hopper.material.dt",),
+)

@@ -1,129 +1,183 @@
-"""Hopper fields over a whole trajectory, from a trained model or from the DEM data itself.
+"""`neuraldem predict hopper alpha=40 mu_s=0.3 mu_r=0.1 [verify=true] [fields=false]`: the hopper's what-if.
 
-Both predictors answer the same question, fields at fixed query points on a time grid, so the evaluation
-code cannot tell them apart: feeding the DEM predictor through it must reproduce the ground truth.
+Drainage time (t95 and the 1 % rule), residual, outflow and the flow regime, each from the scalar Gaussian process
+with its 95 % interval (milliseconds) and from the field model (read off its predicted fields, the way DEM runs
+are scored; seconds); the stripes plot of the initial height layers over time and the predicted particles as a
+ParaView time series. `verify=true` runs LIGGGHTS at the model's scene and prints both answers and both times
+side by side. Values outside the trained ranges are answered with a warning that names the range.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import argparse
+import json
+import sys
 from pathlib import Path
-from typing import Protocol
+from typing import Any
 
 import numpy as np
-import torch
 
-from neuraldem.data.manifest import SimRecord
-from neuraldem.data.normalization import HopperNormalizer
-from neuraldem.errors import DataError
-from neuraldem.scenes.hopper.fields import trajectory_fields_at
-from neuraldem.scenes.hopper.metrics import metric_times
-from neuraldem.scenes.hopper.store import HopperFile
+from neuraldem import pretrained
+from neuraldem.data.schema import atomic_write_json
+from neuraldem.errors import ConfigError
+from neuraldem.scenes.parameters import range_warnings
 
 
-@dataclass
-class TrajectoryFields:
-    times: np.ndarray  # (T,)
-    occupancy: np.ndarray  # (T, Q) probability in [0, 1] (0/1 for DEM)
-    transport: np.ndarray  # (T, Q, 3) initial position [m]
-    residence: np.ndarray  # (T, Q) seconds until exit
+def add_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--time-stride", type=int, default=2,
+                   help="field model: every Nth time of the 0.05 s grid (default 2: every 0.1 s)")
 
 
-class HopperPredictor(Protocol):
-    def fields(self, rec: SimRecord, times: np.ndarray, points: np.ndarray) -> TrajectoryFields: ...
+def answer(point: dict[str, float], model_name: str, out: Path, args: argparse.Namespace) -> dict[str, Any]:
+    if args.time_stride < 1:
+        raise ConfigError(f"time_stride={args.time_stride} is invalid: must be >= 1")
+    return predict_hopper(point, model_name, out, args.fields, args.verify, args.time_stride)
 
 
-time_grid = metric_times  # the time grid every hopper answer is given on
+def hopper_gp(model: pretrained.Pretrained) -> Any:
+    """The shipped scalar GP (file verified first), answered with numpy alone."""
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess
+
+    return ArrayGaussianProcess.load_npz(model.file("gp"))
 
 
-def hold_final_state(positions: np.ndarray, n_times: int) -> np.ndarray:
-    """Extend a (T, N, 3) trajectory to n_times snapshots by repeating its last state."""
-    if n_times <= len(positions):
-        return positions[:n_times]
-    pad = np.repeat(positions[-1:], n_times - len(positions), axis=0)
-    return np.concatenate([positions, pad])
+def hopper_module(model: pretrained.Pretrained) -> Any:
+    """The shipped field model (file verified first); loads torch, so only when fields are asked for."""
+    from neuraldem.eval.checkpoints import read_checkpoint
+
+    return read_checkpoint(model.file("field")).module("hopper", "cpu", "predict")
 
 
-def snapshot_indices(stored: np.ndarray, times: np.ndarray, path: Path | str = "the file") -> np.ndarray:
-    """The stored snapshot of every time of a grid (any subset of the snapshot times, e.g. every 2nd); times
-    after the run ended take its last snapshot (the held final state)."""
-    dt = float(stored[1] - stored[0]) if len(stored) > 1 else 1.0
-    k = np.rint(np.asarray(times) / dt).astype(np.int64)
-    inside = k < len(stored)
-    if np.any(np.abs(stored[k[inside]] - np.asarray(times)[inside]) > 1e-6 * max(dt, 1.0)):
-        raise DataError(f"{path}: the requested times are not on its snapshot grid (every {dt:g} s)")
-    return np.minimum(k, len(stored) - 1)
+def format_value(key: str, v: float) -> str:
+    from neuraldem.scenes.hopper.whatif import QUANTITIES
+
+    label, unit, scale = QUANTITIES[key]
+    return "-" if not np.isfinite(v) else f"{scale * v:.{3 if key == 'mass_flow_index' else 2}f}"
 
 
-@dataclass
-class DemPredictor:
-    """Ground truth as a 'prediction': fields computed from the particles of the HDF5 file."""
+def table(answer: dict[str, Any]) -> str:
+    """The answers side by side, one line per quantity."""
+    from neuraldem.scenes.hopper.whatif import QUANTITIES
 
-    dataset_dir: Path
-    occupancy_radius: float
-    horizon: float | None = None  # exit time given to particles that never leave; None = end of the run
+    cols = ["GP [95 % interval]"] + (["field model"] if "field" in answer else []) + \
+        (["LIGGGHTS"] if "liggghts" in answer else [])
+    lines = [f"| quantity | {' | '.join(cols)} |", "|---|" + "---|" * len(cols)]
+    gp = answer["gp"]
+    for key, (label, unit, _) in QUANTITIES.items():
+        row = [f"{format_value(key, gp['mean'][key])} [{format_value(key, gp['low'][key])}, "
+               f"{format_value(key, gp['high'][key])}]"]
+        if "field" in answer:
+            row.append(format_value(key, answer["field"]["summary"][key]))
+        if "liggghts" in answer:
+            row.append(format_value(key, answer["liggghts"]["metrics"].get(key, float("nan"))))
+        lines.append(f"| {label}{f' [{unit}]' if unit else ''} | {' | '.join(row)} |")
+    regimes = [answer["gp"]["regime"]] + ([answer["field"]["regime"]] if "field" in answer else []) + \
+        ([answer["liggghts"]["regime"]] if "liggghts" in answer else [])
+    lines.append(f"| flow regime | {' | '.join(regimes)} |")
+    times = [f"{answer['gp']['seconds']:.3g} s"] + \
+        ([f"{answer['field']['seconds']:.3g} s"] if "field" in answer else []) + \
+        ([f"{answer['liggghts']['seconds']:.3g} s"] if "liggghts" in answer else [])
+    lines.append(f"| answer time | {' | '.join(times)} |")
+    stored = answer.get("stored_test_errors") or {}
+    if stored.get("n_test_runs"):
+        lines += ["", f"measured on {stored['n_test_runs']} held-out LIGGGHTS runs (meta.json): " + "; ".join(
+            f"{who} t95 {e['drainage_t95_pct_of_mean']:.1f} %, residual {e['residual_mae_pp']:.2f} pp, outflow "
+            f"{e['outflow_rel_err_pct']:.1f} %, regime {100 * e['flow_regime_accuracy']:.0f} % right"
+            for who, e in (("GP", stored.get("gp")), ("field model", stored.get("field model"))) if e)]
+    truth = (answer.get("liggghts") or {}).get("metrics")
+    if truth:
+        lines.append("")
+        lines += [f"{who} vs LIGGGHTS: {errors_vs(values, truth)}" for who, values in
+                  (("GP", answer["gp"]["mean"]), ("field model", (answer.get("field") or {}).get("summary")))
+                  if values]
+    return "\n".join(lines)
 
-    def fields(self, rec: SimRecord, times: np.ndarray, points: np.ndarray) -> TrajectoryFields:
-        with HopperFile(self.dataset_dir / str(rec.file)) as f:
-            pos, exits = f.positions(), f.exit_times
-            pos = pos[snapshot_indices(f.times, times, f.path)]
-        horizon = self.horizon if self.horizon is not None else float(times[-1])
-        exits = np.where(np.isfinite(exits), exits, horizon)
-        occ, transport, residence = trajectory_fields_at(points, times, pos, exits, self.occupancy_radius)
-        return TrajectoryFields(times, occ.astype(np.float64), transport, residence)
+
+def errors_vs(values: dict[str, float], truth: dict[str, float], threshold: float = 0.5) -> str:
+    """The errors a practitioner reads: relative for times and outflow, percentage points for the residual."""
+    parts = []
+    for key, label in (("drainage_t95", "t95"), ("outflow_rate", "outflow")):
+        if truth.get(key):
+            parts.append(f"{label} {100 * (values[key] - truth[key]) / truth[key]:+.1f} %")
+    parts.append(f"residual {100 * (values['residual_fraction'] - truth['residual_fraction']):+.2f} pp")
+    same = (values["mass_flow_index"] > threshold) == (truth["mass_flow_index"] > threshold)
+    parts.append(f"regime {'right' if same else 'wrong'}")
+    return ", ".join(parts)
 
 
-@dataclass
-class ModelPredictor:
-    """A trained HopperFieldModel queried at every time of the grid (one batch of all times per chunk)."""
+def predict_hopper(point: dict[str, float], model_name: str, out: Path, fields: bool, verify: bool,
+                   time_stride: int = 1) -> dict[str, Any]:
+    from neuraldem.models.scalar_baselines import gp_answers
+    from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings
+    from neuraldem.scenes.hopper.whatif import regime
 
-    net: torch.nn.Module
-    norm: HopperNormalizer
-    conditioning: list[str]
-    chunk_size: int = 16384
-    device: str = "cpu"
+    model = pretrained.load(model_name, "hopper")
+    gp = hopper_gp(model)
+    settings = HopperMetricSettings.from_config(model.meta.get("metric_settings", {}), f"{model.name} metric_settings")
+    a = gp_answers(gp, [point])[0]
+    answer: dict[str, Any] = {
+        "scene": "hopper", "model": model.name, "parameters": point,
+        "gp": {"mean": a.mean, "low": a.low, "high": a.high, "seconds": a.seconds,
+               "regime": f"{regime(a.mean['mass_flow_index'], settings)} "
+                         f"({a.mean['mass_flow_index']:.2f} [{a.low['mass_flow_index']:.2f}, "
+                         f"{a.high['mass_flow_index']:.2f}])",
+               "extrapolation": a.extrapolation},
+        "stored_test_errors": model.meta.get("test_errors", {}),
+    }
+    warnings = range_warnings(a.extrapolation, "GP")
+    out.mkdir(parents=True, exist_ok=True)
+    panels = []
+    if fields:
+        f = hopper_fields(hopper_module(model), point, settings, out, time_stride)
+        answer["field"] = f.pop("answer")
+        panels.append(f["panel"])
+        warnings += range_warnings(answer["field"]["extrapolation"], "field model")
+    if verify:
+        answer["liggghts"], panel = hopper_verify(model.meta["scene"], point, settings, out)
+        if panel is not None:
+            panels.append(panel)
+    if panels:
+        from neuraldem.scenes.hopper.analysis.plots import stripe_panels
 
-    times_per_call: int = 1  # times answered per forward call: more is faster, needs (times x Q x dim) memory
-    box_tolerance: float = 0.05  # query points this far (share of the box) outside it are clipped and flagged
-    outside_box: dict[str, list[float]] = field(default_factory=dict)
+        stripe_panels([panels], out / "stripes.png")
+    answer["warnings"] = warnings
+    atomic_write_json(out / "answer.json", answer)
+    return answer
 
-    def extrapolation(self, rec: SimRecord) -> dict[str, list[float]]:
-        """Where the answer for `rec` is an extrapolation: conditioning scalars outside the trained ranges
-        ({name: [value, lo, hi]}) and query points outside the trained box ({"query_points_outside_box":
-        [n outside, n points, largest distance in m]}, after `fields`)."""
-        out = self.norm.outside_range(rec.conditioning(), self.conditioning)
-        if self.outside_box.get(rec.sim_id, [0])[0]:
-            out["query_points_outside_box"] = self.outside_box[rec.sim_id]
-        return out
 
-    def _query_points(self, rec: SimRecord, points: np.ndarray) -> np.ndarray:
-        """Normalised query points; those slightly outside the trained box (a fill a few mm higher than every
-        training run's) are clipped onto it and counted, those far outside are refused."""
-        u = self.norm.positions(points)
-        outside = ~np.all((u >= 0) & (u <= 1), axis=-1)
-        if outside.any():
-            far = ~np.all((u >= -self.box_tolerance) & (u <= 1 + self.box_tolerance), axis=-1)
-            if far.any():
-                self.norm.check_inside(points[far], f"{rec.sim_id} query points")
-            clipped = np.clip(u, 0.0, 1.0)
-            dist = np.linalg.norm(self.norm.positions_back(clipped) - points, axis=-1)
-            self.outside_box[rec.sim_id] = [int(outside.sum()), len(points), float(dist.max())]
-            u = clipped
-        return u
+def hopper_fields(module: Any, point: dict[str, float], settings: Any, out: Path, time_stride: int) -> dict[str, Any]:
+    from neuraldem.scenes.hopper.analysis.evaluation import predicted_point_series
+    from neuraldem.scenes.hopper.whatif import field_answer, regime
 
-    @torch.no_grad()
-    def fields(self, rec: SimRecord, times: np.ndarray, points: np.ndarray) -> TrajectoryFields:
-        self.net.eval()
-        scalars = np.stack([self.norm.scalars(rec.conditioning(), self.conditioning, float(t)) for t in times])
-        q = torch.from_numpy(self._query_points(rec, points)).float().to(self.device)
-        s = torch.from_numpy(scalars).to(self.device)
-        occ, transport, residence = [], [], []
-        n = self.times_per_call
-        for k in range(0, len(times), n):  # one time per call (the default) keeps memory at (Q x dim)
-            batch = s[k:k + n]
-            out = self.net(batch, q[None].expand(len(batch), -1, -1), chunk_size=self.chunk_size)
-            occ += list(torch.sigmoid(out["occupancy"][..., 0]).cpu().numpy())
-            transport += list(out["transport"].cpu().numpy())
-            residence += list(out["residence"][..., 0].cpu().numpy())
-        return TrajectoryFields(times, np.stack(occ), self.norm.positions_back(np.stack(transport)),
-                                self.norm.time_back(np.stack(residence)))
+    f = field_answer(module.net, module.metadata, point, settings, time_stride=time_stride)
+    vtk = predicted_point_series(f.points, f.fields, out / "vtk", "hopper_predicted", 0.5, settings.n_layers)
+    index = f.summary["mass_flow_index"]
+    return {"answer": {"summary": f.summary, "seconds": f.seconds, "n_points": len(f.points),
+                       "regime": f"{regime(index, settings)} ({index:.2f})", "extrapolation": f.extrapolation,
+                       "vtk": str(vtk)},
+            "panel": ("field model", f.fields.times, f.stripes)}
+
+
+def hopper_verify(scene_record: dict[str, Any], point: dict[str, float], settings: Any,
+                  out: Path) -> tuple[dict[str, Any], Any]:
+    from neuraldem.scenes.hopper.solver import HopperScene
+    from neuraldem.scenes.hopper.whatif import liggghts_answer, regime
+
+    done = out / "liggghts.json"  # a finished check is read back: the command can run again at no cost
+    if done.is_file():
+        kept = json.loads(done.read_text())
+        if kept.get("parameters") == point and kept.get("scene") == scene_record["hopper"]:
+            print(f"LIGGGHTS answer read back from {done} (delete it to rerun the solver)", file=sys.stderr)
+            stripes = kept.get("stripes")
+            return kept["answer"], (("LIGGGHTS", np.array(kept["times"]), np.array(stripes)) if stripes else None)
+    scene = HopperScene.from_config(scene_record["hopper"], "model scene")
+    print(f"running LIGGGHTS ({scene.n_particles} particles) on the same parameters ...", file=sys.stderr)
+    s = liggghts_answer(scene, point, out / "liggghts", settings)
+    index = s.metrics.get("mass_flow_index", float("nan"))
+    answer = {"status": s.status, "reason": s.reason, "metrics": s.metrics, "seconds": s.seconds,
+              "regime": f"{regime(index, settings)} ({index:.2f})" if s.metrics else s.status}
+    atomic_write_json(done, {"parameters": point, "scene": scene_record["hopper"], "answer": answer,
+                             "times": None if s.times is None else s.times.tolist(),
+                             "stripes": None if s.stripes is None else s.stripes.tolist()})
+    panel = ("LIGGGHTS", s.times, s.stripes) if s.stripes is not None else None
+    return answer, panel

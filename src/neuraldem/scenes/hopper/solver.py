@@ -26,8 +26,6 @@ from neuraldem.sim.seeds import prime_seeds
 from neuraldem.sim.stl import polyline, revolve, write_stl
 
 STATUS_OK, STATUS_CLOGGED, STATUS_FAILED = "ok", "clogged", "failed"
-# what a user may sample (datagen ranges, what-if values), and the physically sensible limits of each
-PARAMETER_LIMITS = {"alpha": (0.0, 75.0), "mu_s": (0.0, 2.0), "mu_r": (0.0, 1.0)}
 TrajectoryT = TypeVar("TrajectoryT")
 
 
@@ -312,7 +310,9 @@ def run_hopper(scene: HopperScene, alpha: float, mu_s: float, mu_r: float, workd
                index: int) -> HopperRunResult:
     """Run one simulation in `workdir` (created); the result says ok / clogged / failed, never raises for a
     solver failure (datagen records it and goes on)."""
-    checks.number("alpha", alpha, lo=PARAMETER_LIMITS["alpha"][0], hi=PARAMETER_LIMITS["alpha"][1])
+    from neuraldem.scenes.hopper.parameters import PARAMETERS
+
+    checks.number("alpha", alpha, lo=PARAMETERS["alpha"].low, hi=PARAMETERS["alpha"].high)
     material = Material(**{**scene.material.as_dict(), "mu_s": mu_s, "mu_r": mu_r})
     material.validate("parameters")
     workdir.mkdir(parents=True, exist_ok=True)

@@ -21,11 +21,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from neuraldem.errors import DataError
-from neuraldem.scenes.hopper.metrics import HopperMetricSettings, flow_regime
+from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings, flow_regime
 from neuraldem.scenes.hopper.solver import HopperGeometry, HopperScene
 
 if TYPE_CHECKING:
-    from neuraldem.scenes.hopper.predict import TrajectoryFields
+    from neuraldem.scenes.hopper.surrogate.inference import TrajectoryFields
 
 PACKING_FRACTION = 0.6  # random close packing of the settled fill: sets the lattice spacing
 QUANTITIES = {  # answer key -> (label, unit, scale to the unit)
@@ -70,8 +70,8 @@ def field_answer(net: Any, meta: dict[str, Any], params: dict[str, float], setti
     """The field model's answer for scene parameters `params` (those of its conditioning besides t)."""
     from neuraldem.data.manifest import SimRecord
     from neuraldem.data.normalization import HopperNormalizer
-    from neuraldem.scenes.hopper.predict import ModelPredictor, time_grid  # torch: only for fields
-    from neuraldem.scenes.hopper.scoring import summarise
+    from neuraldem.scenes.hopper.analysis.scoring import summarise
+    from neuraldem.scenes.hopper.surrogate.inference import ModelPredictor, time_grid  # torch: only for fields
 
     t0 = time.perf_counter()
     norm = HopperNormalizer.from_dict(meta["normalizer"])
@@ -104,8 +104,8 @@ class SolverAnswer:
 def liggghts_answer(scene: HopperScene, params: dict[str, float], workdir: Path,
                     settings: HopperMetricSettings) -> SolverAnswer:
     """LIGGGHTS on the same parameters, scored like every dataset run (fields at the initial positions)."""
-    from neuraldem.scenes.hopper.datagen import metric_fields, trajectory_metrics
-    from neuraldem.scenes.hopper.metrics import layer_edges, layer_stripes
+    from neuraldem.scenes.hopper.analysis.metrics import layer_edges, layer_stripes
+    from neuraldem.scenes.hopper.dataset.datagen import metric_fields, trajectory_metrics
     from neuraldem.scenes.hopper.solver import run_hopper
 
     t0 = time.perf_counter()

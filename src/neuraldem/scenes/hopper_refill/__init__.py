@@ -10,6 +10,7 @@ from omegaconf import DictConfig
 
 from neuraldem.config import checks
 from neuraldem.scenes import Scene
+from neuraldem.scenes.hopper.parameters import PARAMETERS as HOPPER_PARAMETERS  # the same solver, the same ranges
 
 
 def pipeline(data_cfg: DictConfig) -> Any:
@@ -52,5 +53,9 @@ def evaluate_run(cfg: DictConfig, ckpt: Path) -> dict[str, Any]:
                                       datasets_dir=Path(cfg.paths.datasets_dir), dataset_dir=cfg.data.dataset_dir)
 
 
-SCENE = Scene(kind="hopper_refill", description="LIGGGHTS refilling hopper (inflow + outflow)",
-              experiment="experiment=hopper_refill", pipeline=pipeline, evaluate=evaluate, evaluate_run=evaluate_run)
+SCENE = Scene(
+    kind="hopper_refill", description="LIGGGHTS refilling hopper (inflow + outflow)",
+    experiment="experiment=hopper_refill", parameters=HOPPER_PARAMETERS, pipeline=pipeline, evaluate=evaluate,
+    evaluate_run=evaluate_run, module="neuraldem.scenes.hopper.surrogate.module:HopperModule",
+    reports={"refill-table": ("neuraldem.scenes.hopper_refill.table", "refilling-hopper runs side by side")},
+)

@@ -11,7 +11,7 @@ import numpy as np
 from neuraldem.data.manifest import SimRecord
 from neuraldem.data.schema import sha256
 from neuraldem.datagen.driver import fresh_dir
-from neuraldem.scenes.hopper.datagen import HopperPipeline
+from neuraldem.scenes.hopper.dataset.datagen import HopperPipeline
 from neuraldem.scenes.hopper_refill.solver import RefillSettings, RefillTrajectory, fill_levels, run_refill
 from neuraldem.scenes.hopper_refill.store import RefillFile, write_refill_file
 

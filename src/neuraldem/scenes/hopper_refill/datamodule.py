@@ -22,7 +22,7 @@ from neuraldem.data.file_samples import FileSamples
 from neuraldem.data.manifest import SimRecord
 from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.errors import ConfigError
-from neuraldem.scenes.hopper.datamodule import HopperDataModule, occupancy_samples, query_tensors
+from neuraldem.scenes.hopper.surrogate.datamodule import HopperDataModule, occupancy_samples, query_tensors
 from neuraldem.scenes.hopper_refill.store import RefillFile
 from neuraldem.scenes.hopper_refill.targets import particle_targets
 

@@ -34,7 +34,7 @@ from neuraldem.eval.checkpoints import (
     split_records,
 )
 from neuraldem.paths import invocation
-from neuraldem.scenes.hopper.fields import nearest_particle
+from neuraldem.scenes.hopper.dataset.fields import nearest_particle
 from neuraldem.scenes.hopper_refill import metrics as rm
 from neuraldem.scenes.hopper_refill.datamodule import reference_scalars
 from neuraldem.scenes.hopper_refill.store import RefillFile

@@ -24,10 +24,11 @@ from typing import Any
 import h5py
 import numpy as np
 
-from neuraldem.data.schema import ValidatedH5File, atomic_write_h5
+from neuraldem.data.integrity import ValidatedH5File
+from neuraldem.data.schema import atomic_write_h5
 from neuraldem.errors import DataError
+from neuraldem.scenes.hopper.dataset.store import MISSING, quantise, write_header, write_motion
 from neuraldem.scenes.hopper.solver import HopperGeometry, TrajectorySize
-from neuraldem.scenes.hopper.store import MISSING, quantise, write_header, write_motion
 from neuraldem.scenes.hopper_refill.solver import RefillTrajectory, consistency_problem
 
 KIND = "hopper_refill"

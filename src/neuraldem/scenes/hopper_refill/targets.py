@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from neuraldem.errors import DataError
-from neuraldem.scenes.hopper.fields import nearest_particle
+from neuraldem.scenes.hopper.dataset.fields import nearest_particle
 
 TIME_TOLERANCE = 1e-6  # [s] times on the snapshot grid compare equal within this
 

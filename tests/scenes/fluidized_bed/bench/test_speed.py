@@ -14,7 +14,7 @@ import torch
 from neuraldem.bench.__main__ import main as bench_main
 from neuraldem.bench.timing import Sample, Timing
 from neuraldem.scenes.fluidized_bed.bench import speed as fb_speed
-from neuraldem.scenes.fluidized_bed.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
 from neuraldem.sim.foam_reader import FoamCase
 from tests.bench.test_timing import FakeClock
 
@@ -150,7 +150,7 @@ def test_without_keep_runs_the_run_folders_go(fb_tiny_checkpoint: Path, fb_tiny_
     with pytest.raises(fb_speed.SolverError, match=r"DPMFoam run of sim_0001 \(1\.22853 m/s, 0\.06 s\) failed: boom"):
         fb_speed.measure(plan)
     manifest = json.loads((fb_tiny_dataset / "manifest.json").read_text())
-    from neuraldem.scenes.fluidized_bed.datagen import packing_seed
+    from neuraldem.scenes.fluidized_bed.dataset.datagen import packing_seed
 
     assert calls == [(1.228531, 0.01, packing_seed(manifest["parameters"]["seed"], 1))]
     assert not any(tmp_path.iterdir())

@@ -12,11 +12,11 @@ import pytest
 
 from neuraldem.data.manifest import Manifest
 from neuraldem.errors import ConfigError
+from neuraldem.scenes.fluidized_bed.analysis.evaluation import FieldSeries, compare, evaluate_checkpoint
 from neuraldem.scenes.fluidized_bed.bench import speed_accuracy as fsa
-from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings
-from neuraldem.scenes.fluidized_bed.evaluation import FieldSeries, compare, evaluate_checkpoint
+from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
+from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
 from neuraldem.scenes.fluidized_bed.solver import FluidizedBedScene
-from neuraldem.scenes.fluidized_bed.store import FbFile
 from tests.helpers import with_split
 
 

@@ -35,9 +35,11 @@ from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.errors import ConfigError, DataError, SolverError
 from neuraldem.eval.checkpoints import checkpoint_dataset
 from neuraldem.paths import data_dir
-from neuraldem.scenes.fluidized_bed.datagen import packing_seed
-from neuraldem.scenes.fluidized_bed.module import FluidizedBedModule
-from neuraldem.scenes.fluidized_bed.rollout import (
+from neuraldem.scenes.fluidized_bed.dataset.datagen import packing_seed
+from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.solver import STATUS_OK, FluidizedBedScene, run_fluidized_bed
+from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
+from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
     DivergenceLimits,
     FbState,
     ModelStepper,
@@ -46,9 +48,7 @@ from neuraldem.scenes.fluidized_bed.rollout import (
     load_fb_checkpoint,
     rollout,
 )
-from neuraldem.scenes.fluidized_bed.rollout_flags import add_rollout_flags, check_rollout_flags
-from neuraldem.scenes.fluidized_bed.solver import STATUS_OK, FluidizedBedScene, run_fluidized_bed
-from neuraldem.scenes.fluidized_bed.store import FbFile
+from neuraldem.scenes.fluidized_bed.surrogate.rollout_flags import add_rollout_flags, check_rollout_flags
 
 NAME = "fb_speed"
 SOLVER_THREADS = 1  # DPMFoam runs serially, as in datagen

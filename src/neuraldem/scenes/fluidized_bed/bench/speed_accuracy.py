@@ -48,13 +48,13 @@ from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.run_results import find_results
 from neuraldem.paths import data_dir
+from neuraldem.scenes.fluidized_bed.analysis.evaluation import FieldSeries, compare, held_out
 from neuraldem.scenes.fluidized_bed.bench.speed import surrogate_timing
-from neuraldem.scenes.fluidized_bed.datagen import packing_seed
-from neuraldem.scenes.fluidized_bed.dataset_report import metric_settings
-from neuraldem.scenes.fluidized_bed.evaluation import FieldSeries, compare, held_out
-from neuraldem.scenes.fluidized_bed.rollout import initial_state, load_fb_checkpoint
+from neuraldem.scenes.fluidized_bed.dataset.datagen import packing_seed
+from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
+from neuraldem.scenes.fluidized_bed.dataset.store import FbFile, write_fb_file
 from neuraldem.scenes.fluidized_bed.solver import STATUS_OK, FluidizedBedScene, run_fluidized_bed
-from neuraldem.scenes.fluidized_bed.store import FbFile, write_fb_file
+from neuraldem.scenes.fluidized_bed.surrogate.rollout import initial_state, load_fb_checkpoint
 
 NAME = "fb_speed_accuracy"
 QUANTITIES = {"solid_fraction_mean_rel_l2": "time-mean solid fraction [rel. L2]",

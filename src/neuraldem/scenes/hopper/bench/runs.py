@@ -20,8 +20,8 @@ from neuraldem.bench.timing import SYSTEM_CLOCK, Clock, Timing, time_call, torch
 from neuraldem.errors import DataError
 from neuraldem.eval.checkpoints import read_checkpoint
 from neuraldem.paths import data_dir
+from neuraldem.scenes.hopper.analysis.scoring import HOPPER_ERRORS
 from neuraldem.scenes.hopper.bench.surrogate import answer, full_question, load_surrogate, surrogate_dataset
-from neuraldem.scenes.hopper.scoring import HOPPER_ERRORS
 
 METRICS = Path("evaluation") / "metrics.json"
 # practitioner's quantities: aggregate key in metrics.json -> chart label

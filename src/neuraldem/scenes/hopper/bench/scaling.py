@@ -50,8 +50,8 @@ from neuraldem.scenes.hopper.bench.surrogate import (
     synthetic_question,
     untrained_surrogate,
 )
-from neuraldem.scenes.hopper.predict import time_grid
 from neuraldem.scenes.hopper.solver import STATUS_FAILED, HopperRunResult, HopperScene
+from neuraldem.scenes.hopper.surrogate.inference import time_grid
 from neuraldem.sim.liggghts import find_liggghts
 
 NAME = "hopper_scaling"

@@ -41,12 +41,12 @@ from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError, DataError, NeuraldemError, SolverInterrupted
 from neuraldem.machine import machine_info
+from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings
+from neuraldem.scenes.hopper.analysis.scoring import HOPPER_ERRORS, score_answers
 from neuraldem.scenes.hopper.bench.solver import dataset_scene, run_scene
-from neuraldem.scenes.hopper.datagen import stored_metrics
-from neuraldem.scenes.hopper.metrics import HopperMetricSettings
-from neuraldem.scenes.hopper.scoring import HOPPER_ERRORS, score_answers
+from neuraldem.scenes.hopper.dataset.datagen import stored_metrics
+from neuraldem.scenes.hopper.dataset.store import write_hopper_file
 from neuraldem.scenes.hopper.solver import STATUS_CLOGGED, STATUS_FAILED, STATUS_OK, HopperScene
-from neuraldem.scenes.hopper.store import write_hopper_file
 from neuraldem.sim.liggghts import find_liggghts
 from neuraldem.sim.seeds import prime_seeds
 

@@ -17,8 +17,8 @@ import numpy as np
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
 from neuraldem.errors import DataError
+from neuraldem.scenes.hopper.dataset.store import HopperFile
 from neuraldem.scenes.hopper.solver import HopperRunResult, HopperScene, run_hopper
-from neuraldem.scenes.hopper.store import HopperFile
 
 SOLVER_THREADS = 1  # serial LIGGGHTS: one process, OMP_NUM_THREADS=1 (sim.liggghts.solver_env)
 

@@ -28,11 +28,11 @@ from neuraldem.bench.timing import Sample
 from neuraldem.cli import split_kind_factor
 from neuraldem.data.manifest import SimRecord
 from neuraldem.errors import ConfigError
+from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings, flow_regime
+from neuraldem.scenes.hopper.analysis.scoring import SimEvaluation, aggregate
 from neuraldem.scenes.hopper.bench.runs import HOPPER_ERRORS
 from neuraldem.scenes.hopper.bench.solver import run_scene
-from neuraldem.scenes.hopper.datagen import stored_metrics, trajectory_metrics
-from neuraldem.scenes.hopper.metrics import HopperMetricSettings, flow_regime
-from neuraldem.scenes.hopper.scoring import SimEvaluation, aggregate
+from neuraldem.scenes.hopper.dataset.datagen import stored_metrics, trajectory_metrics
 from neuraldem.scenes.hopper.solver import STATUS_FAILED, HopperScene
 
 KINDS = ("fewer", "coarser", "dt", "same")

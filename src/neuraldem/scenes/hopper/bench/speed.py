@@ -33,9 +33,9 @@ from neuraldem.scenes.hopper.bench.surrogate import (
     reduced_question,
     surrogate_dataset,
 )
-from neuraldem.scenes.hopper.fields import capped_exit_times, trajectory_fields_at
+from neuraldem.scenes.hopper.dataset.fields import capped_exit_times, trajectory_fields_at
+from neuraldem.scenes.hopper.dataset.store import HopperFile
 from neuraldem.scenes.hopper.solver import STATUS_FAILED, HopperScene, HopperTrajectory
-from neuraldem.scenes.hopper.store import HopperFile
 
 NAME = "hopper_speed"
 # the surrogate's time grid: up to its horizon (every run's length, conservative) or the stored run's own snapshots

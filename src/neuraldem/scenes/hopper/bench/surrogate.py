@@ -21,9 +21,9 @@ from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.eval.checkpoints import checkpoint_dataset, checkpoint_metadata, read_checkpoint, require_kind
 from neuraldem.models.registry import build_net as build_named_net
 from neuraldem.models.schemas import build_net
-from neuraldem.scenes.hopper.evaluation import load_hopper_checkpoint
-from neuraldem.scenes.hopper.predict import ModelPredictor, TrajectoryFields, time_grid
-from neuraldem.scenes.hopper.store import HopperFile
+from neuraldem.scenes.hopper.analysis.evaluation import load_hopper_checkpoint
+from neuraldem.scenes.hopper.dataset.store import HopperFile
+from neuraldem.scenes.hopper.surrogate.inference import ModelPredictor, TrajectoryFields, time_grid
 
 
 @dataclass

@@ -1,0 +1,55 @@
+"""`neuraldem release [SCENE] ckpt=RUN/checkpoints/last.ckpt name=NAME [out=DIR]`: a shipped model folder.
+
+    neuraldem release ckpt=RUN/checkpoints/last.ckpt name=hopper_small
+    neuraldem release ckpt=FB_RUN/checkpoints/best.ckpt name=fb_small lacey_time=1
+    neuraldem release fluidized_bed name=fb_small refresh_field=true   # after a change of the bed rollouts
+
+Writes `<out>/<name>/`: `field.pt` (the checkpoint without optimizer state), the scene's scalar GP as arrays
+numpy answers with (`gp.npz`), what else its answers need (a bed's first states), and `meta.json`: the training
+data (dataset, SHA-256 of its manifest, the run ids of each part), the config, the test errors of the field
+model, the GP and the constant on the checkpoint's held-out test runs, the trained ranges, answers at probe
+points and the rebuild commands. The checkpoint says which scene releases it (`Scene.release`); SCENE is needed
+only without a checkpoint. `out=` defaults to the folder of the shipped models.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+
+from neuraldem import pretrained
+from neuraldem.cli import command_parser, report_user_errors
+from neuraldem.errors import ConfigError
+from neuraldem.scenes import by_name, registry, scene
+
+
+@report_user_errors
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    chosen = by_name(argv.pop(0)) if argv and "=" not in argv[0] and not argv[0].startswith("-") else None
+    able = {s.kind: importlib.import_module(s.release) for s in registry().values() if s.release}
+    p = command_parser("neuraldem.release", __doc__)
+    p.add_argument("--ckpt", type=Path, default=None, help="a checkpoint written by neuraldem train")
+    p.add_argument("--name", required=True, help="the model's name (its folder)")
+    p.add_argument("--out", type=Path, default=pretrained.root(), help="folder of shipped models")
+    p.add_argument("--dataset", type=Path, default=None, help="dataset dir (default: the checkpoint's)")
+    for module in able.values():
+        module.add_options(p)
+    args = p.parse_args(argv)
+    if args.ckpt is not None:
+        from neuraldem.eval.checkpoints import checkpoint_metadata
+
+        kind = checkpoint_metadata(args.ckpt).get("kind")
+    elif chosen is not None:
+        kind = chosen.kind
+    else:
+        raise ConfigError("ckpt= is required: the checkpoint to release (e.g. ckpt=RUN/checkpoints/last.ckpt)")
+    if kind not in able:
+        raise ConfigError(f"the {scene(kind).kind} scene has no release", f"release one of {', '.join(able)}")
+    print(able[kind].release(args))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

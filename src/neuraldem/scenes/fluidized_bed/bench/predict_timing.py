@@ -1,0 +1,116 @@
+"""The bed's what-if: how fast `neuraldem predict fb` answers, and how close, where DPMFoam checked it.
+
+    python -m neuraldem.bench whatif_fb --repeats 5 [--verified DIR ...]
+
+- answer times (median of --repeats): the GP's answer in the process, the field model's rollout over the
+  answer window (3 s of bed time for fb_small) in the process, and the whole `neuraldem predict fb ...
+  --no-fields` command (Python start and imports included);
+- --verified: output folders of `neuraldem predict fb inlet_velocity=V --verify` (each holds answer.json with
+  the GP, field model and DPMFoam answers and times): tabled side by side with the time ratios. The solver
+  runs are not repeated here (each costs minutes).
+Writes results/bench/whatif_fb.json and whatif_fb.md.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from neuraldem import pretrained
+from neuraldem.bench.report import command_line, resolve_out, warn_if_busy, write_report
+from neuraldem.bench.timing import time_call
+from neuraldem.cli import doc_parser, report_user_errors
+from neuraldem.errors import DataError
+from neuraldem.machine import machine_info
+from neuraldem.paths import data_dir
+
+DEFAULT_VELOCITY = 1.8  # [m/s] `neuraldem predict fb`'s example
+
+
+def answer_times(model: pretrained.Pretrained, repeats: int) -> dict[str, Any]:
+    from neuraldem.eval.checkpoints import read_checkpoint
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess, gp_answers
+    from neuraldem.scenes.fluidized_bed.predict import fb_settings, fb_window
+    from neuraldem.scenes.fluidized_bed.whatif import InitialStates, field_answer
+
+    point = {"inlet_velocity": DEFAULT_VELOCITY}
+    gp = ArrayGaussianProcess.load_npz(model.file("gp"))
+    module = read_checkpoint(model.file("field")).module("fluidized_bed", "cpu", "bench")
+    states, settings, window = InitialStates.load_npz(model.file("states")), fb_settings(model), fb_window(model)
+    gp_t, _ = time_call(lambda: gp_answers(gp, [point]), repeats)
+    field_t, _ = time_call(lambda: field_answer(module, states, DEFAULT_VELOCITY, settings, window), repeats)
+    cmd = [sys.executable, "-m", "neuraldem", "predict", "fb", f"inlet_velocity={DEFAULT_VELOCITY:g}",
+           "--no-fields", "--out", str(data_dir() / "bench" / "whatif_fb" / "command")]
+    cmd_t, _ = time_call(lambda: subprocess.run(cmd, check=True, capture_output=True), repeats)
+    return {"point": point, "rollout_steps": window.steps, "gp_in_process": gp_t.as_dict(),
+            "field_in_process": field_t.as_dict(),
+            "predict_command_no_fields": {**cmd_t.as_dict(), "command": " ".join(cmd[1:])}}
+
+
+def verified_rows(folders: list[Path]) -> list[dict[str, Any]]:
+    rows = []
+    for folder in folders:
+        path = folder / "answer.json"
+        if not path.is_file():
+            raise DataError(f"{path} does not exist", "run neuraldem predict fb inlet_velocity=V --verify --out DIR")
+        a = json.loads(path.read_text())
+        if "dpmfoam" not in a or "field" not in a or a["dpmfoam"].get("status") != "ok":
+            raise DataError(f"{path} has no finished DPMFoam check and field answer",
+                            "rerun neuraldem predict fb ... --verify without --no-fields")
+        rows.append({"inlet_velocity": a["parameters"]["inlet_velocity"], "gp": a["gp"]["mean"],
+                     "gp_interval": [a["gp"]["low"], a["gp"]["high"]], "field": a["field"]["summary"],
+                     "dpmfoam": a["dpmfoam"]["answers"], "seconds": {"gp": a["gp"]["seconds"],
+                     "field": a["field"]["seconds"], "dpmfoam": a["dpmfoam"]["seconds"]}, "folder": str(folder)})
+    return rows
+
+
+def markdown(result: dict[str, Any]) -> str:
+    t = result["answer_times"]
+    lines = [f"# The bed's what-if (model {result['model']})", "",
+             f"Answer time, median of {t['gp_in_process']['repeats']} (`{result['command']}`):", "",
+             "| answer | median wall [s] |", "|---|---|",
+             f"| GP, in the process | {t['gp_in_process']['median_wall_s']:.2g} |",
+             f"| field model ({t['rollout_steps']}-step rollout), in the process | "
+             f"{t['field_in_process']['median_wall_s']:.3g} |",
+             f"| `neuraldem predict fb ... --no-fields`, whole command | "
+             f"{t['predict_command_no_fields']['median_wall_s']:.3g} |"]
+    if result["verified"]:
+        lines += ["", "Checked with DPMFoam (`neuraldem predict fb inlet_velocity=V --verify`):", "",
+                  "| U0 [m/s] | bed height DPMFoam / GP / field [mm] | bubble fraction DPMFoam / GP / field [%] | "
+                  "Lacey DPMFoam / GP / field | DPMFoam [s] | GP [s] | field [s] | DPMFoam / GP | DPMFoam / field |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for r in result["verified"]:
+            d, g, f, s = r["dpmfoam"], r["gp"], r["field"], r["seconds"]
+            lines.append(
+                f"| {r['inlet_velocity']:g} | {1000 * d['bed_height']:.1f} / {1000 * g['bed_height']:.1f} / "
+                f"{1000 * f['bed_height']:.1f} | {100 * d['bubble_fraction']:.1f} / {100 * g['bubble_fraction']:.1f}"
+                f" / {100 * f['bubble_fraction']:.1f} | {d['lacey']:.3f} / {g['lacey']:.3f} / {f['lacey']:.3f} | "
+                f"{s['dpmfoam']:.0f} | {s['gp']:.2g} | {s['field']:.3g} | {s['dpmfoam'] / s['gp']:.0f}x | "
+                f"{s['dpmfoam'] / s['field']:.0f}x |")
+    return "\n".join(lines) + "\n"
+
+
+@report_user_errors
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    p = doc_parser("neuraldem.bench", __doc__)
+    p.add_argument("--model", default=None, help="shipped bed model (default: the shipped one)")
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--verified", type=Path, nargs="*", default=[], help="predict fb --verify output folders")
+    p.add_argument("--out", type=Path, default=None, help="results JSON (default results/bench/whatif_fb.json)")
+    args = p.parse_args(argv)
+    machine = machine_info()
+    warn_if_busy(machine)
+    model = pretrained.load(args.model or pretrained.default_for("fluidized_bed"), "fluidized_bed")
+    result = {"model": model.name, "command": command_line("whatif_fb", argv),
+              "answer_times": answer_times(model, args.repeats), "verified": verified_rows(args.verified)}
+    out = resolve_out(args.out, "whatif_fb")
+    write_report("whatif_fb", result, markdown(result), command=result["command"], path=out, machine=machine)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,171 @@
+"""The fluidized bed's what-if: `neuraldem predict fluidized_bed inlet_velocity=1.8 [verify=true]` (the
+`neuraldem.predict` command parses and dispatches; this module answers and prints).
+
+Three answers (`scenes/fluidized_bed/whatif.py`: mean bed height, mean bubble fraction, Lacey index after 1 s,
+over the training trajectories' 3 s): from the scalar GP with its 95 % interval, in milliseconds; from a
+rollout of the field model (a few seconds), which also gives the curves, an animation of the solid fraction and
+mixing, and ParaView files; with `--verify` from DPMFoam at the same velocity (minutes). Each model's errors on
+its held-out CFD-DEM runs are printed beside CFD-DEM's own spread from another packing, so the user sees which
+answer to trust: on fb_small the GP is near that spread and the field model is not (issue 20).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from neuraldem import pretrained
+from neuraldem.data.schema import atomic_write_json
+from neuraldem.scenes.parameters import range_warnings
+
+
+def add_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the field model's rollout (and of DPMFoam's packing with verify=true)")
+
+
+def answer(point: dict[str, float], model_name: str, out: Path, args: argparse.Namespace) -> dict[str, Any]:
+    return predict_fb(point, model_name, out, args.fields, args.verify, args.seed)
+
+
+def fb_window(model: pretrained.Pretrained) -> Any:
+    from neuraldem.scenes.fluidized_bed.whatif import AnswerWindow
+
+    return AnswerWindow.from_dict(model.meta["answer_window"])
+
+
+def fb_settings(model: pretrained.Pretrained) -> Any:
+    from neuraldem.scenes.fluidized_bed.dataset.datagen import FbMetricSettings
+
+    return FbMetricSettings.from_config(model.meta["metric_settings"], f"{model.name} metric_settings")
+
+
+def predict_fb(point: dict[str, float], model_name: str, out: Path, fields: bool, verify: bool,
+               seed: int = 0) -> dict[str, Any]:
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess, gp_answers
+
+    model = pretrained.load(model_name, "fluidized_bed")
+    window = fb_window(model)
+    a = gp_answers(ArrayGaussianProcess.load_npz(model.file("gp")), [point])[0]
+    stored = {k: v for k, v in model.meta.get("test_errors", {}).items() if k != "runs"}
+    answer: dict[str, Any] = {
+        "scene": "fb", "model": model.name, "parameters": point, "answer_window": window.as_dict(),
+        "gp": {"mean": a.mean, "low": a.low, "high": a.high, "seconds": a.seconds, "extrapolation": a.extrapolation},
+        "stored_test_errors": stored,
+    }
+    warnings = range_warnings(a.extrapolation, "GP")
+    out.mkdir(parents=True, exist_ok=True)
+    series = {}
+    settings = fb_settings(model) if fields or verify else None
+    if fields:
+        answer["field"], curves = fb_fields(model, point["inlet_velocity"], settings, window, out, seed)
+        series["field model"] = curves.as_series()
+        warnings += range_warnings(answer["field"]["extrapolation"], "field model")
+    if verify:
+        answer["dpmfoam"], curves = fb_verify(model, point["inlet_velocity"], settings, window, out, seed)
+        if curves is not None:
+            series["DPMFoam"] = curves.as_series()
+    if series:
+        from neuraldem.scenes.fluidized_bed.analysis.plots import plot_curves
+
+        plot_curves(series, out / "curves.png",
+                    f"{model.name}: inlet velocity {point['inlet_velocity']:g} m/s")
+    answer["warnings"] = warnings
+    atomic_write_json(out / "answer.json", answer)
+    return answer
+
+
+def fb_fields(model: pretrained.Pretrained, velocity: float, settings: Any, window: Any, out: Path,
+              seed: int) -> tuple[dict[str, Any], Any]:
+    """The field model's rollout over the answer window: its answers, the animation and ParaView files."""
+    from neuraldem.eval.checkpoints import read_checkpoint
+    from neuraldem.scenes.fluidized_bed.analysis.plots import animate_fields
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout import write_rollout_vtk
+    from neuraldem.scenes.fluidized_bed.whatif import InitialStates, field_answer
+
+    module = read_checkpoint(model.file("field")).module("fluidized_bed", "cpu", "predict")
+    states = InitialStates.load_npz(model.file("states"))
+    f = field_answer(module, states, velocity, settings, window, seed)
+    g = states.grid
+    gif = animate_fields(f.rollout.times, f.rollout.solid_fraction, f.rollout.mixing,
+                         (g.lo[0], g.hi[0], g.lo[2], g.hi[2]), out / "animation.gif",
+                         f"field model, {velocity:g} m/s")
+    vtk = write_rollout_vtk(out / "vtk", "bed_predicted", f.rollout, g)
+    return {"summary": f.summary, "seconds": f.seconds, "start": f.start, "extrapolation": f.extrapolation,
+            "diverged_at": f.rollout.diverged_at, "steps": f.rollout.steps_done,
+            "files": {"animation": str(gif), "vtk": str(vtk[0].parent)}}, f.curves
+
+
+def fb_verify(model: pretrained.Pretrained, velocity: float, settings: Any, window: Any, out: Path,
+              seed: int) -> tuple[dict[str, Any], Any]:
+    """DPMFoam at the same velocity; a finished check for the same inputs is read back (rerun at no cost)."""
+    from neuraldem.scenes.fluidized_bed.whatif import START_SNAPSHOT, dpmfoam_answer, file_answers
+
+    done = out / "dpmfoam.json"
+    stamp = {"inlet_velocity": velocity, "scene": model.meta["scene"], "answer_window": window.as_dict(), "seed": seed}
+    if done.is_file():
+        kept = json.loads(done.read_text())
+        if kept.get("stamp") == stamp and kept["answer"].get("file") and Path(kept["answer"]["file"]).is_file():
+            print(f"DPMFoam answer read back from {done} (delete it to rerun the solver)", file=sys.stderr)
+            return kept["answer"], file_answers(Path(kept["answer"]["file"]), settings, window)[1]
+    scene = model.meta["scene"]["fluidized_bed"]
+    print(f"running DPMFoam ({scene['n_particles']} particles, {scene['spinup_time']:g} s spin-up + "
+          f"{window.duration:g} s; minutes) at the same velocity ...", file=sys.stderr)
+    s = dpmfoam_answer(model.meta["scene"], velocity, out / "dpmfoam", settings, window, seed)
+    answer = {"status": s.status, "reason": s.reason, "answers": s.answers, "seconds": s.seconds,
+              "file": str(s.file) if s.file else None, "from_snapshot": START_SNAPSHOT}
+    if s.file is not None:
+        atomic_write_json(done, {"stamp": stamp, "answer": answer})
+    return answer, s.curves
+
+
+def table(answer: dict[str, Any]) -> str:
+    """The answers side by side, one line per quantity, then the stored held-out errors."""
+    from neuraldem.scenes.fluidized_bed.whatif import answer_label, format_answer, quantities
+
+    q = quantities(answer["answer_window"]["lacey_time"])
+    cols = ["GP [95 % interval]"] + (["field model"] if "field" in answer else []) + \
+        (["DPMFoam"] if "dpmfoam" in answer else [])
+    lines = [f"| quantity | {' | '.join(cols)} |", "|---|" + "---|" * len(cols)]
+
+    def fmt(key: str, v: float) -> str:
+        return format_answer(key, v, q)
+
+    gp = answer["gp"]
+    for key in q:
+        row = [f"{fmt(key, gp['mean'][key])} [{fmt(key, gp['low'][key])}, {fmt(key, gp['high'][key])}]"]
+        if "field" in answer:
+            row.append(fmt(key, answer["field"]["summary"][key]))
+        if "dpmfoam" in answer:
+            row.append(fmt(key, answer["dpmfoam"]["answers"].get(key, float("nan"))))
+        lines.append(f"| {answer_label(key, q)} | {' | '.join(row)} |")
+    times = [f"{gp['seconds']:.3g} s"] + ([f"{answer['field']['seconds']:.3g} s"] if "field" in answer else []) + \
+        ([f"{answer['dpmfoam']['seconds']:.3g} s"] if "dpmfoam" in answer else [])
+    lines.append(f"| answer time | {' | '.join(times)} |")
+    if "field" in answer and answer["field"]["diverged_at"] is not None:
+        lines.append(f"field model rollout diverged at step {answer['field']['diverged_at']}: no field answers")
+    stored = answer.get("stored_test_errors") or {}
+    if stored.get("n_test_runs"):
+        parts = [f"{who} {e['bed_height_mae_mm']:.2f} mm / {e['bubble_fraction_mae_pp']:.2f} pp / "
+                 f"{e['lacey_mae']:.3f}" for who, e in (("GP", stored.get("gp")),
+                                                        ("field model", stored.get("field model")),
+                                                        ("training mean", stored.get("constant")),
+                                                        ("CFD-DEM from another packing", stored.get("seed floor")))
+                 if e]
+        lines += ["", f"mean absolute errors (bed height / bubble fraction / Lacey) on {stored['n_test_runs']} "
+                      f"held-out CFD-DEM runs (meta.json): " + "; ".join(parts)]
+    truth = (answer.get("dpmfoam") or {}).get("answers")
+    if truth:
+        lines.append("")
+        for who, values in (("GP", gp["mean"]), ("field model", (answer.get("field") or {}).get("summary"))):
+            if values:
+                lines.append(f"{who} vs DPMFoam: " + ", ".join(
+                    f"{q[k][0]} {q[k][2] * (values[k] - truth[k]):+.{3 if k == 'lacey' else 2}f}"
+                    f"{(' ' + q[k][1]) if q[k][1] and q[k][1] != '%' else (' pp' if q[k][1] == '%' else '')}"
+                    for k in q if np.isfinite(truth.get(k, np.nan))))
+    return "\n".join(lines)

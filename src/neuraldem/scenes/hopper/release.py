@@ -1,0 +1,88 @@
+"""The hopper's shipped model: the field model, the scalar GP fitted on the runs the field model trained and
+validated on (as arrays numpy answers with), and meta.json with the test errors of the field model, the GP and
+the constant on the checkpoint's held-out test runs (scored by the same function as every hopper table), the
+trained ranges and answers at probe points.
+
+    neuraldem release ckpt=RUN/checkpoints/last.ckpt name=hopper_small
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from neuraldem.data.integrity import digest
+from neuraldem.data.manifest import MANIFEST_NAME
+from neuraldem.data.schema import atomic_write_json
+from neuraldem.errors import ConfigError
+from neuraldem.pretrained.building import build_record, strip_checkpoint, training_inputs
+
+PROBES = [{"alpha": 10.0, "mu_s": 0.2, "mu_r": 0.05}, {"alpha": 35.0, "mu_s": 0.5, "mu_r": 0.2},
+          {"alpha": 55.0, "mu_s": 0.8, "mu_r": 0.4}]
+PROBE_TIME_STRIDE = 4  # the field model's probe answers use every 4th time (fast enough for the tests)
+def probe_answers(gp: Any, module: Any, settings: Any) -> list[dict[str, Any]]:
+    from neuraldem.models.scalar_baselines import gp_answers
+    from neuraldem.scenes.hopper.whatif import field_answer
+
+    out = []
+    for point, a in zip(PROBES, gp_answers(gp, PROBES), strict=True):
+        f = field_answer(module.net, module.metadata, point, settings, time_stride=PROBE_TIME_STRIDE)
+        out.append({"parameters": point, "gp_mean": a.mean, "field_summary": f.summary,
+                    "field_time_stride": PROBE_TIME_STRIDE})
+    return out
+
+
+def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) -> Path:
+    from neuraldem.eval.checkpoints import read_checkpoint
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess
+    from neuraldem.scenes.hopper.analysis.baselines import baseline_inputs, fit_baseline
+    from neuraldem.scenes.hopper.analysis.evaluation import evaluate_checkpoint
+    from neuraldem.scenes.hopper.analysis.scoring import dataset_metric_settings
+
+    meta, dataset, m = training_inputs(ckpt, "hopper", dataset)
+    ids = meta.get("split_ids") or {}
+    fit_runs = [m.record(i) for i in ids.get("train", []) + ids.get("val", [])]
+    folder = out_root / name
+    folder.mkdir(parents=True, exist_ok=True)
+
+    strip_checkpoint(ckpt, folder / "field.pt")
+    inputs = baseline_inputs(list(meta["conditioning"]))
+    gp = fit_baseline("gp", fit_runs, inputs)
+    ArrayGaussianProcess.from_fitted(gp).save_npz(folder / "gp.npz")  # answered with numpy alone
+    (folder / "gp.pkl").unlink(missing_ok=True)  # written by earlier versions
+
+    with tempfile.TemporaryDirectory() as tmp:  # scored on the checkpoint's own test runs
+        result = evaluate_checkpoint(ckpt, Path(tmp), dataset.parent, dataset, vtk=False, progress=True)
+    settings = dataset_metric_settings(m)
+    module = read_checkpoint(folder / "field.pt").module("hopper", "cpu", "build")
+    test_errors = {"field model": result["aggregate"],
+                   **{k: v["aggregate"] for k, v in result["baselines"].items() if "aggregate" in v}}
+    info = build_record(
+        ckpt, name, "hopper", folder, {"field": "field.pt", "gp": "gp.npz"},
+        description=f"hopper field model ({sum(v.numel() for v in module.net.parameters()) / 1e6:.2f}M "
+                    f"parameters) and scalar GP, trained on {len(ids.get('train', []))} {meta['data_name']} "
+                    f"LIGGGHTS runs ({len(ids.get('val', []))} for validation)",
+        inputs=inputs,
+        trained_range={n: [float(lo), float(hi)] for n, lo, hi in zip(inputs, gp.lo, gp.hi, strict=True)},
+        training_data={"dataset": meta["data_name"], "manifest_sha256": digest(dataset / MANIFEST_NAME),
+                       "split": meta["split"], "run_ids": ids},
+        extra={"conditioning": meta["conditioning"], "metric_settings": settings.as_dict(), "scene": meta["scene"],
+               "test_errors": {"n_test_runs": len(result["simulations"]),
+                               "runs": [s["sim_id"] for s in result["simulations"]], **test_errors},
+               "probes": probe_answers(gp, module, settings)})  # scikit-learn's answers: the arrays must match
+    atomic_write_json(folder / "meta.json", info)
+    return folder
+
+
+def add_options(p: argparse.ArgumentParser) -> None:
+    """The hopper's release takes only the common options."""
+
+
+def release(args: argparse.Namespace) -> str:
+    if args.ckpt is None:
+        raise ConfigError("ckpt= is required: the checkpoint to release (e.g. ckpt=RUN/checkpoints/last.ckpt)")
+    folder = build_hopper(args.ckpt, args.name, args.out, args.dataset)
+    sizes = ", ".join(f"{f.name} {f.stat().st_size / 1e6:.2f} MB" for f in sorted(folder.iterdir()))
+    return f"wrote {folder} ({sizes})"
