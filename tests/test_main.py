@@ -1,5 +1,6 @@
-"""`neuraldem COMMAND`: every listed command resolves to a module with a main(), nested groups work, unknown
-commands fail with the choices, and a command's own --help runs under its new name."""
+"""`neuraldem VERB`: at most twelve verbs, each with a line and an example; every verb and group entry resolves to
+a module with a main(); the scenes' reports, benchmarks and importers are reachable; old verbs print the new form;
+an unknown verb lists the verbs."""
 
 from __future__ import annotations
 
@@ -7,37 +8,58 @@ import importlib
 
 import pytest
 
-from neuraldem.__main__ import COMMANDS, main, resolve
+from neuraldem.__main__ import VERBS, groups, main, resolve
 from tests.helpers import run_module
 
 
-def _leaves(group, prefix=()):
-    for name, entry in group.items():
-        if isinstance(entry, tuple):
-            yield (*prefix, name), entry[0]
-        else:
-            yield from _leaves(entry, (*prefix, name))
+def test_at_most_twelve_verbs_each_with_an_example(capsys):
+    assert len(VERBS) <= 12
+    assert main([]) == 0
+    out = capsys.readouterr().out
+    for verb, (_, text, example) in VERBS.items():
+        assert f"  {verb} " in out and text in out and example.startswith("neuraldem") and example in out
 
 
-@pytest.mark.parametrize(("words", "module"), list(_leaves(COMMANDS)))
-def test_every_command_resolves_to_a_module_with_main(words, module):
-    prog, resolved, args = resolve([*words, "--x"])
-    assert prog == "neuraldem " + " ".join(words) and resolved == module and args == ["--x"]
+@pytest.mark.parametrize("verb", [v for v, (module, _, _) in VERBS.items() if module])
+def test_every_verb_resolves_to_a_module_with_main(verb):
+    prog, module, args = resolve([verb, "x=1"])
+    assert prog == f"neuraldem {verb}" and args == ["x=1"]
     assert callable(importlib.import_module(module).main)
 
 
-def test_groups_unknown_commands_and_help(capsys):
-    assert main([]) == 0 and "evaluate" in capsys.readouterr().out
-    assert main(["report"]) == 0 and "fb-baselines" in capsys.readouterr().out
+@pytest.mark.parametrize(("verb", "name", "module"),
+                         [(v, n, e[0]) for v, entries in groups().items() for n, e in entries.items()])
+def test_every_group_entry_resolves_to_a_module_with_main(verb, name, module):
+    assert resolve([verb, name, "x=1"]) == (f"neuraldem {verb} {name}", module, ["x=1"])
+    assert callable(importlib.import_module(module).main)
+
+
+def test_the_scenes_bring_their_reports_and_importers(capsys):
+    assert main(["report"]) == 0
+    out = capsys.readouterr().out
+    assert "hopper-cv" in out and "fb-baselines" in out and "refill-table" in out and "dataset" in out
+    assert main(["import", "--help"]) == 0 and "liggghts" in capsys.readouterr().out
+    assert resolve(["report", "fb_table"])[1] == "neuraldem.scenes.fluidized_bed.analysis.table"  # _ and - both
+
+
+def test_unknown_verbs_and_names_list_the_choices(capsys):
+    assert main(["frobnicate"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "unknown verb 'frobnicate': the verbs are doctor, datagen, train" in err
     assert main(["report", "nope"]) == 2
-    assert "unknown command 'nope': choose from dataset, fb-dataset" in capsys.readouterr().err
-    assert resolve(["report", "fb_table"])[1] == "neuraldem.scenes.fluidized_bed.analysis.table"  # _ and - both work
+    assert "unknown report 'nope': choose from dataset, step-displacement" in capsys.readouterr().err
+
+
+def test_old_verbs_print_the_new_spelling_and_still_run(capsys):
+    assert resolve(["rollout", "ckpt=x"]) == ("neuraldem evaluate rollout", "neuraldem.rollout", ["ckpt=x"])
+    assert "`neuraldem rollout` is `neuraldem evaluate rollout` now" in capsys.readouterr().err
+    assert resolve(["transfer", "pack"])[:2] == ("neuraldem export", "neuraldem.export.__main__")
 
 
 def test_a_tool_and_a_hydra_command_run_through_the_console_entry():
     proc = run_module("neuraldem", "report", "fb-baselines", "--help")
     assert proc.returncode == 0, proc.stderr
-    assert "usage: neuraldem report fb-baselines" in proc.stdout
+    assert "usage: neuraldem report fb-baselines" in proc.stdout and "out=" in proc.stdout
     proc = run_module("neuraldem", "evaluate", "--help")
     assert proc.returncode == 0 and "`neuraldem evaluate` takes Hydra overrides" in proc.stdout
     proc = run_module("neuraldem", "evaluate")  # a missing required value is one line, exit 2

@@ -141,7 +141,11 @@ class CommandParser(argparse.ArgumentParser):
 
     def parse_args(self, args: Any = None, namespace: Any = None) -> Any:  # type: ignore[override]
         argv = list(sys.argv[1:] if args is None else args)
-        return super().parse_args(self.to_argparse(argv), namespace)
+        try:
+            translated = self.to_argparse(argv)
+        except NeuraldemError as err:
+            fail(f"{self.prog}: {err}")
+        return super().parse_args(translated, namespace)
 
     def to_argparse(self, argv: list[str]) -> list[str]:
         """`key=value` tokens as argparse's own; old spellings pass through with a note naming the new form."""

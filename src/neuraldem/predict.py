@@ -54,8 +54,9 @@ def what_if(verb: str, argv: list[str], attribute: str) -> tuple[scenes.Scene, M
         return "\n".join(lines)
     chosen = scenes.by_name(argv[0])
     if not getattr(chosen, attribute):
+        other = f"; or ask neuraldem predict {chosen.kind} at the values you want" if verb != "predict" else ""
         raise ConfigError(f"neuraldem {verb} has no answers for the {chosen.kind} scene",
-                          f"choose one of: {', '.join(s.kind for s in able)}")
+                          f"choose one of: {', '.join(s.kind for s in able)}{other}")
     return chosen, importlib.import_module(getattr(chosen, attribute))
 
 

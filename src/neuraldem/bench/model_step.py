@@ -6,7 +6,6 @@ writes results/bench/model_step.json.
 
 from __future__ import annotations
 
-import argparse
 import shlex
 import statistics
 import time
@@ -18,7 +17,7 @@ import torch
 from torch import nn
 
 from neuraldem.bench.report import machine_info, write_results
-from neuraldem.cli import tool_prog
+from neuraldem.cli import command_parser
 from neuraldem.config import checks
 from neuraldem.models.hopper_field import HopperFieldModel
 from neuraldem.models.registry import build_net
@@ -98,8 +97,7 @@ def run(configs: tuple[str, ...] = DEFAULT_CONFIGS, threads: tuple[int, ...] = (
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog=tool_prog("neuraldem.bench model_step"),
-                                     description=__doc__.split("\n")[0])
+    parser = command_parser("neuraldem.bench model_step", __doc__, summary=True)
     parser.add_argument("--configs", nargs="+", default=list(DEFAULT_CONFIGS), help="conf/model/ names")
     parser.add_argument("--threads", nargs="+", type=int, default=[1, 2])
     parser.add_argument("--repeats", type=int, default=10, help="timed steps (median reported)")

@@ -15,7 +15,6 @@ fastest answer: a bigger model is worth its cost only where it is measurably mor
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import statistics
@@ -24,7 +23,7 @@ from typing import Any
 
 from neuraldem.bench.report import command_line, default_path, machine_info, read_results, write_results
 from neuraldem.bench.speed_accuracy import surrogate_points
-from neuraldem.cli import tool_prog
+from neuraldem.cli import command_parser
 from neuraldem.config import checks
 from neuraldem.errors import DataError
 from neuraldem.scenes.hopper.bench.runs import HOPPER_ERRORS, collect_runs
@@ -154,7 +153,7 @@ def _cell(v: Any, fmt: str = "") -> str:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
+    p = command_parser(f"neuraldem.bench {NAME}", __doc__, summary=True)
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--runs", type=Path, nargs="+", help="folders holding evaluated runs (timed here)")
     src.add_argument("--from", dest="from_file", type=Path, help="a speed_accuracy.json (its surrogate points)")

@@ -14,7 +14,6 @@ model at their cross-validated errors, and LIGGGHTS rerun with another packing s
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 from pathlib import Path
@@ -25,7 +24,7 @@ from neuraldem.bench.choices import default_workdir
 from neuraldem.bench.pareto import pareto_front
 from neuraldem.bench.report import command_line, default_path, machine_info, read_results, warn_if_busy, write_results
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock
-from neuraldem.cli import tool_prog
+from neuraldem.cli import command_parser
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.gns.bench.points import gns_point, require_hopper_gns
@@ -165,7 +164,7 @@ def render_markdown(results: dict[str, Any]) -> str:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
+    p = command_parser(f"neuraldem.bench {NAME}", __doc__, summary=True)
     p.add_argument("--runs", type=Path, nargs="+", default=[], help="folders holding evaluated training runs")
     p.add_argument("--cv", type=Path, default=None,
                    help="a cross-validated table (neuraldem report hopper-cv ... --out X.md: pass X.json): "

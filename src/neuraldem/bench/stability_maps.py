@@ -24,7 +24,6 @@ Time until failure is reported in seconds of the trajectory (field: snapshot tim
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 from pathlib import Path
 from typing import Any
@@ -34,7 +33,7 @@ import numpy as np
 from neuraldem.bench import plots
 from neuraldem.bench.choices import default_labels
 from neuraldem.bench.report import command_line, machine_info, resolve_out, write_results
-from neuraldem.cli import tool_prog
+from neuraldem.cli import command_parser
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.errors import ConfigError, DataError
@@ -225,7 +224,7 @@ def render_markdown(results: dict[str, Any]) -> str:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
+    p = command_parser(f"neuraldem.bench {NAME}", __doc__, summary=True)
     p.add_argument("--ckpt", type=Path, nargs="+", required=True, help="hopper field-surrogate checkpoints")
     p.add_argument("--gns-ckpt", type=Path, nargs="+", default=[], help="GNS checkpoints (experiment=gns_hopper)")
     p.add_argument("--labels", nargs="+", default=None, help="one per checkpoint, --ckpt first then --gns-ckpt")

@@ -16,12 +16,11 @@ DPMFoam: solver costs come from the dataset manifests and the solver parts of ea
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 from neuraldem.bench import plots
 from neuraldem.bench.report import read_results
-from neuraldem.cli import tool_prog
+from neuraldem.cli import command_parser
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.paths import results_dir
 
@@ -110,7 +109,7 @@ def _reuse_or_skip(previous: Path) -> list[str]:
 def run_all(argv: list[str]) -> int:
     from neuraldem.bench.__main__ import entry_point
 
-    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.bench all"), description=__doc__.split("\n")[0])
+    p = command_parser("neuraldem.bench all", __doc__, summary=True)
     p.add_argument("--runs", type=Path, nargs="+", default=None, help="folders holding evaluated hopper runs")
     p.add_argument("--ckpt", type=Path, default=None, help="the hopper checkpoint timed against LIGGGHTS")
     p.add_argument("--dataset", type=Path, default=None, help="dataset dir of the hopper checkpoint's scene")
@@ -164,7 +163,7 @@ def render(argv: list[str]) -> int:
     from neuraldem.scenes.fluidized_bed.bench import speed_accuracy as fb_speed_accuracy
     from neuraldem.scenes.hopper.bench import speed as hopper_speed
 
-    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.bench render"), description="redraw from results")
+    p = command_parser("neuraldem.bench render", "redraw from results")
     p.add_argument("--out-dir", type=Path, default=None, help="default results/bench")
     a = p.parse_args(argv)
     out_dir = a.out_dir or default_out_dir()

@@ -5,7 +5,6 @@ metrics over the parameter space (cf. the paper's dataset overview figure)."""
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections import Counter
 from datetime import UTC, datetime
@@ -18,7 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from neuraldem.cli import report_user_errors, tool_prog
+from neuraldem.cli import command_parser, report_user_errors
 from neuraldem.data.manifest import Manifest
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.machine import machine_info
@@ -100,7 +99,7 @@ def plot_macro(m: Manifest, path: Path) -> None:
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.eval.dataset_report"), description=__doc__)
+    p = command_parser("neuraldem.eval.dataset_report", __doc__)
     p.add_argument("dataset", type=Path)
     p.add_argument("--out", type=Path, required=True, help="output folder")
     a = p.parse_args(argv)

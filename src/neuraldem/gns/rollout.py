@@ -24,7 +24,6 @@ gns_rollout.json (summary, metrics) and gns_rollout.h5 (times, positions).
 
 from __future__ import annotations
 
-import argparse
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -36,7 +35,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from neuraldem.cli import tool_prog
+from neuraldem.cli import command_parser
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest
 from neuraldem.data.schema import atomic_write_h5, atomic_write_json
@@ -306,7 +305,7 @@ def _jsonable(v: Any) -> Any:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.gns.rollout"), description=__doc__.split("\n")[0])
+    p = command_parser("neuraldem.gns.rollout", __doc__, summary=True)
     p.add_argument("--ckpt", type=Path, required=True, help="a GNS checkpoint (experiment=gns_hopper / gns_fb)")
     p.add_argument("--sim", default=None, help="simulation id (default: the first test run of the split)")
     p.add_argument("--steps", type=int, default=None, help="steps (default: the stored run's length)")

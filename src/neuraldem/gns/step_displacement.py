@@ -9,14 +9,13 @@ of the first `--runs` usable runs, for either scene.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from neuraldem.cli import report_user_errors, tool_prog
+from neuraldem.cli import command_parser, report_user_errors
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest
 from neuraldem.data.schema import atomic_write_json
@@ -49,7 +48,7 @@ def step_statistics(dataset_dir: Path, n_runs: int = 5) -> dict[str, Any]:
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.gns.step_displacement"), description=__doc__.split("\n")[0])
+    p = command_parser("neuraldem.gns.step_displacement", __doc__, summary=True)
     p.add_argument("dataset", type=Path, help="a generated dataset folder (hopper or fluidized bed)")
     p.add_argument("--runs", type=int, default=5, help="the first N usable runs")
     p.add_argument("--out", type=Path, default=None, help="write the statistics to this JSON file")

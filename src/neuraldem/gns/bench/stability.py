@@ -17,12 +17,11 @@ and steps, and `bench render` (or `bench all --gns-fb-ckpt`) then draws both in 
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 from typing import Any
 
 from neuraldem.bench.report import machine_info, read_results, resolve_out
-from neuraldem.cli import tool_prog
+from neuraldem.cli import command_parser
 from neuraldem.config import checks
 from neuraldem.data.manifest import require_dataset
 from neuraldem.errors import ConfigError, DataError
@@ -96,7 +95,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
+    p = command_parser(f"neuraldem.bench {NAME}", __doc__, summary=True)
     p.add_argument("--ckpt", type=Path, nargs="+", required=True, help="GNS checkpoints (experiment=gns_fb)")
     p.add_argument("--labels", nargs="+", default=None, help="series names, one per --ckpt (default: run folders)")
     p.add_argument("--velocities", type=float, nargs="+", default=None, help="inlet velocities [m/s]")

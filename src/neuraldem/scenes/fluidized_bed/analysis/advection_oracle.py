@@ -22,14 +22,13 @@ without looking at the test velocities.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from neuraldem.cli import tool_prog
+from neuraldem.cli import command_parser
 from neuraldem.data.manifest import Manifest
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.machine import machine_info
@@ -147,8 +146,7 @@ def markdown(rows: list[dict[str, Any]], corrections: list[float], command: str)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog("neuraldem.scenes.fluidized_bed.analysis.advection_oracle"),
-                                description=__doc__.split("\n")[0])
+    p = command_parser("neuraldem.scenes.fluidized_bed.analysis.advection_oracle", __doc__, summary=True)
     p.add_argument("dataset", type=Path, help="a fluidized-bed dataset folder (with manifest.json)")
     p.add_argument("--sims", nargs="*", help="trajectories (default: the test part of the velocity split)")
     p.add_argument("--part", default="test", choices=["train", "val", "test", "train+val"],

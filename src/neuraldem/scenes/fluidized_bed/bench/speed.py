@@ -16,7 +16,6 @@ each `--threads` setting. Ratios are solver / surrogate of the medians over repe
 
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
 import statistics
@@ -29,7 +28,7 @@ from neuraldem.bench import plots
 from neuraldem.bench.choices import default_workdir, pick_record
 from neuraldem.bench.report import command_line, machine_info, resolve_out, warn_if_busy, write_results
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock, Sample, Timing, side_by_side, time_call, torch_threads
-from neuraldem.cli import add_trajectory_options, tool_prog
+from neuraldem.cli import add_trajectory_options, command_parser
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.errors import ConfigError, DataError, SolverError
@@ -321,7 +320,7 @@ def measure(plan: Plan, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
+    p = command_parser(f"neuraldem.bench {NAME}", __doc__, summary=True)
     add_trajectory_options(p, ckpt_help="fluidized-bed checkpoint (<run>/checkpoints/last.ckpt)",
                            sim_help="trajectory id (default: the first test trajectory of its split)")
     p.add_argument("--repeats", type=int, default=3, help="timed rollouts per thread setting (median)")

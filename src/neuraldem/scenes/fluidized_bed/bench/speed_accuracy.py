@@ -28,7 +28,6 @@ diverged are drawn but neither right-sized nor on a front.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import shutil
@@ -42,7 +41,7 @@ import numpy as np
 from neuraldem.bench import plots
 from neuraldem.bench.pareto import pareto_front
 from neuraldem.bench.report import command_line, machine_info, read_results, resolve_out, warn_if_busy, write_results
-from neuraldem.cli import split_kind_factor, tool_prog
+from neuraldem.cli import command_parser, split_kind_factor
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
 from neuraldem.errors import ConfigError, DataError
@@ -414,7 +413,7 @@ def write_outputs(results: dict[str, Any], out: Path, command: str, machine: dic
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
+    p = command_parser(f"neuraldem.bench {NAME}", __doc__, summary=True)
     p.add_argument("--runs", type=Path, nargs="+", required=True, help="folders holding evaluated fb runs")
     p.add_argument("--dataset", type=Path, default=None, help="dataset dir (default: the runs' own)")
     p.add_argument("--solver-variants", nargs="*", default=list(DEFAULT_VARIANTS), help="KIND:FACTOR, e.g. dt:2")

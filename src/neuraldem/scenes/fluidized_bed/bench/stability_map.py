@@ -24,7 +24,6 @@ it. Outside the trained range there is no CFD-DEM to interpolate: the bed height
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +34,7 @@ import numpy as np
 from neuraldem.bench import plots
 from neuraldem.bench.choices import default_labels
 from neuraldem.bench.report import command_line, machine_info, resolve_out, write_results
-from neuraldem.cli import tool_prog
+from neuraldem.cli import command_parser
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.checkpoints import checkpoint_dataset
@@ -296,7 +295,7 @@ def write_map(name: str, results: dict[str, Any], argv: list[str], out: Path, ma
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
+    p = command_parser(f"neuraldem.bench {NAME}", __doc__, summary=True)
     p.add_argument("--ckpt", type=Path, nargs="+", required=True,
                    help="fluidized-bed checkpoints, one series each (e.g. a model and its ablations)")
     p.add_argument("--labels", nargs="+", default=None, help="series names, one per --ckpt (default: run folders)")

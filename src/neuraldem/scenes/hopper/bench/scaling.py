@@ -16,7 +16,6 @@ untrained copies of the net with other latent token counts (the cost does not de
 
 from __future__ import annotations
 
-import argparse
 import statistics
 from pathlib import Path
 from typing import Any
@@ -27,7 +26,7 @@ from neuraldem.bench import plots
 from neuraldem.bench.choices import default_workdir
 from neuraldem.bench.report import command_line, default_path, machine_info, read_results, warn_if_busy, write_results
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock, time_call, torch_threads
-from neuraldem.cli import parse_assignments, tool_prog
+from neuraldem.cli import command_parser, parse_assignments
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError, DataError, SolverError
 from neuraldem.paths import data_dir
@@ -156,7 +155,7 @@ def surrogate_scaling(surrogate: Surrogate, net_cfg: dict | str, queries: list[i
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
+    p = command_parser(f"neuraldem.bench {NAME}", __doc__, summary=True)
     p.add_argument("--dataset", type=Path, default=None,
                    help="reference dataset: its scene is scaled, its runs give the full drain "
                         "(default: the --ckpt's dataset, else <data dir>/datasets/hopper_small)")

@@ -21,7 +21,6 @@ finished rerun is written at once to `<workdir>/reruns.json`; a restarted comman
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from collections.abc import Sequence
@@ -35,7 +34,7 @@ from tqdm import tqdm
 
 from neuraldem.bench.choices import default_workdir
 from neuraldem.bench.report import command_line, resolve_out, warn_if_busy, write_results
-from neuraldem.cli import tool_prog
+from neuraldem.cli import command_parser
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import atomic_write_json
@@ -407,7 +406,7 @@ def run(p: Plan, workers: int, progress: bool = True) -> dict[str, Any]:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
+    p = command_parser(f"neuraldem.bench {NAME}", __doc__, summary=True)
     p.add_argument("--dataset", type=Path, required=True, help="hopper dataset dir (its scene and stored runs)")
     p.add_argument("--n-sets", type=int, default=10, help="parameter sets rerun (usable runs of the dataset)")
     p.add_argument("--seeds", type=int, default=3, help="reruns per set, each with new packing seeds")

@@ -11,14 +11,13 @@ particles; the surrogate by evaluating the model at each snapshot time. Ratios a
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 from typing import Any
 
 from neuraldem.bench.choices import default_workdir, pick_record
 from neuraldem.bench.report import command_line, default_path, machine_info, warn_if_busy, write_results
 from neuraldem.bench.timing import SYSTEM_CLOCK, Clock, Sample, Timing, side_by_side, time_call, torch_threads
-from neuraldem.cli import add_trajectory_options, tool_prog
+from neuraldem.cli import add_trajectory_options, command_parser
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.errors import DataError, SolverError
@@ -156,7 +155,7 @@ def run(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: int, 
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog=tool_prog(f"neuraldem.bench {NAME}"), description=__doc__.split("\n")[0])
+    p = command_parser(f"neuraldem.bench {NAME}", __doc__, summary=True)
     add_trajectory_options(p, ckpt_help="hopper checkpoint (e.g. <run>/checkpoints/last.ckpt)",
                            sim_help="simulation id (default: the first test simulation)")
     p.add_argument("--repeats", type=int, default=5, help="timed surrogate/post-processing repeats (median)")

@@ -9,10 +9,15 @@ import numpy as np
 import pytest
 
 from neuraldem.errors import ConfigError
-from neuraldem.scan import parse_axes, pick_points
+from neuraldem.scenes.hopper.parameters import PARAMETERS
+from neuraldem.scenes.hopper.scan import parse_axes, pick_points
 from tests.helpers import run_module
 
 NAMES = ["alpha", "mu_s", "mu_r"]
+
+
+def items(args: list[str]) -> dict[str, str]:
+    return dict(a.split("=") for a in args)
 
 
 def test_a_small_scan_writes_maps_the_boundary_and_json(tmp_path: Path):
@@ -27,7 +32,7 @@ def test_a_small_scan_writes_maps_the_boundary_and_json(tmp_path: Path):
 
 
 def test_parse_axes_two_ranges_and_fixed_values():
-    axes, fixed = parse_axes(["alpha=0:60:31", "mu_s=0.05:1:20", "mu_r=0.1"], NAMES, "hopper")
+    axes, fixed = parse_axes(items(["alpha=0:60:31", "mu_s=0.05:1:20", "mu_r=0.1"]), NAMES, "hopper", PARAMETERS)
     assert list(axes) == ["alpha", "mu_s"] and len(axes["alpha"]) == 31 and axes["mu_s"][-1] == 1.0
     assert fixed == {"mu_r": 0.1}
 
@@ -43,7 +48,7 @@ def test_parse_axes_two_ranges_and_fixed_values():
 ])
 def test_bad_scans_are_refused(items: list[str], expected: str):
     with pytest.raises(ConfigError, match=None) as err:
-        parse_axes(items, NAMES, "hopper")
+        parse_axes(dict(i.split("=") for i in items), NAMES, "hopper", PARAMETERS)
     assert expected in str(err.value)
 
 
@@ -68,10 +73,11 @@ def test_verify_marks_liggghts_points_and_reuses_them(tiny_pretrained: Path, tmp
     assert again.returncode == 0 and "LIGGGHTS 1/1" not in again.stderr
 
 
-def test_a_scan_of_the_one_parameter_bed_is_refused_with_the_command_that_answers_it(capsys):
+def test_a_scan_of_the_one_parameter_bed_is_refused_naming_the_scenes_that_have_one(capsys):
     from neuraldem.scan import main
 
     with pytest.raises(SystemExit) as done:
         main(["fb", "inlet_velocity=1.2:2.2:11"])
     err = capsys.readouterr().err
-    assert done.value.code == 2 and "the fb scene has one" in err and "neuraldem predict fb" in err
+    assert done.value.code == 2 and "neuraldem scan has no answers for the fluidized_bed scene" in err
+    assert "choose one of: hopper" in err

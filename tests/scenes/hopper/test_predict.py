@@ -55,7 +55,7 @@ def test_outside_the_trained_range_answers_with_a_warning(tmp_path: Path):
 
 
 @pytest.mark.parametrize(("args", "expected"), [
-    (("drum", "x=1"), "unknown scene 'drum': choose one of: hopper, fb"),
+    (("drum", "x=1"), "unknown scene 'drum': choose one of: hopper, hopper_refill, fluidized_bed / bed / fb"),
     (("hopper", "alpha=40", "mu_s=0.3", "phi=2"), "unknown hopper parameter 'phi': the parameters are alpha, mu_s"),
     (("hopper", "alpha=40", "mu_s=0.3"), "missing hopper parameter(s) mu_r"),
     (("hopper", "alpha=90", "mu_s=0.3", "mu_r=0.1"), "alpha=90 is outside what the solver can run (0 .. 75)"),
@@ -77,7 +77,7 @@ def test_a_damaged_shipped_file_names_it_and_the_rebuild(tmp_path: Path):
     flip_byte(folder / "hopper_small" / "field.pt")
     out = one_line_error(predict("hopper", "alpha=40", "mu_s=0.3", "mu_r=0.1", "--out", str(tmp_path / "o"),
                                  env={"NEURALDEM_PRETRAINED_DIR": str(folder)}))
-    assert f"{folder / 'hopper_small' / 'field.pt'} is damaged" in out and "pretrained.build" in out
+    assert f"{folder / 'hopper_small' / 'field.pt'} is damaged" in out and "neuraldem release" in out
 
 
 @pytest.mark.solver
