@@ -84,3 +84,12 @@ def test_hydra_overrides_each_once_and_known(capsys):
         check_overrides("train", ["sede=1"])
     err = capsys.readouterr().err
     assert "unknown option sede=: the options are" in err and "experiment=" in err and "seed=" in err
+
+
+def test_every_tools_output_option_is_checked_when_parsed(capsys):
+    p = CommandParser(prog="neuraldem report demo")
+    p.add_argument("--out", type=Path, required=True)
+    with pytest.raises(SystemExit):
+        p.parse_args(["out=/proc/x/report"])
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "out=/proc/x/report: the folder cannot be created" in err

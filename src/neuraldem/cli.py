@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from omegaconf import DictConfig
 
 TRUE, FALSE = ("true", "yes", "on", "1"), ("false", "no", "off", "0")
+OUTPUT_KEYS = ("out", "out_dir")  # options naming where a command writes: created (or refused) when parsed
 
 
 def quiet_environment() -> None:
@@ -145,7 +146,15 @@ class CommandParser(argparse.ArgumentParser):
             translated = self.to_argparse(argv)
         except NeuraldemError as err:
             fail(f"{self.prog}: {err}")
-        return super().parse_args(translated, namespace)
+        args = super().parse_args(translated, namespace)
+        for key in OUTPUT_KEYS:  # an output place that cannot be made is said now, not as a traceback later
+            value = getattr(args, key, None)
+            if isinstance(value, (str, Path)):
+                try:
+                    output_folder(Path(value) if not Path(value).suffix else Path(value).parent, key)
+                except ConfigError as err:
+                    fail(f"{self.prog}: {err}")
+        return args
 
     def to_argparse(self, argv: list[str]) -> list[str]:
         """`key=value` tokens as argparse's own; old spellings pass through with a note naming the new form."""
