@@ -93,3 +93,8 @@ def test_every_tools_output_option_is_checked_when_parsed(capsys):
         p.parse_args(["out=/proc/x/report"])
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "out=/proc/x/report: the folder cannot be created" in err
+
+
+def test_an_old_flag_takes_its_values_even_when_they_look_like_keys():
+    a = parser().parse_args(["ckpt=a", "--param", "alpha=30", "--labels", "x", "y", "n_velocities=2"])
+    assert a.param == ["alpha=30"] and a.labels == ["x", "y"] and a.n_velocities == 2

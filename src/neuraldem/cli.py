@@ -172,10 +172,11 @@ class CommandParser(argparse.ArgumentParser):
             if subparsers is not None and token in subparsers.choices:
                 sub = subparsers.choices[token]
                 return [*self._ordered(positional), *flags, token, *sub.to_argparse(argv[i + 1:])]
-            if token.startswith("-"):  # the old flag spelling: kept one release
+            if token.startswith("-"):  # the old flag spelling: kept one release, values passed on as they are
                 old.append(token)
-                flags.append(token)
-                i += 1
+                taken = self._old_values(token, argv[i + 1:], options)
+                flags += [token, *taken]
+                i += 1 + len(taken)
                 continue
             key, sep, value = token.partition("=")
             if not sep or not re.fullmatch(r"[A-Za-z_]\w*", key):
@@ -197,6 +198,20 @@ class CommandParser(argparse.ArgumentParser):
         if old:
             self._note_old_spelling(argv)
         return [*self._ordered(positional), *flags]
+
+    def _old_values(self, flag: str, rest: list[str], options: dict[str, argparse.Action]) -> list[str]:
+        """The tokens an old `--flag` takes (`--param alpha=30`: the value looks like key=value, and is not)."""
+        action = next((a for a in self._actions if flag.split("=")[0] in a.option_strings), None)
+        if action is None or action.nargs == 0 or "=" in flag:
+            return []
+        if action.nargs in ("+", "*"):
+            taken = []
+            for token in rest:
+                if token.startswith("-") or token.partition("=")[0] in options:
+                    break
+                taken.append(token)
+            return taken
+        return rest[:action.nargs if isinstance(action.nargs, int) else 1]
 
     def _ordered(self, positional: dict[str, list[str]]) -> list[str]:
         out: list[str] = []
