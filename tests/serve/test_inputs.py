@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import pytest
 
-from neuraldem.scenes.hopper.solver import PARAMETER_LIMITS
+from neuraldem.scenes.hopper.parameters import PARAMETERS
 from neuraldem.serve.inputs import parameter_value, typed_value
 
 
 def test_a_value_inside_the_solver_limits_is_taken_as_typed():
-    checked = typed_value("alpha", "70", PARAMETER_LIMITS["alpha"])  # beyond the trained range: the GP warns
+    checked = typed_value("alpha", "70", PARAMETERS.limits("alpha"))  # beyond the trained range: the GP warns
     assert checked.value == 70.0 and checked.note == ""
 
 
@@ -19,13 +19,13 @@ def test_a_value_inside_the_solver_limits_is_taken_as_typed():
     ("-5", 0.0, "alpha=-5 is outside what the solver can run (0 .. 75): clamped to 0"),
 ])
 def test_a_value_beyond_the_solver_limits_is_clamped_with_a_note(text, value, note):
-    checked = typed_value("alpha", text, PARAMETER_LIMITS["alpha"])
+    checked = typed_value("alpha", text, PARAMETERS.limits("alpha"))
     assert checked.value == value and checked.note == note
 
 
 @pytest.mark.parametrize("text", ["abc", "", "nan", "inf"])
 def test_text_that_is_no_finite_number_keeps_the_old_value(text):
-    checked = typed_value("mu_s", text, PARAMETER_LIMITS["mu_s"])
+    checked = typed_value("mu_s", text, PARAMETERS.limits("mu_s"))
     assert checked.value is None and "the previous value is kept" in checked.note and "mu_s" in checked.note
 
 
