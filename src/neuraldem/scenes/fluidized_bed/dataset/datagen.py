@@ -169,8 +169,7 @@ class FluidizedBedPipeline(DataConfigPipeline):
 
     def _duration(self, key: str, value: Any) -> float:
         d = checks.positive(key, value)
-        steps = d / self.scene.snapshot_interval
-        if abs(steps - round(steps)) > 1e-6:
+        if not checks.is_multiple(d, self.scene.snapshot_interval):
             raise ConfigError(f"config value {key}={value} is invalid: must be a multiple of "
                               f"data.scene.snapshot_interval={self.scene.snapshot_interval} "
                               f"(override it, e.g. {key}=...)")

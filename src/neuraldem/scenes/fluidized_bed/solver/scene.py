@@ -95,12 +95,10 @@ class FluidizedBedScene:
             raise ConfigError(f"{key}: width and thickness must be at least 1.5 particle diameters "
                               f"({1.5 * self.diameter} m)")
         for name, value in (("snapshot_interval", self.snapshot_interval), ("spinup_time", self.spinup_time)):
-            steps = value / self.dt
-            if abs(steps - round(steps)) > 1e-6:
+            if not checks.is_multiple(value, self.dt):
                 raise ConfigError(f"config value {key}.{name}={value} is invalid: must be a multiple of "
                                   f"{key}.dt={self.dt} (override it, e.g. {key}.{name}=...)")
-        spin = self.spinup_time / self.snapshot_interval
-        if abs(spin - round(spin)) > 1e-6:
+        if not checks.is_multiple(self.spinup_time, self.snapshot_interval):
             raise ConfigError(f"config value {key}.spinup_time={self.spinup_time} is invalid: must be a multiple "
                               f"of {key}.snapshot_interval={self.snapshot_interval}")
         bed = self.n_particles * self.particle_volume / self.initial_packing_fraction / self.packing_area
