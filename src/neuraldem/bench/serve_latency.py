@@ -111,22 +111,30 @@ def row(name: str, stats: dict[str, Any], key: str) -> str:
     return f"| {name} | {v['n']} | {v['median']:.0f}{verdict} | {v['p90']:.0f} | {v['max']:.0f} |"
 
 
+def head(title: str, result: dict[str, Any]) -> list[str]:
+    """A latency report's title, how it was measured (command, browser, load) and the table's header."""
+    load = (result["machine"].get("load_average_1_5_15min") or [float("nan")])[0]
+    return [f"# {title} (model {result['model']})", "",
+            f"`{result['command']}`; headless {result['browser']}; 1-minute load average {load:.2f} on "
+            f"{result['machine'].get('cpu_count')} CPUs when it began.", "",
+            "| move -> update | moves | median [ms] | p90 [ms] | max [ms] |", "|---|---|---|---|---|"]
+
+
+def targets() -> str:
+    return (f"Targets (issue 24): numbers <= {TARGETS_MS['numbers_ms']:.0f} ms, fields <= "
+            f"{TARGETS_MS['fields_ms']:.0f} ms (medians).")
+
+
 def markdown(result: dict[str, Any]) -> str:
     s, ts = result["summary"]["parameter_moves"], result["summary"]["time_moves"]
-
-    load = (result["machine"].get("load_average_1_5_15min") or [float("nan")])[0]
-    lines = [f"# Explorer latency: slider move to updated page (model {result['model']})", "",
-             f"`{result['command']}`; headless {result['browser']}; 1-minute load average {load:.2f} on "
-             f"{result['machine'].get('cpu_count')} CPUs when it began.", "",
-             "| move -> update | moves | median [ms] | p90 [ms] | max [ms] |", "|---|---|---|---|---|",
+    lines = [*head("Explorer latency: slider move to updated page", result),
              row("parameter slider -> numbers (DOM)", s, "numbers_ms"),
              row("parameter slider -> particles redrawn (plotly_afterplot)", s, "fields_ms"),
              row("parameter slider -> particles painted", s, "painted_ms"),
              row("(server: the frame's field model, in the above)", s, "server_frame_ms"),
              row("time slider -> particles redrawn", ts, "fields_ms"),
              row("time slider -> particles painted", ts, "painted_ms"), "",
-             f"Targets (issue 24): numbers <= {TARGETS_MS['numbers_ms']:.0f} ms, fields <= "
-             f"{TARGETS_MS['fields_ms']:.0f} ms (medians). Each parameter move is one slider step to a point not "
+             f"{targets()} Each parameter move is one slider step to a point not "
              f"seen before (no cache hit), {result['pause_s']:g} s apart; {result['warmup']} warm-up moves not "
              "counted. 'Painted' adds the browser's WebGL draw: without a GPU, Chromium draws it with "
              "SwiftShader on the same CPUs as the server."]
@@ -155,17 +163,12 @@ def bed_markdown(result: dict[str, Any]) -> str:
 
     moves = result["moves"]
     off = [m["shown_off_m_s"] for m in moves]
-    load = (result["machine"].get("load_average_1_5_15min") or [float("nan")])[0]
     return "\n".join([
-        f"# Explorer latency, bed page: velocity slider move to updated page (model {result['model']})", "",
-        f"`{result['command']}`; headless {result['browser']}; 1-minute load average {load:.2f} on "
-        f"{result['machine'].get('cpu_count')} CPUs when it began.", "",
-        "| move -> update | moves | median [ms] | p90 [ms] | max [ms] |", "|---|---|---|---|---|",
+        *head("Explorer latency, bed page: velocity slider move to updated page", result),
         row("velocity slider -> numbers (GP, DOM)", s, "numbers_ms"),
         row("velocity slider -> fields redrawn (nearest ready rollout, plotly_afterplot)", s, "fields_ms"),
         row("velocity slider -> fields painted", s, "painted_ms"), "",
-        f"Targets (issue 24): numbers <= {TARGETS_MS['numbers_ms']:.0f} ms, fields <= "
-        f"{TARGETS_MS['fields_ms']:.0f} ms (medians). What the fields figure shows within that time is the "
+        f"{targets()} What the fields figure shows within that time is the "
         f"nearest rollout already computed, labelled with its velocity, not a rollout at the new velocity: "
         f"over these moves it was {statistics.median(off):.3f} m/s (median; at most {max(off):.3f}) from the "
         f"slider's ({sum(m['shown_exact'] for m in moves)} of {len(moves)} exact). The lattice of "

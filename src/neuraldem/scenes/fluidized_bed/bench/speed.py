@@ -6,9 +6,10 @@ writes results/bench/fb_speed.json, .md and .png.
 
 The unit both are compared in is the cost of one simulated second of the bed. The solver: fresh DPMFoam runs
 of one trajectory of the checkpoint's dataset (its scene, inlet velocity and start-packing seed, through
-`scenes.fluidized_bed.solver.run_fluidized_bed`, the path datagen used): the dataset's spin-up plus `--sim-seconds`
-stored seconds, wall and CPU time of the DPMFoam process divided by the seconds it simulated (spin-up included, as
-the manifest's `cpu_s_per_simulated_s`); next to it the per-simulation costs the manifest recorded at datagen.
+`scenes.fluidized_bed.solver.runner.run_fluidized_bed`, the path datagen used): the dataset's spin-up plus
+`--sim-seconds` stored seconds, wall and CPU time of the DPMFoam process divided by the seconds it simulated
+(spin-up included, as the manifest's `cpu_s_per_simulated_s`); next to it the per-simulation costs the manifest
+recorded at datagen.
 The surrogate: `--rollout-steps` autoregressive steps (`scenes.fluidized_bed.rollout.rollout`, divergence check and
 particle re-sampling included) from snapshot 1 of the same trajectory, divided by the seconds they span, at
 each `--threads` setting. Ratios are solver / surrogate of the medians over repeats.
@@ -36,7 +37,8 @@ from neuraldem.eval.checkpoints import checkpoint_dataset
 from neuraldem.paths import data_dir
 from neuraldem.scenes.fluidized_bed.dataset.datagen import packing_seed
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-from neuraldem.scenes.fluidized_bed.solver import STATUS_OK, FluidizedBedScene, run_fluidized_bed
+from neuraldem.scenes.fluidized_bed.solver.runner import STATUS_OK, run_fluidized_bed
+from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
 from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
     DivergenceLimits,

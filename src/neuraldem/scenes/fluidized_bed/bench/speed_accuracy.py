@@ -52,7 +52,8 @@ from neuraldem.scenes.fluidized_bed.bench.speed import surrogate_timing
 from neuraldem.scenes.fluidized_bed.dataset.datagen import packing_seed
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile, write_fb_file
-from neuraldem.scenes.fluidized_bed.solver import STATUS_OK, FluidizedBedScene, run_fluidized_bed
+from neuraldem.scenes.fluidized_bed.solver.runner import STATUS_OK, run_fluidized_bed
+from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import initial_state, load_fb_checkpoint
 
 NAME = "fb_speed_accuracy"

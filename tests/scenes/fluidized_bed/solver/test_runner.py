@@ -1,5 +1,5 @@
-"""DPMFoam fluidized bed: scene checks, start packing, and real runs (fluid continuity per step, particles
-kept, resume from a truncated time directory, a diverging and a crashing case recorded, OpenFOAM missing)."""
+"""DPMFoam fluidized-bed runs: OpenFOAM missing, resume from a truncated time directory, a diverging and a
+crashing case recorded, lost particles counted."""
 
 from __future__ import annotations
 
@@ -8,62 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from omegaconf import OmegaConf
 
-from neuraldem.errors import ConfigError, DataError, SolverError
-from neuraldem.scenes.fluidized_bed.solver import (
-    FluidizedBedScene,
-    finish,
-    latest_complete_time,
-    random_packing,
-    read_flux_monitor,
-    read_trajectory,
-    run_fluidized_bed,
-)
+from neuraldem.errors import DataError, SolverError
+from neuraldem.scenes.fluidized_bed.solver.reader import latest_complete_time, read_trajectory
+from neuraldem.scenes.fluidized_bed.solver.runner import finish, run_fluidized_bed
+from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
 from neuraldem.sim import openfoam
 from neuraldem.sim.foam_reader import FoamCase
-from tests.helpers import REPO
-
-
-@pytest.fixture(scope="module")
-def tiny_scene() -> FluidizedBedScene:
-    cfg = OmegaConf.merge(OmegaConf.load(REPO / "conf/data/fb_small.yaml").scene,
-                          OmegaConf.load(REPO / "conf/data/fb_tiny.yaml").scene)
-    return FluidizedBedScene.from_config(cfg, "data.scene")
-
-
-def test_scene_defaults_match_the_canonical_config():
-    scene = FluidizedBedScene.from_config(OmegaConf.load(REPO / "conf/data/fb_small.yaml").scene, "data.scene")
-    assert scene == FluidizedBedScene()
-    assert scene.minimum_fluidization_velocity == pytest.approx(1.07, abs=0.01)
-    assert scene.grid.shape == (12, 1, 30) and scene.grid.cell_volume == pytest.approx(0.004 * 0.006 * 0.004)
-
-
-@pytest.mark.parametrize("override,message", [
-    ({"cells": [12, 1]}, "data.scene.cells"),
-    ({"drag": "Stokes"}, "data.scene.drag='Stokes' is invalid"),
-    ({"snapshot_interval": 0.00015}, "multiple of data.scene.dt"),
-    ({"spinup_time": 0.015}, "spinup_time=0.015 is invalid"),
-    ({"n_particles": 20000}, "start packing"),
-    ({"front_back": "periodic"}, "data.scene.front_back"),
-    ({"colour": "red"}, "unknown key"),
-])
-def test_bad_scene_values_name_the_key(override: dict, message: str):
-    with pytest.raises(ConfigError, match=message):
-        FluidizedBedScene.from_config(override, "data.scene")
-
-
-def test_random_packing_has_no_overlaps_and_differs_by_seed(tiny_scene):
-    scene = tiny_scene
-    a = random_packing(scene, np.random.default_rng(1))
-    b = random_packing(scene, np.random.default_rng(2))
-    assert a.shape == (300, 3) and not np.allclose(a, b)
-    from scipy.spatial import cKDTree
-
-    dist, _ = cKDTree(a).query(a, k=2)
-    assert dist[:, 1].min() >= scene.diameter
-    r = scene.diameter / 2
-    assert np.all(a >= r) and np.all(a <= np.array([scene.width, scene.thickness, scene.height]) - r)
 
 
 def test_openfoam_missing_or_unset_gives_the_fix(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, tiny_scene):
@@ -73,37 +24,6 @@ def test_openfoam_missing_or_unset_gives_the_fix(monkeypatch: pytest.MonkeyPatch
     monkeypatch.setenv("WM_PROJECT_DIR", str(tmp_path / "nowhere"))
     with pytest.raises(SolverError, match="set WM_PROJECT_DIR"):
         openfoam.foam_env()
-
-
-@pytest.mark.solver
-def test_fluid_inflow_equals_outflow_every_step(fb_tiny_case: Path):
-    """Continuity of the air: volume flow in through the bottom = out through the top in every solver step
-    (pressure solver tolerance 1e-7), and equal to the superficial inlet velocity times the inlet area."""
-    import json
-
-    u0 = json.loads((fb_tiny_case / "neuraldem_case.json").read_text())["inlet_velocity"]
-    t_in, f_in = read_flux_monitor(fb_tiny_case, "flux_bottom")
-    t_out, f_out = read_flux_monitor(fb_tiny_case, "flux_top")
-    assert len(t_in) == len(t_out) == 2500 and np.array_equal(t_in, t_out)
-    steps = t_in > 0.0001 + 1e-9  # the first step starts the flow from rest
-    inflow, outflow = -f_in[steps], f_out[steps]
-    area = 0.024 * 0.006
-    np.testing.assert_allclose(inflow, u0 * area, rtol=1e-6)
-    imbalance = np.abs(inflow - outflow) / inflow
-    assert imbalance.max() < 1e-5, imbalance.max()
-
-
-@pytest.mark.solver
-def test_run_keeps_every_particle_and_the_solver_alpha_volume(fb_tiny_case: Path, tiny_scene):
-    case = FoamCase(fb_tiny_case)
-    traj = read_trajectory(case, tiny_scene.grid, tiny_scene.spinup_time, tiny_scene.snapshot_interval)
-    assert traj.positions.shape == (21, 300, 3) and traj.times[-1] == pytest.approx(0.2)
-    assert np.isfinite(traj.positions).all() and not np.isfinite(traj.lost_time).any()
-    solid = (1 - traj.fluid_fraction).sum(axis=(1, 2, 3)) * tiny_scene.grid.cell_volume
-    np.testing.assert_allclose(solid, 300 * tiny_scene.particle_volume, rtol=1e-6)
-    # the bed is fluidized: particles move between snapshots, air rises
-    assert np.median(np.linalg.norm(np.diff(traj.positions, axis=0), axis=2)) > 1e-4
-    assert traj.fluid_velocity[..., 2].mean() > 1.0
 
 
 @pytest.mark.solver
