@@ -12,7 +12,7 @@ event to
 - fields: the particle view redrawn by Plotly with the new point (`plotly_afterplot`);
 - painted: two animation frames after that (headless Chromium has no GPU: SwiftShader draws WebGL on the CPU).
 The first --warmup moves (Plotly's first WebGL draws) are not counted. The server's own time for each frame
-(the field model at one time) is read from the page. Writes results/bench/serve_latency.json and .md, and the
+(the field model at one time) is read from the page. Writes results/explorer/serve_latency.json and .md, and the
 page as a new visitor sees it as serve_latency.png (the screenshot docs/explorer.md shows).
 
     python -m neuraldem.bench serve_latency --page bed --moves 20
@@ -23,7 +23,7 @@ velocities not seen before), --pause seconds apart, timed as above to the number
 figure redrawn for the new velocity. A rollout takes seconds, so what that figure shows within the time
 measured is the nearest ready rollout (a lattice one), not the exact velocity's: each move records the
 velocity shown and its distance from the slider's. Last, the time from the slider resting to the exact
-rollout's numbers on the page. Writes results/bench/serve_latency_fb.json, .md and .png.
+rollout's numbers on the page. Writes results/explorer/serve_latency_fb.json, .md and .png.
 """
 
 from __future__ import annotations
@@ -224,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--time-steps", type=int, default=10, help="time slider moves counted")
     p.add_argument("--warmup", type=int, default=3, help="moves before counting (first WebGL draws)")
     p.add_argument("--pause", type=float, default=1.0, help="seconds between moves")
-    p.add_argument("--out", type=Path, default=None, help="results JSON (default results/bench/serve_latency.json, "
+    p.add_argument("--out", type=Path, default=None, help="results JSON (default results/explorer/serve_latency.json, "
                                                                 "serve_latency_fb.json for --page bed)")
     args = p.parse_args(argv)
     if chromium_paths() is None:

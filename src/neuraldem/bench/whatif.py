@@ -8,7 +8,7 @@
 - --points random parameter sets inside the shipped model's trained ranges (seeded): the GP and the field
   model beside LIGGGHTS at the model's scene, each with its time, and LIGGGHTS's time over theirs. The solver
   runs are kept in <data dir>/bench/whatif/ and reused (resumable).
-Writes results/bench/whatif.json and whatif.md.
+Writes results/hopper/whatif/whatif.json and whatif.md.
 """
 
 from __future__ import annotations
@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--points", type=int, default=5, help="random in-range points checked with LIGGGHTS")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--out", type=Path, default=None, help="results JSON (default results/bench/whatif.json)")
+    p.add_argument("--out", type=Path, default=None, help="results JSON (default results/hopper/whatif/whatif.json)")
     args = p.parse_args(argv)
     machine = machine_info()
     warn_if_busy(machine)

@@ -2,7 +2,7 @@
 
 `python -m neuraldem.bench fb_speed_accuracy --runs DIR... [--dataset DIR] [--solver-variants dt:2 substeps:0.5]
 [--solver-velocities 2] [--reuse-solver FILE | --skip-solver] [--steps 100] [--repeats 3] [--threads 1]
-[--tolerance 0.10] [--out PATH]` writes results/bench/fb_speed_accuracy.json, .png and .md.
+[--tolerance 0.10] [--out PATH]` writes results/speed_accuracy/fb_speed_accuracy.json, .png and .md.
 
 x = cost of one simulated second of the bed (CPU seconds, one thread); y = the error of what a practitioner
 asks of a bed, one panel each: the time-mean solid fraction per cell, its fluctuations (time std per cell),

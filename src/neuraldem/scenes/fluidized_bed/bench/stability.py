@@ -3,7 +3,7 @@ velocities and beyond them.
 
 `python -m neuraldem.bench fb_stability --ckpt CKPT [CKPT ...] [--labels NAME ...] [--velocities V ...]
 [--n-velocities 9 | --velocity-step DV] [--steps N] [--drift-limit-pct 5] [--bed-limit-pct 10] [--settle-steps N]
-[--out PATH]` writes results/bench/fb_stability.json and .png. A fine scan of the trained range:
+[--out PATH]` writes results/fluidized_bed/stability/fb_stability.json and .png. A fine scan of the trained range:
 `--velocity-step 0.005 --steps 500`; of one stretch: `--velocities $(seq 2.00 0.002 2.10)`.
 
 For every checkpoint (one series each, e.g. a model and its ablation without input noise) and every inlet
@@ -321,8 +321,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--seed", type=int, default=0, help="seed of the rollouts' particle re-sampling")
     add_rollout_flags(p, default="as each checkpoint was trained")
     p.add_argument("--out", type=Path, default=None,
-                   help=f"results JSON, or a folder for {NAME}.json (default results/bench/{NAME}.json); "
-                        ".png beside it")
+                   help=f"results JSON, or a folder for {NAME}.json (default "
+                        f"results/fluidized_bed/stability/{NAME}.json); .png beside it")
     a = p.parse_args(argv)
     out = resolve_out(a.out, NAME)
     check_options(a.ckpt, a.labels, a.velocities, a.steps, a.drift_limit_pct, a.seed, a.bed_limit_pct,
