@@ -1,4 +1,4 @@
-"""scripts/fb_issue20.sh: issue 20's whole protocol as commands (a fake python records them instead of running
+"""scripts/fb_recipe_eval.sh: a bed recipe's whole evaluation as commands (a fake python records them instead of running
 them): both seeds trained and chosen with the same rollout options and the long validation set, the chosen
 checkpoints scored on test, baselines, tables, stability map and speed; a missing long validation set and an
 unknown rollout option stop it before anything runs."""
@@ -9,7 +9,7 @@ import os
 import subprocess
 from pathlib import Path
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "fb_issue20.sh"
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "fb_recipe_eval.sh"
 
 
 def _run(tmp_path: Path, **extra: str) -> tuple[subprocess.CompletedProcess, list[list[str]]]:
