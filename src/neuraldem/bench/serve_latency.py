@@ -39,7 +39,7 @@ from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.errors import ConfigError
 from neuraldem.machine import machine_info
 
-TARGETS_MS = {"numbers_ms": 100.0, "fields_ms": 300.0}  # issue 24: numbers <= 100 ms, fields <= 300 ms
+TARGETS_MS = {"numbers_ms": 100.0, "fields_ms": 300.0}  # the targets: numbers <= 100 ms, fields <= 300 ms
 
 
 def parse_point(text: str) -> dict[str, float]:
@@ -125,7 +125,7 @@ def markdown(result: dict[str, Any]) -> str:
              row("(server: the frame's field model, in the above)", s, "server_frame_ms"),
              row("time slider -> particles redrawn", ts, "fields_ms"),
              row("time slider -> particles painted", ts, "painted_ms"), "",
-             f"Targets (issue 24): numbers <= {TARGETS_MS['numbers_ms']:.0f} ms, fields <= "
+             f"Targets: numbers <= {TARGETS_MS['numbers_ms']:.0f} ms, fields <= "
              f"{TARGETS_MS['fields_ms']:.0f} ms (medians). Each parameter move is one slider step to a point not "
              f"seen before (no cache hit), {result['pause_s']:g} s apart; {result['warmup']} warm-up moves not "
              "counted. 'Painted' adds the browser's WebGL draw: without a GPU, Chromium draws it with "
@@ -164,7 +164,7 @@ def bed_markdown(result: dict[str, Any]) -> str:
         row("velocity slider -> numbers (GP, DOM)", s, "numbers_ms"),
         row("velocity slider -> fields redrawn (nearest ready rollout, plotly_afterplot)", s, "fields_ms"),
         row("velocity slider -> fields painted", s, "painted_ms"), "",
-        f"Targets (issue 24): numbers <= {TARGETS_MS['numbers_ms']:.0f} ms, fields <= "
+        f"Targets: numbers <= {TARGETS_MS['numbers_ms']:.0f} ms, fields <= "
         f"{TARGETS_MS['fields_ms']:.0f} ms (medians). What the fields figure shows within that time is the "
         f"nearest rollout already computed, labelled with its velocity, not a rollout at the new velocity: "
         f"over these moves it was {statistics.median(off):.3f} m/s (median; at most {max(off):.3f}) from the "

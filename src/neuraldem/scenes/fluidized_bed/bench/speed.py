@@ -54,7 +54,7 @@ NAME = "fb_speed"
 SOLVER_THREADS = 1  # DPMFoam runs serially, as in datagen
 DEFAULT_SIM_SECONDS = 0.1
 RECORDED = "dataset manifest: per-simulation costs recorded when the dataset was generated, not re-run"
-TARGET_SPEEDUP = 100.0  # issue 9: the fluidized-bed rollout >= 100x faster than DPMFoam
+TARGET_SPEEDUP = 100.0  # the target: the fluidized-bed rollout >= 100x faster than DPMFoam (docs/benchmarks.md)
 
 
 def usable_cpus() -> int:
