@@ -31,7 +31,7 @@ LONG_VAL=${LONG_VAL-$DATA/datasets/fb_small_longval}
 [ $# -ge 1 ] || { echo "usage: bash scripts/fb_recipe_eval.sh RUNS_DIR [train overrides...]" >&2; exit 2; }
 runs=$1; shift
 if [ -n "$LONG_VAL" ] && [ ! -f "$LONG_VAL/manifest.json" ]; then
-  echo "fb_recipe_eval: no long validation set at $LONG_VAL: generate it (python -m neuraldem.datagen" \
+  echo "fb_recipe_eval: no long validation set at $LONG_VAL: generate it (neuraldem datagen" \
        "data=fb_small_longval) or set LONG_VAL= to choose on the 3-s validation part alone" >&2
   exit 2
 fi
