@@ -284,7 +284,7 @@ def family_label(f: dict[str, Any]) -> str:
     if not f:
         return "all runs"
     st = f.get("trained_stability")
-    if st:  # issue-20 options
+    if st:  # the stability options of unrolled training (model.stability), when the run records them
         unroll = st.get("unroll", [1.0])
         parts = ["one-step" if len(unroll) == 1 else "unroll " + "/".join(f"{p:g}" for p in unroll),
                  f"input noise {st.get('input_noise') or f.get('input_noise', 0)}",
