@@ -12,7 +12,7 @@ event to
 - fields: the particle view redrawn by Plotly with the new point (`plotly_afterplot`);
 - painted: two animation frames after that (headless Chromium has no GPU: SwiftShader draws WebGL on the CPU).
 The first --warmup moves (Plotly's first WebGL draws) are not counted. The server's own time for each frame
-(the field model at one time) is read from the page. Writes results/bench/serve_latency.json and .md, and the
+(the field model at one time) is read from the page. Writes results/explorer/serve_latency.json and .md, and the
 page as a new visitor sees it as serve_latency.png (the screenshot docs/explorer.md shows).
 
     python -m neuraldem.bench serve_latency --page bed --moves 20
@@ -23,7 +23,7 @@ velocities not seen before), --pause seconds apart, timed as above to the number
 figure redrawn for the new velocity. A rollout takes seconds, so what that figure shows within the time
 measured is the nearest ready rollout (a lattice one), not the exact velocity's: each move records the
 velocity shown and its distance from the slider's. Last, the time from the slider resting to the exact
-rollout's numbers on the page. Writes results/bench/serve_latency_fb.json, .md and .png.
+rollout's numbers on the page. Writes results/explorer/serve_latency_fb.json, .md and .png.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.errors import ConfigError
 from neuraldem.machine import machine_info
 
-TARGETS_MS = {"numbers_ms": 100.0, "fields_ms": 300.0}  # issue 24: numbers <= 100 ms, fields <= 300 ms
+TARGETS_MS = {"numbers_ms": 100.0, "fields_ms": 300.0}  # the targets: numbers <= 100 ms, fields <= 300 ms
 
 
 def parse_point(text: str) -> dict[str, float]:
@@ -121,7 +121,7 @@ def head(title: str, result: dict[str, Any]) -> list[str]:
 
 
 def targets() -> str:
-    return (f"Targets (issue 24): numbers <= {TARGETS_MS['numbers_ms']:.0f} ms, fields <= "
+    return (f"Targets: numbers <= {TARGETS_MS['numbers_ms']:.0f} ms, fields <= "
             f"{TARGETS_MS['fields_ms']:.0f} ms (medians).")
 
 
@@ -228,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--time-steps", type=int, default=10, help="time slider moves counted")
     p.add_argument("--warmup", type=int, default=3, help="moves before counting (first WebGL draws)")
     p.add_argument("--pause", type=float, default=1.0, help="seconds between moves")
-    p.add_argument("--out", type=Path, default=None, help="results JSON (default results/bench/serve_latency.json, "
+    p.add_argument("--out", type=Path, default=None, help="results JSON (default results/explorer/serve_latency.json, "
                                                                 "serve_latency_fb.json for --page bed)")
     args = p.parse_args(argv)
     if chromium_paths() is None:

@@ -2,7 +2,7 @@
 
 `python -m neuraldem.bench fb_speed --ckpt CKPT [--dataset DIR] [--sim SIM_ID] [--repeats 3]
 [--solver-repeats 3] [--sim-seconds 0.1] [--rollout-steps N] [--threads 1 N] [--reuse-dataset] [--out PATH]`
-writes results/bench/fb_speed.json, .md and .png.
+writes results/fluidized_bed/speed/fb_speed.json, .md and .png.
 
 The unit both are compared in is the cost of one simulated second of the bed. The solver: fresh DPMFoam runs
 of one trajectory of the checkpoint's dataset (its scene, inlet velocity and start-packing seed, through
@@ -55,7 +55,7 @@ NAME = "fb_speed"
 SOLVER_THREADS = 1  # DPMFoam runs serially, as in datagen
 DEFAULT_SIM_SECONDS = 0.1
 RECORDED = "dataset manifest: per-simulation costs recorded when the dataset was generated, not re-run"
-TARGET_SPEEDUP = 100.0  # issue 9: the fluidized-bed rollout >= 100x faster than DPMFoam
+TARGET_SPEEDUP = 100.0  # the target: the fluidized-bed rollout >= 100x faster than DPMFoam (docs/benchmarks.md)
 
 
 def usable_cpus() -> int:
@@ -341,7 +341,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--workdir", type=Path, default=None, help=f"DPMFoam runs (default <data dir>/bench/{NAME})")
     p.add_argument("--keep-runs", action="store_true", help="keep the DPMFoam case folders")
     p.add_argument("--out", type=Path, default=None,
-                   help=f"results JSON, or a folder for {NAME}.json (default results/bench/{NAME}.json); "
+                   help=f"results JSON, or a folder for {NAME}.json (default results/fluidized_bed/speed/{NAME}.json); "
                         ".md and .png beside it")
     a = p.parse_args(argv)
     out = resolve_out(a.out, NAME)
