@@ -66,7 +66,7 @@ class Scene:
     scan: str | None = None  # `neuraldem scan <scene>`: a module with main(argv) -> int
     page: str | None = None  # the explorer page
     release: str | None = None  # `neuraldem release <scene>`: build a shipped model from a checkpoint
-    rollout: Callable[[DictConfig], None] | None = None  # `neuraldem evaluate rollout ckpt=...`
+    rollout: Callable[[DictConfig], bool] | None = None  # `neuraldem evaluate rollout ckpt=...`; False: diverged
     benchmarks: Mapping[str, tuple[str, str]] = field(default_factory=dict)  # name -> (module[:function], what)
     reports: Mapping[str, tuple[str, str]] = field(default_factory=dict)  # `neuraldem report NAME`
     exports: Mapping[str, tuple[str, str]] = field(default_factory=dict)  # `neuraldem export NAME`

@@ -63,10 +63,11 @@ def evaluate_run(cfg: DictConfig, ckpt: Path) -> dict[str, Any]:
     return result
 
 
-def rollout(cfg: DictConfig) -> None:
+def rollout(cfg: DictConfig) -> bool:
+    """False when the rollout diverged (`neuraldem evaluate rollout` then exits 1)."""
     from neuraldem.scenes.fluidized_bed.surrogate.rollout import rollout_command
 
-    rollout_command(cfg)
+    return rollout_command(cfg)
 
 
 SCENE = Scene(

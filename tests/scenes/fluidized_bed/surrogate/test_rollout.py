@@ -173,7 +173,7 @@ def test_cli(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tiny_checkpoint: P
     bad = run_module("neuraldem.rollout", f"ckpt={tiny_checkpoint}", "velocity=1.3",
                      f"hydra.run.dir={tmp_path / 'bad'}", env=env)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
-    assert "is a 'hopper' checkpoint" in bad.stderr
+    assert "is a hopper model, which has no time-stepping rollout" in bad.stderr
     typo = run_module("neuraldem.rollout", f"ckpt={fb_tiny_checkpoint}", "velocity=1.3", "conserve_solid_volume=1",
                       f"hydra.run.dir={tmp_path / 'typo'}", env=env)
     assert typo.returncode == 2 and "conserve_solid_volume=1 is invalid: must be true or false" in typo.stderr
