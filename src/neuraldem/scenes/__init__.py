@@ -74,6 +74,8 @@ class Scene:
     import_match_keys: tuple[str, ...] = ()  # scene keys an imported run must share with a model's (1 %)
     import_report_keys: tuple[str, ...] = ()  # solver settings reported when they differ, not refused
     config_dir: Path | None = None  # a plug-in's own Hydra configs (data/, model/, experiment/)
+    # Hydra overrides renamed in this scene, read one release with a note: command config -> {old key: new key}
+    renamed_keys: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
 
     @property
     def route(self) -> str:
