@@ -64,8 +64,7 @@ def test_map_of_two_checkpoints(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path,
 def test_rollout_options_reach_every_rollout_and_the_record(fb_tiny_flux_checkpoint: Path, fb_tiny_dataset: Path,
                                                             tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     """rollout.advection_correction= / rollout.mirror_alternate= (as the model is used: bubbles.md stop 41) go to
-    each rollout's stepper and into the map's record; the old flags (--advection-correction 1 --mirror-alternate) do
-    the same for one more release."""
+    each rollout's stepper and into the map's record."""
     seen = []
     real = fb_stability.ModelStepper
 
@@ -82,13 +81,6 @@ def test_rollout_options_reach_every_rollout_and_the_record(fb_tiny_flux_checkpo
     assert seen == [(1.0, True), (1.0, True)]  # both velocities
     r = json.loads(out.read_text())["results"]
     assert r["advection_correction"] == 1.0 and r["mirror_alternate"] is True and r["rollout_noise"] is None
-    seen.clear()
-    old = tmp_path / "old.json"
-    assert bench_main(["fb_stability", "--ckpt", str(fb_tiny_flux_checkpoint), "--velocities", str(TRAINED_VELOCITY),
-                       "1.3", "--steps", "2", "--advection-correction", "1", "--mirror-alternate",
-                       "--dataset", str(fb_tiny_dataset), "--out", str(old)]) == 0
-    assert seen == [(1.0, True), (1.0, True)]
-    assert json.loads(old.read_text())["results"]["series"] == r["series"]
     seen.clear()
     fb_stability.run([fb_tiny_flux_checkpoint], velocities=[TRAINED_VELOCITY], steps=2, dataset_dir=fb_tiny_dataset,
                      progress=False)

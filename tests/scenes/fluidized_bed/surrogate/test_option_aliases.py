@@ -107,3 +107,22 @@ def test_an_old_rollout_key_rolls_out_the_same(fb_tiny_checkpoint: Path, fb_tiny
     with RolloutFile(tmp_path / "old" / "rollout.h5") as a, RolloutFile(tmp_path / "new" / "rollout.h5") as b:
         np.testing.assert_array_equal(a.grid_field("solid_fraction"), b.grid_field("solid_fraction"))
         np.testing.assert_array_equal(a.grid_field("mixing"), b.grid_field("mixing"))
+
+
+@pytest.mark.solver
+def test_the_old_flags_of_a_bench_give_the_same_map(fb_tiny_flux_checkpoint: Path, fb_tiny_dataset: Path,
+                                                     tmp_path: Path):
+    """`bench fb_stability --ckpt C ... --advection-correction 1 --mirror-alternate` (as scripts/compare_commits.sh
+    and older scripts type it) maps what `ckpt=C ... rollout.advection_correction=1 rollout.mirror_alternate=true`
+    maps."""
+    from neuraldem.bench.__main__ import main as bench_main
+
+    common = ["--velocities", "1.228531", "1.3", "--steps", "2", "--dataset", str(fb_tiny_dataset)]
+    assert bench_main(["fb_stability", "--ckpt", str(fb_tiny_flux_checkpoint), *common, "--advection-correction", "1",
+                       "--mirror-alternate", "--out", str(tmp_path / "old.json")]) == 0
+    assert bench_main(["fb_stability", "--ckpt", str(fb_tiny_flux_checkpoint), *common,
+                       "rollout.advection_correction=1", "rollout.mirror_alternate=true",
+                       "--out", str(tmp_path / "new.json")]) == 0
+    old, new = (json.loads((tmp_path / f"{n}.json").read_text())["results"] for n in ("old", "new"))
+    assert old["advection_correction"] == new["advection_correction"] == 1.0 and old["mirror_alternate"] is True
+    assert old["series"][0]["points"] == new["series"][0]["points"]
