@@ -38,7 +38,8 @@ from neuraldem.scenes.fluidized_bed.analysis import metrics as fm
 from neuraldem.scenes.fluidized_bed.analysis import plots as fb_plots
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-from neuraldem.scenes.fluidized_bed.surrogate.options import rollout_overrides
+from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
+from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
     DEFAULT_INIT_SNAPSHOT,
     DivergenceLimits,
@@ -288,13 +289,10 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
                         horizons: Sequence[int] = DEFAULT_HORIZONS, limits: DivergenceLimits | None = None,
                         seed: int = 0, vtk: bool = True, device: str = "auto", progress: bool = True,
                         make_stepper: Callable[[Any, float], Stepper] | None = None,
-                        conserve_solid_volume: bool | None = None, mixing: str | None = None,
                         init_snapshot: int = DEFAULT_INIT_SNAPSHOT,
-                        advection_correction: float | None = None,
-                        advection_flux: str | None = None,
-                        mirror_alternate: bool | None = None,
-                        rollout_noise: float | None = None) -> dict[str, Any]:
-    """Evaluate a fluidized-bed checkpoint on the held-out velocities; write and return metrics.json."""
+                        options: RolloutOptions | None = None) -> dict[str, Any]:
+    """Evaluate a fluidized-bed checkpoint on the held-out velocities, rolled out with `options` (None: as
+    trained); write and return metrics.json."""
     horizons = [checks.positive_int(f"fluidized_bed.horizons[{i}]", h) for i, h in enumerate(horizons)]
     if not horizons:
         raise DataError("fluidized_bed.horizons is empty: give the horizon multiples to test, e.g. [1,3,10]")
@@ -311,11 +309,9 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         raise DataError(f"no {part} trajectories in split {split!r} of {dataset_dir}")
     settings = metric_settings(m)
     steps = max(horizons) * norm.horizon_steps
-    make_stepper = make_stepper or (lambda mod, v: ModelStepper(mod, v, seed, device, conserve_solid_volume, mixing,
-                                                                advection_correction, advection_flux,
-                                                                mirror_alternate, rollout_noise))
-    options = rollout_overrides(module.stability, mixing, conserve_solid_volume, advection_correction,
-                                advection_flux, mirror_alternate, rollout_noise)
+    given = options or RolloutOptions()
+    make_stepper = make_stepper or (lambda mod, v: ModelStepper(mod, v, seed, device, given))
+    stability = given.apply(module.stability)  # what every rollout runs with
     out_dir = Path(out_dir)
     (out_dir / "rollouts").mkdir(parents=True, exist_ok=True)
     results, volumes = [], {}
@@ -326,8 +322,8 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
             check_grid(norm, f)
         attrs = {"extrapolation": check_velocity(norm, v), "checkpoint": str(Path(ckpt).resolve()),
                  "initial_state": f"{m.name}/{rec.sim_id} snapshot {init_snapshot}", "seed": seed,
-                 "conserve_solid_volume": options.conserve_volume, "mixing": options.mixing,
-                 "mirror_alternate": options.mirror_alternate, "rollout_noise": options.rollout_noise}
+                 RESULT_CONSERVE_KEY: stability.conserve_volume, "mixing": stability.mixing,
+                 "mirror_alternate": stability.mirror_alternate, "rollout_noise": stability.rollout_noise}
         e = evaluate_trajectory(path, rec.sim_id, v, make_stepper(module, v), steps, norm.horizon_steps, horizons,
                                 settings, limits, out_dir / "rollouts" / f"{rec.sim_id}.h5", attrs, progress,
                                 init_snapshot)
@@ -352,7 +348,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
                      "conserve_volume": module.stability.conserve_volume,
                      "trained_stability": module.stability.to_dict()},
         "training_horizon_steps": norm.horizon_steps, "horizons": horizons, "rollout_steps": steps,
-        "conserve_solid_volume": options.conserve_volume, "stability": options.to_dict(),
+        RESULT_CONSERVE_KEY: stability.conserve_volume, "stability": stability.to_dict(),
         "init_snapshot": init_snapshot,
         "limits": vars(limits or DivergenceLimits()), "metric_settings": settings,
         "aggregate": aggregate(results), "trajectories": results,

@@ -52,7 +52,8 @@ from neuraldem.scenes.fluidized_bed.surrogate.datamodule import grid_input, mixi
 from neuraldem.scenes.fluidized_bed.surrogate.mirror import mirror_grid, mirror_points, mirror_vectors
 from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
 from neuraldem.scenes.fluidized_bed.surrogate.normalization import FbNormalizer
-from neuraldem.scenes.fluidized_bed.surrogate.options import FbStability, rollout_overrides
+from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
+from neuraldem.scenes.fluidized_bed.surrogate.options import FbStability, RolloutOptions
 from neuraldem.sim.foam_reader import BoxGrid
 
 if TYPE_CHECKING:
@@ -145,29 +146,26 @@ class Stepper(Protocol):
 class ModelStepper:
     """A trained FluidizedBedModule as a stepper, conditioned on one inlet velocity.
 
-    The step applies the checkpoint's stability options (`neuraldem.scenes.fluidized_bed.surrogate.options`), which
-    `mixing` and
-    `conserve_solid_volume` override (None = the checkpoint's): with volume conservation the predicted solid
-    fraction is clamped >= 0 and scaled to the solid volume of the first state it was given (the bed is closed:
-    CFD-DEM loses no particle), so the rollout holds it to round-off. A model trained without it and rolled
+    The step applies the checkpoint's stability options (`neuraldem.scenes.fluidized_bed.surrogate.options`), the
+    rollout options given in `options` in their place (`RolloutOptions`; None = the checkpoint's): with volume
+    conservation (`conserve_volume`) the predicted solid fraction is clamped >= 0 and scaled to the solid volume of
+    the first state it was given (the bed is closed: CFD-DEM loses no particle), so the rollout holds it to
+    round-off. A model trained without it and rolled
     out with it is a projection on top of the model: its drift is then 0 by construction and says nothing of
     the model's own conservation. A stochastic model draws its latent noise from this stepper's generator.
     With `mirror_alternate` every second step is taken in the mirror image of the bed, with `rollout_noise` the
     net reads a perturbed copy of each state (`FbStability`; both drawn from this stepper's generator)."""
 
     def __init__(self, module: FluidizedBedModule, velocity: float, seed: int = 0, device: str = "cpu",
-                 conserve_solid_volume: bool | None = None, mixing: str | None = None,
-                 advection_correction: float | None = None, advection_flux: str | None = None,
-                 mirror_alternate: bool | None = None, rollout_noise: float | None = None):
+                 options: RolloutOptions | None = None):
         base = getattr(module, "stability", None) or FbStability()
-        self.stability = rollout_overrides(base, mixing, conserve_solid_volume, advection_correction, advection_flux,
-                                           mirror_alternate, rollout_noise)
+        self.stability = (options or RolloutOptions()).apply(base)
         self.noise_std = perturbation_std(module, self.stability.rollout_noise, device)
         self.steps_taken = 0
         if self.stability.mixing == "advect" and not module.metadata.get("solids_flux", False):
-            raise ConfigError("config value mixing=advect needs a model trained with the solids flux "
-                              "(data.datamodule.solids_flux=true): use mixing=absolute for this checkpoint")
-        self.conserve_solid_volume = self.stability.conserve_volume
+            raise ConfigError("config value rollout.mixing=advect needs a model trained with the solids flux "
+                              "(data.datamodule.solids_flux=true): use rollout.mixing=absolute for this checkpoint")
+        self.conserve_volume = self.stability.conserve_volume
         self.solid_volume: float | None = None  # sum of the first state's solid fraction (cells are equal)
         self.net = module.net.to(device).eval()
         self.step_scales = getattr(module, "step_scales", None)  # a residual model's
@@ -218,7 +216,7 @@ class ModelStepper:
                       volume=volume, net_view=view)
         grid = np.moveaxis(nxt.grid[0].double().cpu().numpy(), 0, -1)
         solid_fraction = norm.field_back("solid_fraction", grid[..., 3:4])
-        if self.conserve_solid_volume:  # the step projected in float32: remove its round-off
+        if self.conserve_volume:  # the step projected in float32: remove its round-off
             total = float(np.sum(solid_fraction))
             if np.isfinite(total) and total > 0:  # a broken field is left for the divergence check
                 ratio = self.solid_volume / total
@@ -245,9 +243,9 @@ def perturbation_std(module: FluidizedBedModule, scale: float, device: str) -> d
         return None
     std = {name: getattr(module, f"step_error_{name}", None) for name in ("particles", "fluid", "mixing")}
     if any(s is None for s in std.values()) or not any(float(s.abs().sum()) > 0 for s in std.values()):
-        raise ConfigError(f"rollout_noise={scale:g} needs the model's running one-step error, which this checkpoint "
-                          "does not hold (trained without the running one-step error, or as a residual model): "
-                          "use rollout_noise=0")
+        raise ConfigError(f"rollout.rollout_noise={scale:g} needs the model's running one-step error, which this "
+                          "checkpoint does not hold (trained without the running one-step error, or as a residual "
+                          "model): use rollout.rollout_noise=0")
     return {name: scale * s.detach().float().to(device) for name, s in std.items()}
 
 
@@ -458,9 +456,7 @@ def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets
                 dataset_dir: Path | None = None, init: Path | None = None, init_sim: str | None = None,
                 init_snapshot: int = DEFAULT_INIT_SNAPSHOT, seed: int = 0, limits: DivergenceLimits | None = None,
                 particles_every: int = 10, vtk: bool = True, vtk_every: int = 10, device: str = "cpu",
-                progress: bool = True, conserve_solid_volume: bool | None = None,
-                mixing: str | None = None, mirror_alternate: bool | None = None,
-                rollout_noise: float | None = None, advection_correction: float | None = None) -> dict[str, Any]:
+                progress: bool = True, options: RolloutOptions | None = None) -> dict[str, Any]:
     """Load, roll out, write rollout.h5 (+ vtk/, rollout.json) into `out_dir`; return the summary."""
     checks.positive_int("steps", steps)
     limits = limits or DivergenceLimits()
@@ -474,16 +470,14 @@ def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets
         present = np.isfinite(f.positions(init_snapshot)).all(axis=1)
         volumes = f.particle_volumes[present]
         grid = f.grid
-    stepper = ModelStepper(module, velocity, seed, device, conserve_solid_volume, mixing,
-                           advection_correction=advection_correction, mirror_alternate=mirror_alternate,
-                           rollout_noise=rollout_noise)
+    stepper = ModelStepper(module, velocity, seed, device, options)
     r = rollout(stepper, state, steps, limits, particles_every, progress)
     summary = {
         "checkpoint": str(Path(ckpt).resolve()), "data_name": meta["data_name"], "inlet_velocity": float(velocity),
         "extrapolation": extrapolation, "trained_velocity_range": [norm.velocity_lo, norm.velocity_hi],
         "initial_state": f"{source} snapshot {init_snapshot}", "seed": seed, "max_packing": limits.max_packing,
         "tolerance": limits.tolerance, "dt": norm.dt, "training_horizon_steps": norm.horizon_steps,
-        "conserve_solid_volume": stepper.stability.conserve_volume, "mixing": stepper.stability.mixing,
+        RESULT_CONSERVE_KEY: stepper.stability.conserve_volume, "mixing": stepper.stability.mixing,
         "mirror_alternate": stepper.stability.mirror_alternate, "rollout_noise": stepper.stability.rollout_noise,
         "advection_correction": stepper.stability.advection_correction,
     }
@@ -500,31 +494,22 @@ def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets
 
 
 def rollout_command(cfg: DictConfig) -> bool:
-    """`neuraldem evaluate rollout ckpt=... velocity=... steps=...` for a bed checkpoint (conf/rollout.yaml);
-    False when the rollout diverged."""
+    """`neuraldem evaluate rollout ckpt=... velocity=... steps=...` for a bed checkpoint (conf/rollout.yaml, the
+    rollout options under `rollout.*`); False when the rollout diverged."""
     from neuraldem.eval.checkpoints import resolve_device
-    from neuraldem.scenes.fluidized_bed.surrogate.options import MIXING_MODES, check_rollout_value
 
     checks.required(cfg, "rollout", {"ckpt": "ckpt=<run>/checkpoints/last.ckpt", "velocity": "velocity=1.6"})
     checks.one_of("device", cfg.device, ("auto", "cpu", "cuda"))
     limits = DivergenceLimits(checks.number("max_packing", cfg.max_packing, lo=0.0, hi=1.0, lo_open=True),
                               checks.number("tolerance", cfg.tolerance, lo=0.0, hi=0.5))
+    options = RolloutOptions.from_config(cfg.get("rollout"))
     summary = run_rollout(
         Path(cfg.ckpt), checks.positive("velocity", cfg.velocity), checks.positive_int("steps", cfg.steps),
         out_dir=Path(cfg.paths.output_dir), datasets_dir=Path(cfg.paths.datasets_dir),
         dataset_dir=cfg.dataset_dir, init=cfg.init, init_sim=cfg.init_sim, init_snapshot=cfg.init_snapshot,
         seed=checks.positive_int("seed", cfg.seed, allow_zero=True), limits=limits,
         particles_every=cfg.particles_every, vtk=bool(cfg.vtk), vtk_every=cfg.vtk_every,
-        device=resolve_device(cfg.device), progress=bool(cfg.progress),
-        conserve_solid_volume=None if cfg.conserve_solid_volume is None else checks.boolean(
-            "conserve_solid_volume", cfg.conserve_solid_volume),
-        mixing=None if cfg.get("mixing") is None else checks.one_of("mixing", cfg.mixing, MIXING_MODES),
-        mirror_alternate=None if cfg.get("mirror_alternate") is None else checks.boolean(
-            "mirror_alternate", cfg.mirror_alternate),
-        rollout_noise=None if cfg.get("rollout_noise") is None else check_rollout_value(
-            "rollout_noise", cfg.rollout_noise),
-        advection_correction=None if cfg.get("advection_correction") is None else check_rollout_value(
-            "advection_correction", cfg.advection_correction))
+        device=resolve_device(cfg.device), progress=bool(cfg.progress), options=options)
     print(summary["message"])
     if summary["extrapolation"]:
         lo, hi = summary["trained_velocity_range"]
