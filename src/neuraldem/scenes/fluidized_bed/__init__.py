@@ -54,7 +54,7 @@ def evaluate_run(cfg: DictConfig, ckpt: Path) -> dict[str, Any]:
 
 def rollout(cfg: DictConfig) -> bool:
     """False when the rollout diverged (`neuraldem evaluate rollout` then exits 1)."""
-    from neuraldem.scenes.fluidized_bed.surrogate.rollout import rollout_command
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import rollout_command
 
     return rollout_command(cfg)
 

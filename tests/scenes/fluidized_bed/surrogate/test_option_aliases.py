@@ -19,7 +19,7 @@ from neuraldem.scenes.fluidized_bed.surrogate.options import (
     add_arguments,
     training_stability,
 )
-from neuraldem.scenes.fluidized_bed.surrogate.rollout import RolloutFile
+from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import RolloutFile
 from tests.helpers import REPO, run_module
 
 OLD_SPELLINGS = ("conserve_solid_volume", "--rollout-noise", "--mirror-alternate", "--advection-correction",

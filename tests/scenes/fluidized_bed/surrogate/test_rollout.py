@@ -25,12 +25,10 @@ from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
     ExtrapolationWarning,
     FbState,
     ModelStepper,
-    RolloutFile,
     initial_state,
-    load_fb_checkpoint,
     rollout,
-    run_rollout,
 )
+from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import RolloutFile, load_fb_checkpoint, run_rollout
 from tests.helpers import run_module
 
 pytestmark = pytest.mark.solver
@@ -198,12 +196,8 @@ def test_solid_volume_projection_holds_the_first_states_volume(fb_tiny_checkpoin
 def test_the_recipe_options_conserve_to_round_off_and_keep_mixing_bounded(fb_tiny_flux_checkpoint: Path,
                                                                        fb_tiny_dataset: Path):
     from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-    from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
-        ModelStepper,
-        initial_state,
-        load_fb_checkpoint,
-        rollout,
-    )
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, initial_state, rollout
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import load_fb_checkpoint
 
     module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
     assert module.stability.mixing == "advect" and module.stability.conserve_volume and module.net.noise_dim == 4
@@ -227,7 +221,8 @@ def test_a_projection_short_of_the_volume_is_named(fb_tiny_flux_checkpoint: Path
     projection fell short, and the rescale then moves capped cells past the cap: the step says so."""
     import neuraldem.scenes.fluidized_bed.surrogate.autoregressive as ar
     from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-    from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, initial_state, load_fb_checkpoint
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, initial_state
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import load_fb_checkpoint
 
     module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
     with FbFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:

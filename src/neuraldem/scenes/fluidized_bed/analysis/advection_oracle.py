@@ -87,9 +87,9 @@ def model_rows(ckpt: Path, paths: list[Path], settings: dict[str, Any], correcti
         DEFAULT_INIT_SNAPSHOT,
         ModelStepper,
         initial_state,
-        load_fb_checkpoint,
         rollout,
     )
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import load_fb_checkpoint
 
     module = load_fb_checkpoint(ckpt)
     block, min_count = tuple(settings["lacey_block"]), float(settings["lacey_min_count"])

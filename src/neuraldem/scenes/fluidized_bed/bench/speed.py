@@ -47,11 +47,10 @@ from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
     DivergenceLimits,
     FbState,
     ModelStepper,
-    check_grid,
     initial_state,
-    load_fb_checkpoint,
     rollout,
 )
+from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import check_grid, load_fb_checkpoint
 
 NAME = "fb_speed"
 SOLVER_THREADS = 1  # DPMFoam runs serially, as in datagen

@@ -55,7 +55,8 @@ from neuraldem.scenes.fluidized_bed.dataset.store import FbFile, write_fb_file
 from neuraldem.scenes.fluidized_bed.solver.runner import STATUS_OK, run_fluidized_bed
 from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
 from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
-from neuraldem.scenes.fluidized_bed.surrogate.rollout import initial_state, load_fb_checkpoint
+from neuraldem.scenes.fluidized_bed.surrogate.rollout import initial_state
+from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import load_fb_checkpoint
 
 NAME = "fb_speed_accuracy"
 QUANTITIES = {"solid_fraction_mean_rel_l2": "time-mean solid fraction [rel. L2]",

@@ -53,12 +53,10 @@ from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
     ModelStepper,
     Rollout,
     Stepper,
-    check_grid,
-    initial_file,
     initial_state,
-    load_fb_checkpoint,
     rollout,
 )
+from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import check_grid, initial_file, load_fb_checkpoint
 
 NAME = "fb_stability"
 DEFAULT_DRIFT_LIMIT_PCT = 5.0  # mass drift > 5 % is an unphysical state (docs/benchmarks.md, fb_stability)
