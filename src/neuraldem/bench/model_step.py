@@ -1,6 +1,6 @@
 """Milliseconds per training step (forward + backward) of model configs on this machine, per thread count.
 
-`python -m neuraldem.bench model_step [--configs ...] [--threads 1 2] [--repeats N]`
+`neuraldem bench model_step [configs=[...]] [threads=[1,2]] [repeats=N]`
 writes results/cluster/model_step.json.
 """
 
