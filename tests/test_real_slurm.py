@@ -81,7 +81,8 @@ def test_a_two_process_training_joined_by_slurm(slurm: None, hopper_tiny_dataset
     assert cpus and int(cpus[0]) >= 2, (f"the local Slurm node has {cpus} CPUs and this job needs 2: restart it "
                                         "with `bash scripts/local_slurm.sh start` (it counts the machine's cores)")
     cmd = [sys.executable, "-m", "neuraldem", "train", "-m", "hydra/launcher=slurm_ddp",
-           "hydra.launcher.partition=debug", "hydra.launcher.cpus_per_task=1", "hydra.launcher.mem_gb=1", "hydra.launcher.timeout_min=10",
+           "hydra.launcher.partition=debug", "hydra.launcher.cpus_per_task=1", "hydra.launcher.mem_gb=1",
+           "hydra.launcher.timeout_min=10",
            "experiment=hopper_quickstart", "trainer=ddp_cpu", "trainer.devices=2",
            "data.datamodule.batch_size=4", "trainer.max_steps=3", "trainer.val_check_interval=3",
            "evaluate=false", "callbacks.progress=null", "logger=none", "seed=0",
