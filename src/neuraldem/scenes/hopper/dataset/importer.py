@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
     for name in ("dt", "diameter", "radius", "outlet_radius", "resolution"):
         if not getattr(a, name) > 0:
-            raise ConfigError(f"--{name.replace('_', '-')} must be positive, got {getattr(a, name)}")
+            raise ConfigError(f"{name}= must be positive, got {getattr(a, name)}")
     params = parse_assignments(a.param, "param", "alpha=30")
     macro = parse_assignments(a.macro, "macro", "theta=24")
     sink_z = a.sink_z if a.sink_z is not None else -np.inf
