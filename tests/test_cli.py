@@ -111,3 +111,17 @@ def test_a_bare_choice_of_a_positional_is_the_commands_object(capsys):
     with pytest.raises(SystemExit):
         p.parse_args(["gns", "format=gns", "dataset=d"])
     assert "format= is given twice" in capsys.readouterr().err
+
+
+def test_help_shows_the_object_bare_and_a_subcommand_once(capsys):
+    p = CommandParser(prog="neuraldem export")
+    p.add_argument("format", choices=["gns", "lagrangebench"])
+    p.add_argument("--out", required=True)
+    with pytest.raises(SystemExit):
+        p.parse_args(["--help"])
+    assert capsys.readouterr().out.startswith("usage: neuraldem export gns|lagrangebench out=OUT\n")
+    q = CommandParser(prog="neuraldem export")
+    q.add_subparsers(dest="cmd").add_parser("pack").add_argument("dataset")
+    with pytest.raises(SystemExit):
+        q.parse_args(["pack", "--help"])
+    assert capsys.readouterr().out.startswith("usage: neuraldem export pack dataset=DATASET\n")

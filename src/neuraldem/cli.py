@@ -98,14 +98,21 @@ def value_text(action: argparse.Action) -> str:
     return f"[{name},...]" if many else str(name)
 
 
+def is_object(action: argparse.Action) -> bool:
+    """A positional with choices: the command's object, typed bare (`neuraldem export gns ...`)."""
+    return not action.option_strings and bool(action.choices) and not isinstance(action, argparse._SubParsersAction)
+
+
 class KeyValueFormatter(argparse.RawDescriptionHelpFormatter):
-    """Help that shows every option as `key=VALUE`."""
+    """Help that shows every option as `key=VALUE` (the command's object as its bare choices)."""
 
     def _format_action_invocation(self, action: argparse.Action) -> str:
         if isinstance(action, argparse._HelpAction):
             return "-h, --help"
         if isinstance(action, argparse._SubParsersAction):
             return super()._format_action_invocation(action)
+        if is_object(action):
+            return value_text(action)
         return f"{key_of(action)}={value_text(action)}"
 
     def _format_usage(self, usage: str | None, actions: Iterable[argparse.Action], groups: Any,
@@ -117,9 +124,9 @@ class KeyValueFormatter(argparse.RawDescriptionHelpFormatter):
             if isinstance(a, argparse._SubParsersAction):
                 parts.append("{" + ",".join(a.choices) + "} ...")
                 continue
-            item = f"{key_of(a)}={value_text(a)}"
+            item = value_text(a) if is_object(a) else f"{key_of(a)}={value_text(a)}"
             parts.append(item if a.required or not a.option_strings and a.nargs not in ("?", "*") else f"[{item}]")
-        return f"usage: {self._prog} {' '.join(parts)}\n\n"
+        return f"{'usage: ' if prefix is None else prefix}{self._prog} {' '.join(parts)}".rstrip() + "\n\n"
 
 
 class CommandParser(argparse.ArgumentParser):

@@ -320,7 +320,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     extra = scene_exports()
     if argv and argv[0] in extra:
-        sys.argv[0] = f"neuraldem export {argv[0]}"
+        sys.argv[0] = "neuraldem export"  # the scene's parser names its object (`pack`, `unpack`)
         return int(importlib.import_module(extra[argv[0]][0]).main(argv) or 0)
     a = parse_args(argv)
     meta = export_dataset(a.format, find_dataset(a.dataset), a.out, a.split, a.exits, a.radius_d,
