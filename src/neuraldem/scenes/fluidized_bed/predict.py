@@ -1,5 +1,5 @@
 """The fluidized bed's what-if: `neuraldem predict fluidized_bed inlet_velocity=1.8 [verify=true]` (the
-`neuraldem.predict` command parses and dispatches; this module answers and prints).
+`neuraldem predict` command (`neuraldem.predict`) parses and dispatches; this module answers and prints).
 
 Three answers (`scenes/fluidized_bed/whatif.py`: mean bed height, mean bubble fraction, Lacey index after 1 s,
 over the training trajectories' 3 s): from the scalar GP with its 95 % interval, in milliseconds; from a

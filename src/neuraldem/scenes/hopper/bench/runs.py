@@ -1,8 +1,8 @@
 """Evaluated hopper training runs as benchmark points: their errors (`<run>/evaluation/metrics.json`, written
-by `neuraldem.evaluate` or `train evaluate=true`), their size (from the checkpoint and the run's config) and
-their measured time to answer one trajectory.
+by `neuraldem evaluate` or `neuraldem train ... evaluate=true`), their size (from the checkpoint and the run's
+config) and their measured time to answer one trajectory.
 
-A run folder is a folder holding `checkpoints/` (what `neuraldem.train` makes). A run without its
+A run folder is a folder holding `checkpoints/` (what `neuraldem train` makes). A run without its
 evaluation is an error unless skipped on purpose: a chart silently missing a model would mislead.
 """
 
