@@ -103,7 +103,7 @@ def test_killed_array_resumes_keeping_finished_simulations(tmp_path: Path):
     done = {r.sim_id: stamp(tmp_path, r) for r in first}
     left = len(list((tmp_path / DATASET).glob("records/*.json")))  # finished by a task, not yet merged
 
-    again = run_module("neuraldem", "datagen", *cmd[3:], env={"NEURALDEM_DATA": str(tmp_path)})
+    again = run_module("neuraldem", "datagen", *cmd[4:], env={"NEURALDEM_DATA": str(tmp_path)})
     assert again.returncode == 0, again.stderr
     n = len(first) + left
     assert f"{n} finished, {3 - n} to run" in again.stdout + again.stderr
