@@ -1,5 +1,5 @@
-"""Does foamlib read what neuraldem's hand-written OpenFOAM reader reads? (issue 21: use a well-kept library
-where outputs stay identical.) Needs `pip install foamlib` (not a neuraldem dependency).
+"""Does foamlib read what neuraldem's hand-written OpenFOAM reader reads? (the rule: use a well-kept
+library where outputs stay identical.) Needs `pip install foamlib` (not a neuraldem dependency).
 
     python scripts/compare_foamlib.py CASE_DIR [--cloud kinematicCloud]
 

@@ -6,23 +6,24 @@
 #   [JOBS=N] [VARIANTS="full no_unroll"] bash scripts/fb_ablation.sh RUNS_DIR [hydra overrides...]
 # e.g. JOBS=2 VARIANTS="full noise" bash scripts/fb_ablation.sh $NEURALDEM_DATA/fb_ablation \
 #        trainer=cpu logger=csv trainer.max_steps=2000 trainer.val_check_interval=500
-# Variants of the issue-20 default (experiment=fb), one change left out each: full (the default), no_unroll
+# Variants of the default recipe (experiment=fb), one change left out each: full (the default), no_unroll
 # (one-step training only), fixed_noise (input noise 0.01 instead of the running one-step error), no_flux (no
 # solids-flux channels, mixing re-predicted absolutely), no_conserve (no volume projection), stochastic (+ latent
 # noise, CRPS over 2 members), no_ema (the training weights instead of their moving average), mirror (+ half the
 # training samples mirrored in x), continuity (+ the continuity loss on the predicted solids flux, weight 0.2),
-# long (16000 training steps, twice the default 8000), short (4000, stop 34's length and the shipped model's), mirror_alt (rollouts alternate with the mirror image,
+# long (16000 training steps, twice the default 8000), short (4000, the shipped fb_small model's length),
+# mirror_alt (rollouts alternate with the mirror image,
 # model.stability.mirror_alternate, in the run's rollout validation and evaluation too), mirror_both (mirrored
 # training samples + alternating rollouts), noise_sel (rollout noise 3, model.stability.rollout_noise, in the run's
 # rollout validation, so the checkpoint is chosen on noisy rollouts, and in its evaluation), noise_pooled (noise_sel
 # + that validation scored against every CFD-DEM run at the velocity, callbacks.rollout_validation.reference=pooled),
 # cond10 (the inlet velocity's sin-cos embedding at scale 10 instead of the positions' 1000,
-# model.net.scalar_coord_scale=10: nearby velocities get nearby conditioning; stop 43; experiment=fb's since stop
-# 44, so cond10 = full now), cond1000 (scale 1000: the full of stops 34 - 43).
-# The options before issue 20 (one-step training, absolute mixing, no projection,
+# model.net.scalar_coord_scale=10: nearby velocities get nearby conditioning; experiment=fb has it, so cond10 =
+# full), cond1000 (scale 1000, the positions' scale: the recipe as the shipped fb_small was trained).
+# The one-step options (one-step training, absolute mixing, no projection,
 # no flux channels): base (no noise), noise (input noise 0.01), grid_only (no particle branch), residual (the grid
 # branches predict the scaled change per step), grid_residual (both). Push-forward scored only at t + k (the old
-# `pf`) is refused since issue 20: it never trains the one-step map from data.
+# `pf`) is refused: it never trains the one-step map from data.
 # A variant may name a model config: "fb_base/full" trains model=fb_base (sizes side by side for
 # right-sizing: VARIANTS="fb_tiny/full fb_base/full fb_small/full").
 # A variant with rollout options after a + ("full+alt", "full+noise1", "full+alt+noise0.5") trains nothing: it
@@ -35,7 +36,7 @@
 # RUNS_DIR/<trained variant>/selection/, the winner copied to RUNS_DIR/<variant>/selected.ckpt), and scores that one:
 # "full+noise3+corr1+alt+sel"; SELECT_FROM (training step, default 0), SELECT_SEEDS (rollout seeds, default "0 1")
 # and LONG_VAL (datasets of long validation trajectories, e.g. $NEURALDEM_DATA/datasets/fb_small_longval) are
-# passed on as --from-step, --seeds and --long-val.
+# passed on to fb-select as its from_step, seeds and long_val.
 # Runs land in RUNS_DIR/<variant>/ (logs beside them), the table in RUNS_DIR/table.md (+ .json). A finished
 # training (RUNS_DIR/<variant>/.trained) is not repeated, a killed one goes on from its checkpoints/latest.ckpt
 # (ckpt_path=...) and a finished evaluation is skipped, so a killed sweep resumes.
@@ -51,7 +52,7 @@ JOBS=${JOBS:-2}
 VARIANTS=${VARIANTS:-"full no_unroll fixed_noise no_flux no_conserve stochastic noise"}
 runs=$1; shift
 mkdir -p "$runs"
-# the options before issue 20 (one-step training, no flux channels, absolute mixing, no projection)
+# the one-step options (one-step training, no flux channels, absolute mixing, no projection)
 OLD="model.stability.unroll=[1.0] model.stability.input_noise=0.0 model.stability.conserve_volume=false \
 model.stability.mixing=absolute data.datamodule.solids_flux=false callbacks.ema=null"
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
@@ -67,7 +68,7 @@ overrides() {
     grid_only) echo "data.datamodule.input_noise=0.01 model.net.particle_branch=false $OLD" ;;
     residual) echo "data.datamodule.input_noise=0.01 model.residual=true $OLD" ;;
     grid_residual) echo "data.datamodule.input_noise=0.01 model.residual=true model.net.particle_branch=false $OLD" ;;
-    # issue 20: the new default (experiment=fb) and one change left out at a time
+    # the default recipe (experiment=fb) and one change left out at a time
     full) echo "" ;;
     no_unroll) echo "model.stability.unroll=[1.0]" ;;
     fixed_noise) echo "model.stability.input_noise=0.01" ;;

@@ -1,4 +1,4 @@
-"""A bed model's predicted solids flux against CFD-DEM's, on held-out trajectories (issue 20 diagnostic).
+"""A bed model's predicted solids flux against CFD-DEM's, on held-out trajectories (a diagnostic of the mixing error).
 
     python scripts/fb_flux_diagnostic.py CKPT DATASET_DIR sim_0003 sim_0081 [--steps 200] [--out FILE.md]
 

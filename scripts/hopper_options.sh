@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Training options of the hopper field model, chosen by measurement (issue 19): each variant trains
+# Training options of the hopper field model, chosen by measurement (results/hopper/options/): each variant trains
 # experiment=hopper_micro on the same cross-validation fold(s) of hopper_small and is evaluated; the table puts
 # them beside the constant and the Gaussian process on the same held-out runs. Options are chosen by the
 # validation score (val/practitioner_score of the kept checkpoint), never by the test runs.

@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
-# The hopper checkpoints behind the speed-accuracy chart and right-sizing (issue 9, docs/benchmarks.md): the
+# The hopper checkpoints behind the speed-accuracy chart and right-sizing (docs/benchmarks.md): the
 # micro-conditioned field model at four sizes and SEEDS seeds (default "0 1"), trained and evaluated one after
 # another on one core, and the particle-based GNS baseline on the other core at the same time.
 #   bash scripts/hopper_sizes.sh OUT_DIR [hydra overrides for the field models...]
-# Field runs land in OUT_DIR/fields/<size>[_seed<N>]/ (evaluated: `bench speed_accuracy --runs OUT_DIR/fields`), the GNS
-# in OUT_DIR/gns/ (`--gns-ckpt OUT_DIR/gns/checkpoints/last.ckpt`); logs beside them. A field run whose folder
+# Field runs land in OUT_DIR/fields/<size>[_seed<N>]/ (evaluated: `neuraldem bench speed_accuracy runs=OUT_DIR/fields`), the GNS
+# in OUT_DIR/gns/ (`gns_ckpt=OUT_DIR/gns/checkpoints/last.ckpt`); logs beside them. A field run whose folder
 # holds evaluation/metrics.json, or a GNS with its last.ckpt, is skipped, so a killed sweep resumes.
 # FIELD_STEPS (default 2000) and GNS_STEPS (default 700) set the training steps; GNS=0 trains the field models
 # only; SIZES (default "hopper_tiny hopper_base hopper_base_tok32 hopper_small") picks the sizes.

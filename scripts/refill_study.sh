@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The refilling-hopper study (issue 10, results/refill/README.md): experiment=hopper_refill trained for each
+# The refilling-hopper study (results/refill/README.md): experiment=hopper_refill trained for each
 # variant of SIZES (default "hopper_tiny hopper_base"; hopper_tiny_tref = tiny also conditioned on t_ref, the
 # conditioning ablation), all at once (one core each), each evaluated after training on
 # the held-out runs (transport 5 s after t_ref = the last full window, outlet residence over a reset rollout),
@@ -9,7 +9,8 @@
 # Runs land in OUT_DIR/<size>/ (evaluation/, evaluation_h<H>/, evaluation_tref0/), logs beside them. A run whose folder holds
 # evaluation_tref0/metrics.json is skipped, so a killed study resumes; REEVALUATE=1 scores trained runs afresh
 # (every evaluation, with the current evaluation code) without retraining. STEPS (default: the experiment's 2000)
-# sets the training steps, SHORT (default "1 2") the short horizons. Needs the dataset: python -m neuraldem.datagen data=hopper_refill n_sims=16 workers=2
+# sets the training steps, SHORT (default "1 2") the short horizons. Needs the dataset:
+# neuraldem datagen data=hopper_refill n_sims=16 workers=2
 set -uo pipefail
 PY=${PYTHON:-python}
 out=$1; shift

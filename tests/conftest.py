@@ -120,8 +120,8 @@ def fb_tiny_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathF
 
 @pytest.fixture(scope="session")
 def fb_tiny_flux_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Like fb_tiny_checkpoint, with the issue-20 options: solids-flux channels, mixing advected by the predicted
-    flux, volume projection, unroll 1-2 steps, auto noise, and a stochastic net (2 CRPS members)."""
+    """Like fb_tiny_checkpoint, with the recipe's stability options: solids-flux channels, mixing advected by the
+    predicted flux, volume projection, unroll 1-2 steps, auto noise, and a stochastic net (2 CRPS members)."""
     from neuraldem.models.registry import net_config
     from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
     from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule

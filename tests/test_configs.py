@@ -68,8 +68,9 @@ def test_fb_model_options_are_overridable(override: str, compose_train_cfg):
 
 
 def test_the_bed_recipe_embeds_the_velocity_at_scale_10(compose_train_cfg):
-    """experiment=fb conditions on the inlet velocity at sin-cos scale 10 (stop 44: at the model config's 1000 one
-    net in two collapsed at one velocity between training ones); the old scale stays one override away."""
+    """experiment=fb conditions on the inlet velocity at sin-cos scale 10 (at the model config's 1000 one net in
+    two collapsed at one velocity between training ones, results/fluidized_bed/options/); the old scale stays one
+    override away."""
     assert compose_train_cfg("experiment=fb").model.net.scalar_coord_scale == 10.0
     assert compose_train_cfg("model=fb_tiny").model.net.scalar_coord_scale == 1000.0
     old = compose_train_cfg("experiment=fb", "model.net.scalar_coord_scale=1000")
@@ -104,7 +105,8 @@ def test_slurm_ddp_launcher_asks_for_gpus_only_on_gpus(trainer: str, gpus: int |
 
 
 def test_fb_averages_the_weights_unless_told_not_to(compose_train_cfg):
-    """experiment=fb trains with the EMA of the weights (chosen on validation rollouts, stop 34); null drops it."""
+    """experiment=fb trains with the EMA of the weights (chosen on validation rollouts,
+    results/fluidized_bed/options/ema_mirror_val.md); null drops it."""
     from neuraldem.config.build import build_callbacks
     from neuraldem.lit.ema import Ema
 

@@ -31,7 +31,7 @@ def test_each_variant_is_one_training_command(tmp_path: Path):
     noise, base, grid, no_flux, stochastic, no_ema, mirror, continuity, long, short = train
     assert "model.net.particle_branch=false" in grid and "model.net.particle_branch=false" not in base
     assert "data.datamodule.input_noise=0.01" in noise and "model.stability.unroll=[1.0]" in noise
-    assert "model.stability.mixing=absolute" in noise and "callbacks.ema=null" in noise  # before issue 20
+    assert "model.stability.mixing=absolute" in noise and "callbacks.ema=null" in noise  # the one-step options
     assert not any(a.startswith("model=") for a in noise)
     assert f"hydra.run.dir={tmp_path / 'runs' / 'noise'}" in noise and "trainer.max_steps=7" in noise
     assert "model=fb_base" in base and not any(a.startswith(("model.stability", "data.datamodule")) for a in base)

@@ -1,4 +1,4 @@
-"""Bad inputs end in one line that names the file or key and the fix, and change nothing else (issue 22).
+"""Bad inputs end in one line that names the file or key and the fix, and change nothing else.
 
 Each case damages a copy of a real tiny dataset (or writes a bad solver file, or sets a bad config value),
 runs what a user runs on it (a dataset reader, the manifest, the dump reader, config composition), and

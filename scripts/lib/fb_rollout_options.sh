@@ -1,6 +1,6 @@
 # shellcheck shell=bash
 # The rollout-option words of the bed's scripts (fb_ablation.sh variants "full+noise3+corr1+alt+sel",
-# fb_issue20.sh OPTIONS) and what each becomes, in one table: an evaluate override, a flag of the tools that
+# fb_recipe_eval.sh OPTIONS) and what each becomes, in one table: an evaluate override, a flag of the tools that
 # choose and map a net (fb-select, fb_stability), or a flag of fb_speed (which times the net's steps and takes no
 # mixing option). Sourced, so every script spells an option the same way.
 #   rollout_options "full+alt+noise1" [overrides|flags|speed]

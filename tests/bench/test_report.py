@@ -2,13 +2,30 @@ import json
 
 import pytest
 
-from neuraldem.bench.report import command_line, default_path, machine_info, read_results, warn_if_busy, write_results
+from neuraldem.bench.report import (
+    RESULT_FOLDERS,
+    command_line,
+    default_path,
+    machine_info,
+    read_results,
+    warn_if_busy,
+    write_results,
+)
 from neuraldem.errors import DataError
 from neuraldem.paths import results_dir
 
 
-def test_default_location_is_results_bench():
+def test_an_unlisted_benchmark_writes_to_results_bench():
     assert default_path("x") == results_dir() / "bench" / "x.json"
+
+
+def test_every_benchmark_writes_into_the_folder_of_its_question():
+    from neuraldem.bench.__main__ import BENCHMARKS
+
+    assert (set(BENCHMARKS) - {"all", "render"}) | {"serve_latency_fb"} == set(RESULT_FOLDERS)
+    for name, folder in RESULT_FOLDERS.items():
+        assert default_path(name) == results_dir() / folder / f"{name}.json"
+        assert default_path(name).parent.is_dir(), f"{name}: results/{folder}/ is not in the checkout"
 
 
 def test_write_results(tmp_path):

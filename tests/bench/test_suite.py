@@ -10,7 +10,7 @@ import pytest
 
 from neuraldem.bench import suite
 from neuraldem.bench.__main__ import main as bench_main
-from neuraldem.bench.report import write_results
+from neuraldem.bench.report import default_path, write_results
 from neuraldem.bench.suite import plan
 from neuraldem.errors import ConfigError
 from neuraldem.scenes.hopper.bench import scaling as hopper_scaling
@@ -23,6 +23,16 @@ def test_plan_measures_everything_by_default(tmp_path: Path):
     assert "--reuse-dataset" not in steps["hopper_speed"] and "--skip-solver" not in steps["speed_accuracy"]
     assert steps["right_sizing"][:2] == ["--from", str(tmp_path / "speed_accuracy.json")]
     assert steps["hopper_speed"][steps["hopper_speed"].index("--repeats") + 1] == "5"
+
+
+def test_plan_without_out_dir_writes_each_file_into_the_folder_of_its_question():
+    steps = dict(plan([Path("/runs")], Path("/c.ckpt"), None, None, no_solver=False, repeats=1, threads=1,
+                      fb_ckpts=[Path("/fb.ckpt")]))
+    for name in ("hopper_speed", "hopper_scaling", "speed_accuracy", "right_sizing", "hopper_stability", "fb_speed",
+                 "fb_stability"):
+        assert steps[name][-1] == str(default_path(name))
+    assert steps["right_sizing"][:2] == ["--from", str(default_path("speed_accuracy"))]
+    assert "hopper/speed" in steps["hopper_speed"][-1] and "fluidized_bed/stability" in steps["fb_stability"][-1]
 
 
 def test_plan_without_solver_reuses_what_exists(tmp_path: Path):

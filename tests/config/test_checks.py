@@ -50,3 +50,8 @@ def test_required_keys_name_themselves_and_an_example():
     with pytest.raises(ConfigError, match=r"ckpt is required: python -m neuraldem.evaluate ckpt=X"):
         checks.required(cfg, "evaluate", {"ckpt": "ckpt=X", "velocity": "velocity=1.6"})
     checks.required(OmegaConf.create({"ckpt": "a.ckpt"}), "evaluate", {"ckpt": "ckpt=X"})  # present: no error
+
+
+def test_is_multiple_tolerates_float_rounding_only():
+    assert checks.is_multiple(0.01, 1e-4) and checks.is_multiple(0.2, 0.01) and checks.is_multiple(0.3, 0.1)
+    assert not checks.is_multiple(0.00015, 1e-4) and not checks.is_multiple(0.015, 0.01)

@@ -1,4 +1,4 @@
-"""One writer per dataset, and files read only as the manifest recorded them (issue 22)."""
+"""One writer per dataset, and files read only as the manifest recorded them."""
 
 from __future__ import annotations
 

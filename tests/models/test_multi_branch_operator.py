@@ -160,10 +160,10 @@ def test_overfits_a_tiny_batch():
 
 
 def test_the_scalar_embedding_scale_sets_how_fast_the_conditioning_turns():
-    """With the positions' coord_scale (1000, the default: every bed net trained before stop 43) the inlet
-    velocity's embedding moves between two velocities 0.002 of the range apart about as far as between two 0.1
-    apart, so a net can answer one unseen velocity unlike its neighbours; scalar_coord_scale=10 keeps nearby
-    velocities nearby. An old net's config (no scalar_coord_scale) builds the same net as before."""
+    """With the positions' coord_scale (1000, the default, and the velocity embedding scale of bed nets trained with
+    1000) the inlet velocity's embedding moves between two velocities 0.002 of the range apart about as far as
+    between two 0.1 apart, so a net can answer one unseen velocity unlike its neighbours; scalar_coord_scale=10
+    keeps nearby velocities nearby. An old net's config (no scalar_coord_scale) builds the same net as before."""
     def turn(net: MultiBranchOperator) -> float:
         e = net.conditioner.embeds[0](torch.tensor([[0.860], [0.862], [0.960]]))
         return float((e[0] - e[1]).norm() / (e[0] - e[2]).norm())

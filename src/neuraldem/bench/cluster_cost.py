@@ -1,8 +1,8 @@
 """What a paper-scale dataset costs on a cluster, from measured solver rates (docs/cluster.md).
 
-`python -m neuraldem.bench cluster_cost [--hopper-scaling results/bench/hopper_scaling.json]
-[--fb-speed results/bench/fb_speed.json] [--hopper-dataset DIR] [--particles 5000 50000 250000]
-[--hopper-runs 1000] [--bed-trajectories 100] [--out results/bench/cluster_cost.json]`
+`python -m neuraldem.bench cluster_cost [--hopper-scaling results/hopper/speed/hopper_scaling.json]
+[--fb-speed results/fluidized_bed/speed/fb_speed.json] [--hopper-dataset DIR] [--particles 5000 50000 250000]
+[--hopper-runs 1000] [--bed-trajectories 100] [--out results/cluster/cluster_cost.json]`
 
 Nothing is re-run here: the figures come from two benchmarks' result files, each measured on one core.
 - Hopper: `hopper_scaling` measured LIGGGHTS at 2k .. 50k particles (settle seconds, drain particle-steps per

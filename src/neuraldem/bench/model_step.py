@@ -1,7 +1,7 @@
 """Milliseconds per training step (forward + backward) of model configs on this machine, per thread count.
 
 `python -m neuraldem.bench model_step [--configs ...] [--threads 1 2] [--repeats N]`
-writes results/bench/model_step.json.
+writes results/cluster/model_step.json.
 """
 
 from __future__ import annotations
@@ -105,7 +105,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--batch-size", type=int, default=Workload.batch_size)
     parser.add_argument("--n-queries", type=int, default=Workload.n_queries, help="hopper: points per sample")
     parser.add_argument("--n-particles", type=int, default=Workload.n_particles, help="operator: per sample")
-    parser.add_argument("--out", type=Path, default=None, help="default: results/bench/model_step.json")
+    parser.add_argument("--out", type=Path, default=None, help="default: results/cluster/model_step.json")
     args = parser.parse_args(argv)
     workload = Workload(checks.positive_int("batch_size", args.batch_size),
                         checks.positive_int("n_queries", args.n_queries),

@@ -124,7 +124,7 @@ def _finite(v: Any) -> bool:
 
 def fb_speed_figure(results: dict[str, Any], path: Path) -> Path:
     """Left: seconds per simulated second (wall and CPU, log scale) of DPMFoam and of the surrogate at each
-    thread setting. Right: the speed-ups solver / surrogate of every pairing, with the issue's target."""
+    thread setting. Right: the speed-ups solver / surrogate of every pairing, with the target (>= 100x)."""
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.6), gridspec_kw={"width_ratios": [1, 1.3]})
     entries = [(label, s) for label, s in results["solver"].items()]
     entries += [(f"surrogate, {t} thread(s)", s) for t, s in results["surrogate"].items()]

@@ -14,14 +14,27 @@ from neuraldem.errors import ConfigError, DataError
 from neuraldem.machine import machine_info
 from neuraldem.paths import portable, results_dir
 
+# Where each benchmark writes by default: the folder of results/ that answers its question (results/README.md is
+# the index). A name not listed here goes to results/bench/.
+RESULT_FOLDERS = {
+    "hopper_speed": "hopper/speed", "hopper_scaling": "hopper/speed", "seed_floor": "hopper/accuracy",
+    "hopper_stability": "hopper/stability", "whatif": "hopper/whatif",
+    "fb_speed": "fluidized_bed/speed", "fb_stability": "fluidized_bed/stability",
+    "gns_stability": "fluidized_bed/stability", "whatif_fb": "fluidized_bed/whatif",
+    "speed_accuracy": "speed_accuracy", "right_sizing": "speed_accuracy", "fb_speed_accuracy": "speed_accuracy",
+    "serve_latency": "explorer", "serve_latency_fb": "explorer",
+    "cluster_cost": "cluster", "model_step": "cluster",
+}
+
 
 def default_path(name: str) -> Path:
-    return results_dir() / "bench" / f"{name}.json"
+    """results/<question>/NAME.json (RESULT_FOLDERS), results/bench/NAME.json for a benchmark not listed there."""
+    return results_dir() / RESULT_FOLDERS.get(name, "bench") / f"{name}.json"
 
 
 def write_results(name: str, results: Any, *, command: str, path: Path | None = None,
                   machine: dict[str, Any] | None = None) -> Path:
-    """Write `{benchmark, date, command, machine, results}` to `path` (default results/bench/NAME.json).
+    """Write `{benchmark, date, command, machine, results}` to `path` (default `default_path(name)`).
 
     Pass `machine` taken before a long run so its load average describes the conditions during the run.
     Written atomically: a benchmark killed while writing leaves the previous results intact."""
@@ -49,7 +62,7 @@ def write_report(name: str, results: Any, markdown: str, *, command: str, path: 
 
 def resolve_out(out: Path | None, name: str) -> Path:
     """Where benchmark `name` writes its JSON: `--out` as a .json file, or a folder (existing, or named without
-    a suffix) to hold NAME.json; default results/bench/NAME.json. Figures and tables go beside the JSON."""
+    a suffix) to hold NAME.json; default `default_path(name)`. Figures and tables go beside the JSON."""
     if out is None:
         return default_path(name)
     out = Path(out)
@@ -57,7 +70,7 @@ def resolve_out(out: Path | None, name: str) -> Path:
         return out / f"{name}.json"
     if out.suffix != ".json":
         raise ConfigError(f"--out={out} is invalid: pass a .json file or a folder (figures are written beside the "
-                          f"JSON), e.g. --out results/bench/{name}.json")
+                          f"JSON), e.g. --out {portable(str(default_path(name)))}")
     return out
 
 

@@ -1,8 +1,8 @@
 """Right-sizing: the smallest model within 10 % of the best accuracy, for each scene, with its speed.
 
-`python -m neuraldem.bench right_sizing (--runs DIR... | --from results/bench/speed_accuracy.json)
+`python -m neuraldem.bench right_sizing (--runs DIR... | --from results/speed_accuracy/speed_accuracy.json)
 [--metric drainage_t95_pct_of_mean|drainage_mae_pct_of_mean|residual_mae_pp|outflow_rel_err_pct|all]
-[--tolerance 0.10]` writes results/bench/right_sizing.json and .md. Candidates are the field models and, from a
+[--tolerance 0.10]` writes results/speed_accuracy/right_sizing.json and .md. Candidates are the field models and, from a
 speed_accuracy.json made with `--cv`, the scalar baselines (constant, Gaussian process).
 
 Runs are compared only with runs that answer the same task: the same dataset, split and conditioning. Runs
@@ -163,7 +163,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--skip-unevaluated", action="store_true")
     p.add_argument("--repeats", type=int, default=3, help="timed answers per run (median), with --runs")
     p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--out", type=Path, default=None, help=f"default results/bench/{NAME}.json (+ .md)")
+    p.add_argument("--out", type=Path, default=None, help=f"default results/speed_accuracy/{NAME}.json (+ .md)")
     a = p.parse_args(argv)
     checks.positive_int("repeats", a.repeats)
     checks.positive_int("threads", a.threads)

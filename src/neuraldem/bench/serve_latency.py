@@ -12,7 +12,7 @@ event to
 - fields: the particle view redrawn by Plotly with the new point (`plotly_afterplot`);
 - painted: two animation frames after that (headless Chromium has no GPU: SwiftShader draws WebGL on the CPU).
 The first --warmup moves (Plotly's first WebGL draws) are not counted. The server's own time for each frame
-(the field model at one time) is read from the page. Writes results/bench/serve_latency.json and .md, and the
+(the field model at one time) is read from the page. Writes results/explorer/serve_latency.json and .md, and the
 page as a new visitor sees it as serve_latency.png (the screenshot docs/explorer.md shows).
 
     python -m neuraldem.bench serve_latency --page bed --moves 20
@@ -23,7 +23,7 @@ velocities not seen before), --pause seconds apart, timed as above to the number
 figure redrawn for the new velocity. A rollout takes seconds, so what that figure shows within the time
 measured is the nearest ready rollout (a lattice one), not the exact velocity's: each move records the
 velocity shown and its distance from the slider's. Last, the time from the slider resting to the exact
-rollout's numbers on the page. Writes results/bench/serve_latency_fb.json, .md and .png.
+rollout's numbers on the page. Writes results/explorer/serve_latency_fb.json, .md and .png.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.errors import ConfigError
 from neuraldem.machine import machine_info
 
-TARGETS_MS = {"numbers_ms": 100.0, "fields_ms": 300.0}  # issue 24: numbers <= 100 ms, fields <= 300 ms
+TARGETS_MS = {"numbers_ms": 100.0, "fields_ms": 300.0}  # the targets: numbers <= 100 ms, fields <= 300 ms
 
 
 def parse_point(text: str) -> dict[str, float]:
@@ -111,22 +111,30 @@ def row(name: str, stats: dict[str, Any], key: str) -> str:
     return f"| {name} | {v['n']} | {v['median']:.0f}{verdict} | {v['p90']:.0f} | {v['max']:.0f} |"
 
 
+def head(title: str, result: dict[str, Any]) -> list[str]:
+    """A latency report's title, how it was measured (command, browser, load) and the table's header."""
+    load = (result["machine"].get("load_average_1_5_15min") or [float("nan")])[0]
+    return [f"# {title} (model {result['model']})", "",
+            f"`{result['command']}`; headless {result['browser']}; 1-minute load average {load:.2f} on "
+            f"{result['machine'].get('cpu_count')} CPUs when it began.", "",
+            "| move -> update | moves | median [ms] | p90 [ms] | max [ms] |", "|---|---|---|---|---|"]
+
+
+def targets() -> str:
+    return (f"Targets: numbers <= {TARGETS_MS['numbers_ms']:.0f} ms, fields <= "
+            f"{TARGETS_MS['fields_ms']:.0f} ms (medians).")
+
+
 def markdown(result: dict[str, Any]) -> str:
     s, ts = result["summary"]["parameter_moves"], result["summary"]["time_moves"]
-
-    load = (result["machine"].get("load_average_1_5_15min") or [float("nan")])[0]
-    lines = [f"# Explorer latency: slider move to updated page (model {result['model']})", "",
-             f"`{result['command']}`; headless {result['browser']}; 1-minute load average {load:.2f} on "
-             f"{result['machine'].get('cpu_count')} CPUs when it began.", "",
-             "| move -> update | moves | median [ms] | p90 [ms] | max [ms] |", "|---|---|---|---|---|",
+    lines = [*head("Explorer latency: slider move to updated page", result),
              row("parameter slider -> numbers (DOM)", s, "numbers_ms"),
              row("parameter slider -> particles redrawn (plotly_afterplot)", s, "fields_ms"),
              row("parameter slider -> particles painted", s, "painted_ms"),
              row("(server: the frame's field model, in the above)", s, "server_frame_ms"),
              row("time slider -> particles redrawn", ts, "fields_ms"),
              row("time slider -> particles painted", ts, "painted_ms"), "",
-             f"Targets (issue 24): numbers <= {TARGETS_MS['numbers_ms']:.0f} ms, fields <= "
-             f"{TARGETS_MS['fields_ms']:.0f} ms (medians). Each parameter move is one slider step to a point not "
+             f"{targets()} Each parameter move is one slider step to a point not "
              f"seen before (no cache hit), {result['pause_s']:g} s apart; {result['warmup']} warm-up moves not "
              "counted. 'Painted' adds the browser's WebGL draw: without a GPU, Chromium draws it with "
              "SwiftShader on the same CPUs as the server."]
@@ -155,17 +163,12 @@ def bed_markdown(result: dict[str, Any]) -> str:
 
     moves = result["moves"]
     off = [m["shown_off_m_s"] for m in moves]
-    load = (result["machine"].get("load_average_1_5_15min") or [float("nan")])[0]
     return "\n".join([
-        f"# Explorer latency, bed page: velocity slider move to updated page (model {result['model']})", "",
-        f"`{result['command']}`; headless {result['browser']}; 1-minute load average {load:.2f} on "
-        f"{result['machine'].get('cpu_count')} CPUs when it began.", "",
-        "| move -> update | moves | median [ms] | p90 [ms] | max [ms] |", "|---|---|---|---|---|",
+        *head("Explorer latency, bed page: velocity slider move to updated page", result),
         row("velocity slider -> numbers (GP, DOM)", s, "numbers_ms"),
         row("velocity slider -> fields redrawn (nearest ready rollout, plotly_afterplot)", s, "fields_ms"),
         row("velocity slider -> fields painted", s, "painted_ms"), "",
-        f"Targets (issue 24): numbers <= {TARGETS_MS['numbers_ms']:.0f} ms, fields <= "
-        f"{TARGETS_MS['fields_ms']:.0f} ms (medians). What the fields figure shows within that time is the "
+        f"{targets()} What the fields figure shows within that time is the "
         f"nearest rollout already computed, labelled with its velocity, not a rollout at the new velocity: "
         f"over these moves it was {statistics.median(off):.3f} m/s (median; at most {max(off):.3f}) from the "
         f"slider's ({sum(m['shown_exact'] for m in moves)} of {len(moves)} exact). The lattice of "
@@ -225,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--time-steps", type=int, default=10, help="time slider moves counted")
     p.add_argument("--warmup", type=int, default=3, help="moves before counting (first WebGL draws)")
     p.add_argument("--pause", type=float, default=1.0, help="seconds between moves")
-    p.add_argument("--out", type=Path, default=None, help="results JSON (default results/bench/serve_latency.json, "
+    p.add_argument("--out", type=Path, default=None, help="results JSON (default results/explorer/serve_latency.json, "
                                                                 "serve_latency_fb.json for --page bed)")
     args = p.parse_args(argv)
     if chromium_paths() is None:

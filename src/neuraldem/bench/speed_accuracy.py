@@ -1,7 +1,7 @@
 """The speed-accuracy chart: time to answer one trajectory against the error of what a practitioner asks.
 
 `python -m neuraldem.bench speed_accuracy --runs DIR... [--solver-variants same:1 fewer:0.5 ...]
-[--solver-sims 3] [--reuse-solver FILE] [--skip-solver]` writes results/bench/speed_accuracy.json, .png, .md.
+[--solver-sims 3] [--reuse-solver FILE] [--skip-solver]` writes results/speed_accuracy/speed_accuracy.json, .png, .md.
 
 Points: every evaluated surrogate run under the folders (errors from its evaluation/metrics.json, time to
 answer measured here), LIGGGHTS at cheaper settings scored against the dataset's reference runs of the
@@ -186,7 +186,7 @@ def main(argv: list[str]) -> int:
                    help="GNS checkpoints of the same scene (experiment=gns_hopper): rolled out as chart points")
     p.add_argument("--gns-sims", type=int, default=3, help="test simulations each GNS is rolled out on")
     p.add_argument("--workdir", type=Path, default=None, help=f"solver runs (default <data dir>/bench/{NAME})")
-    p.add_argument("--out", type=Path, default=None, help=f"default results/bench/{NAME}.json (+ .png, .md)")
+    p.add_argument("--out", type=Path, default=None, help=f"default results/speed_accuracy/{NAME}.json (+ .png, .md)")
     a = p.parse_args(argv)
     checks.positive_int("repeats", a.repeats)
     checks.positive_int("threads", a.threads)

@@ -3,7 +3,7 @@ the stored runs.
 
 `python -m neuraldem.bench hopper_stability --ckpt FIELD_CKPT [...] [--gns-ckpt GNS_CKPT ...] [--labels ...]
 [--sims 4] [--mu-s 0.05 0.5 1.0 1.5 2.0] [--gns-steps N] [--limit-pct 5] [--dataset DIR] [--out PATH]`
-writes results/bench/hopper_stability.json, .png and .md.
+writes results/hopper/stability/hopper_stability.json, .png and .md.
 
 Cells: `--sims` stored test runs spread over the cone angle alpha (their geometry, packing, mu_r and alpha),
 each asked at every `--mu-s` (the trained range is the dataset's; values outside it are extrapolation).
@@ -233,7 +233,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--gns-steps", type=int, default=None, help="GNS steps per rollout (default: the whole run)")
     p.add_argument("--limit-pct", type=float, default=DEFAULT_LIMIT_PCT, help="tolerance of every check [%%]")
     p.add_argument("--dataset", type=Path, default=None, help="dataset dir (default: the checkpoint's)")
-    p.add_argument("--out", type=Path, default=None, help=f"default results/bench/{NAME}.json (+ .png)")
+    p.add_argument("--out", type=Path, default=None, help=f"default results/hopper/stability/{NAME}.json (+ .png)")
     a = p.parse_args(argv)
     for c in [*a.ckpt, *a.gns_ckpt]:
         if not Path(c).is_file():

@@ -8,10 +8,12 @@ DPMFoam) and fb_stability (every --fb-ckpt, one series each) (with --fb-ckpt), g
 velocities and steps (with --gns-fb-ckpt; both maps then also go into one figure, stability_map.png), then
 fb_speed_accuracy (with --fb-runs); each also runs on its own. With --no-solver nothing runs LIGGGHTS or
 DPMFoam: solver costs come from the dataset manifests and the solver parts of earlier results in --out-dir
-(where there are none, the chart has no solver points).
+(where there are none, the chart has no solver points). Without --out-dir each file goes to its own folder of
+results/ (results/hopper/speed/, results/fluidized_bed/stability/, ...: `report.RESULT_FOLDERS`).
 
 `python -m neuraldem.bench render [--out-dir DIR]` redraws every figure and table from the JSON files in
---out-dir, measuring nothing (e.g. after a change of the plotting code).
+--out-dir (default: each benchmark's own folder of results/), measuring nothing (e.g. after a change of the
+plotting code).
 """
 
 from __future__ import annotations
@@ -19,17 +21,19 @@ from __future__ import annotations
 from pathlib import Path
 
 from neuraldem.bench import plots
-from neuraldem.bench.report import read_results
+from neuraldem.bench.report import default_path, read_results
 from neuraldem.cli import command_parser
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.paths import results_dir
 
 
-def default_out_dir() -> Path:
-    return results_dir() / "bench"
+def _json(out_dir: Path | None, name: str) -> Path:
+    """Where benchmark `name` writes: `out_dir`/NAME.json, or without --out-dir its own folder of results/
+    (`report.default_path`: results/hopper/speed/, results/fluidized_bed/stability/, ...)."""
+    return out_dir / f"{name}.json" if out_dir is not None else default_path(name)
 
 
-def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_dir: Path, no_solver: bool,
+def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_dir: Path | None, no_solver: bool,
          repeats: int, threads: int, skip_unevaluated: bool = False, fb_ckpts: list[Path] | None = None,
          fb_dataset: Path | None = None, fb_labels: list[str] | None = None,
          fb_runs: list[Path] | None = None, gns_fb_ckpts: list[Path] | None = None,
@@ -51,51 +55,51 @@ def plan(runs: list[Path] | None, ckpt: Path | None, dataset: Path | None, out_d
     if fb_ckpts:
         # fb_speed times the surrogate on 1 thread and on every core by itself; --threads is the hopper's
         speed = ["--ckpt", str(fb_ckpts[0]), *fb_data, "--repeats", str(repeats), "--out",
-                 str(out_dir / "fb_speed.json")]
+                 str(_json(out_dir, "fb_speed"))]
         if no_solver:
             speed.append("--reuse-dataset")
         if fb_labels and len(fb_labels) != len(fb_ckpts):
             raise ConfigError(f"--fb-labels: {len(fb_labels)} label(s) for {len(fb_ckpts)} --fb-ckpt checkpoint(s): "
                               "give one label per checkpoint, or none (the run folder names are used)")
         labels = ["--labels", *fb_labels] if fb_labels else []
-        stability = ["--ckpt", *map(str, fb_ckpts), *labels, *fb_data, "--out", str(out_dir / "fb_stability.json")]
+        stability = ["--ckpt", *map(str, fb_ckpts), *labels, *fb_data, "--out", str(_json(out_dir, "fb_stability"))]
         steps += [("fb_speed", speed), ("fb_stability", stability)]
     if gns_fb_ckpts:
         if not fb_ckpts:
             raise ConfigError("--gns-fb-ckpt shares the velocities and steps of the field surrogates' stability map: "
                               "give --fb-ckpt too")
         steps.append(("gns_stability", ["--ckpt", *map(str, gns_fb_ckpts), *fb_data, "--like",
-                                        str(out_dir / "fb_stability.json"), "--out",
-                                        str(out_dir / "gns_stability.json")]))
+                                        str(_json(out_dir, "fb_stability")), "--out",
+                                        str(_json(out_dir, "gns_stability"))]))
     if fb_runs:
         chart = ["--runs", *map(str, fb_runs), *fb_data, "--repeats", str(repeats), "--out",
-                 str(out_dir / "fb_speed_accuracy.json")]
+                 str(_json(out_dir, "fb_speed_accuracy"))]
         if no_solver:
-            chart += _reuse_or_skip(out_dir / "fb_speed_accuracy.json")
+            chart += _reuse_or_skip(_json(out_dir, "fb_speed_accuracy"))
         steps.append(("fb_speed_accuracy", chart))
     return steps
 
 
-def _hopper_plan(runs: list[Path], ckpt: Path, dataset: Path | None, out_dir: Path, no_solver: bool,
+def _hopper_plan(runs: list[Path], ckpt: Path, dataset: Path | None, out_dir: Path | None, no_solver: bool,
                  repeats: int, threads: int, skip_unevaluated: bool,
                  gns_ckpts: list[Path]) -> list[tuple[str, list[str]]]:
     common = ["--repeats", str(repeats), "--threads", str(threads)]
     data = ["--dataset", str(dataset)] if dataset else []
     runs_args = ["--runs", *map(str, runs)]
-    speed = ["--ckpt", str(ckpt), *data, *common, "--out", str(out_dir / "hopper_speed.json")]
-    scaling = ["--ckpt", str(ckpt), *data, *common, "--out", str(out_dir / "hopper_scaling.json")]
-    accuracy = [*runs_args, *data, *common, "--out", str(out_dir / "speed_accuracy.json")]
+    speed = ["--ckpt", str(ckpt), *data, *common, "--out", str(_json(out_dir, "hopper_speed"))]
+    scaling = ["--ckpt", str(ckpt), *data, *common, "--out", str(_json(out_dir, "hopper_scaling"))]
+    accuracy = [*runs_args, *data, *common, "--out", str(_json(out_dir, "speed_accuracy"))]
     if skip_unevaluated:
         accuracy.append("--skip-unevaluated")
     if gns_ckpts:
         accuracy += ["--gns-ckpt", *map(str, gns_ckpts)]
     if no_solver:
         speed.append("--reuse-dataset")
-        scaling += _reuse_or_skip(out_dir / "hopper_scaling.json")
-        accuracy += _reuse_or_skip(out_dir / "speed_accuracy.json")
-    sizing = ["--from", str(out_dir / "speed_accuracy.json"), "--metric", "all", "--out",
-              str(out_dir / "right_sizing.json")]
-    stability = ["--ckpt", str(ckpt), *data, "--out", str(out_dir / "hopper_stability.json")]
+        scaling += _reuse_or_skip(_json(out_dir, "hopper_scaling"))
+        accuracy += _reuse_or_skip(_json(out_dir, "speed_accuracy"))
+    sizing = ["--from", str(_json(out_dir, "speed_accuracy")), "--metric", "all", "--out",
+              str(_json(out_dir, "right_sizing"))]
+    stability = ["--ckpt", str(ckpt), *data, "--out", str(_json(out_dir, "hopper_stability"))]
     if gns_ckpts:
         stability += ["--gns-ckpt", *map(str, gns_ckpts)]
     return [("hopper_speed", speed), ("hopper_scaling", scaling), ("speed_accuracy", accuracy),
@@ -128,9 +132,10 @@ def run_all(argv: list[str]) -> int:
     p.add_argument("--skip-unevaluated", action="store_true", help="leave out runs without evaluation/metrics.json")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--out-dir", type=Path, default=None, help="default results/bench")
+    p.add_argument("--out-dir", type=Path, default=None,
+                   help="one folder for every file (default: each benchmark's own folder of results/)")
     a = p.parse_args(argv)
-    out_dir = a.out_dir or default_out_dir()
+    out_dir = a.out_dir
     for name, args in plan(a.runs, a.ckpt, a.dataset, out_dir, a.no_solver, a.repeats, a.threads,
                            a.skip_unevaluated, a.fb_ckpt, a.fb_dataset, a.fb_labels, a.fb_runs, a.gns_fb_ckpt,
                            a.gns_hopper_ckpt):
@@ -145,15 +150,15 @@ def run_all(argv: list[str]) -> int:
     return 0
 
 
-def stability_map(out_dir: Path) -> Path | None:
+def stability_map(out_dir: Path | None) -> Path | None:
     """The field surrogates' and the GNS's stability maps in one figure (stability_map.png), where both exist."""
     from neuraldem.scenes.fluidized_bed.bench.stability_map import merge_maps
 
-    fb, gns = out_dir / "fb_stability.json", out_dir / "gns_stability.json"
+    fb, gns = _json(out_dir, "fb_stability"), _json(out_dir, "gns_stability")
     if not (fb.is_file() and gns.is_file()):
         return None
     merged = merge_maps(read_results(fb, "fb_stability")["results"], read_results(gns, "gns_stability")["results"])
-    return plots.fb_stability_figure(merged, out_dir / "stability_map.png")
+    return plots.fb_stability_figure(merged, fb.parent / "stability_map.png")
 
 
 def render(argv: list[str]) -> int:
@@ -164,13 +169,14 @@ def render(argv: list[str]) -> int:
     from neuraldem.scenes.hopper.bench import speed as hopper_speed
 
     p = command_parser("neuraldem.bench render", "redraw from results")
-    p.add_argument("--out-dir", type=Path, default=None, help="default results/bench")
+    p.add_argument("--out-dir", type=Path, default=None,
+                   help="one folder for every file (default: each benchmark's own folder of results/)")
     a = p.parse_args(argv)
-    out_dir = a.out_dir or default_out_dir()
+    out_dir = a.out_dir
     written = []
     for name in ("hopper_speed", "hopper_scaling", "speed_accuracy", "right_sizing", "hopper_stability", "fb_speed",
                  "fb_stability", "gns_stability", "fb_speed_accuracy"):
-        path = out_dir / f"{name}.json"
+        path = _json(out_dir, name)
         if not path.is_file():
             continue
         payload = read_results(path, name)
@@ -199,7 +205,8 @@ def render(argv: list[str]) -> int:
     if combined is not None:
         written.append(combined)
     if not written:
-        raise DataError(f"no benchmark results in {out_dir}: run `python -m neuraldem.bench all ...` first")
+        raise DataError(f"no benchmark results in {out_dir or results_dir()}: run `python -m neuraldem.bench all ...` "
+                        "first")
     for path in written:
         print(f"wrote {path}")
     return 0

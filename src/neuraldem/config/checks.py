@@ -59,6 +59,13 @@ def fraction(key: str, value: Any) -> float:
     return number(key, value, lo=0.0, hi=1.0)
 
 
+def is_multiple(value: float, step: float) -> bool:
+    """Whether `value` is a whole number of `step`s (to 1e-6 of a step): a snapshot interval of the timestep,
+    a duration of the snapshot interval. The caller's message names the keys."""
+    ratio = value / step
+    return abs(ratio - round(ratio)) <= 1e-6
+
+
 def one_of(key: str, value: Any, choices: Iterable[Any]) -> Any:
     choices = list(choices)
     if value not in choices:

@@ -1,4 +1,4 @@
-"""A particle-based learned simulator (GNS-style graph network): the baseline of issue 9.
+"""A particle-based learned simulator (GNS-style graph network): the particle-based baseline of the benchmarks.
 
 The idea of Sanchez-Gonzalez et al. (2020), "Learning to simulate complex physics with graph networks": every
 particle is a node of a graph whose edges join particles closer than a connectivity radius. Encode-process-

@@ -66,8 +66,9 @@ class MultiBranchOperator(nn.Module):
         ensemble differ only in their noise (trained with CRPS, `neuraldem.scenes.fluidized_bed.surrogate.options`).
         scalar_coord_scale: sin-cos scale of the scalars (normalised to [0, 1]); the default is the positions'
         1000, with which the embedding turns by ~2 rad per 0.002 of the range, so a net may answer one unseen
-        velocity unlike its neighbours (stop 43: a bed that collapsed at exactly 2.050 m/s); a small scale
-        (e.g. 10, the hopper's) keeps nearby scalars nearby.
+        velocity unlike its neighbours (a bed net that collapsed at exactly 2.050 m/s and at no velocity
+        0.002 m/s either side, results/fluidized_bed/options/velocity_embedding_scale1000_scan.png); a small
+        scale (e.g. 10, the hopper's) keeps nearby scalars nearby.
 
     forward(inputs: OperatorInputs, chunk_size=None) -> {branch: (B, Q_branch, channels)} for the branches in
     `inputs.query_pos`.

@@ -10,7 +10,6 @@ from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import sha256
 from neuraldem.datagen.driver import DataConfigPipeline
 from neuraldem.datagen.sampling import latin_hypercube
-
 from toy_drum import PARAMETERS
 from toy_drum.solver import dynamic_repose_deg
 

@@ -4,15 +4,16 @@ same figure), so its series sit beside the field surrogate's.
 `python -m neuraldem.bench gns_stability --ckpt GNS_CKPT [GNS_CKPT ...] [--labels NAME ...]
 [--velocities V ...] [--n-velocities 9] [--steps N] [--drift-limit-pct 5] [--like FB_JSON] [--dataset DIR]
 [--out PATH]`
-writes results/bench/gns_stability.json and .png.
+writes results/fluidized_bed/stability/gns_stability.json and .png.
 
 For every GNS checkpoint (trained with experiment=gns_fb) and inlet velocity: one rollout of `--steps` steps
 (default 10x the training horizon) from the first snapshots of the dataset trajectory closest in velocity
 (`gns.rollout`). A rollout fails at the first state the GNS checks refuse (NaN/inf, a particle outside
 the box, overlapping particles, a changed particle count) or when the solid volume of the kernel
 solid-fraction field of its particles drifts beyond `--drift-limit-pct` (`fb_stability.assess`, the same
-rule as for the field surrogate). `--like results/bench/fb_stability.json` rolls out at that map's velocities
-and steps, and `bench render` (or `bench all --gns-fb-ckpt`) then draws both in one figure, stability_map.png.
+rule as for the field surrogate). `--like results/fluidized_bed/stability/fb_stability.json` rolls out at that
+map's velocities and steps, and `bench render` (or `bench all --gns-fb-ckpt`) then draws both in one figure,
+stability_map.png.
 """
 
 from __future__ import annotations
@@ -109,7 +110,8 @@ def main(argv: list[str]) -> int:
                    help="an fb_stability.json: take its velocities, steps and drift limit, so that the two maps "
                         "merge into one figure (bench render draws stability_map.png)")
     p.add_argument("--out", type=Path, default=None,
-                   help=f"results JSON, or a folder for {NAME}.json (default results/bench/{NAME}.json)")
+                   help=f"results JSON, or a folder for {NAME}.json (default "
+                        f"results/fluidized_bed/stability/{NAME}.json)")
     a = p.parse_args(argv)
     out = resolve_out(a.out, NAME)
     if a.like is not None:

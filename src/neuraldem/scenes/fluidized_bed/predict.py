@@ -6,7 +6,8 @@ over the training trajectories' 3 s): from the scalar GP with its 95 % interval,
 rollout of the field model (a few seconds), which also gives the curves, an animation of the solid fraction and
 mixing, and ParaView files; with `--verify` from DPMFoam at the same velocity (minutes). Each model's errors on
 its held-out CFD-DEM runs are printed beside CFD-DEM's own spread from another packing, so the user sees which
-answer to trust: on fb_small the GP is near that spread and the field model is not (issue 20).
+answer to trust (results/fluidized_bed/README.md, "Whatif": on fb_small the GP is about as close as that spread,
+the field model 1.2 - 2.3x further).
 """
 
 from __future__ import annotations

@@ -249,7 +249,8 @@ def dpmfoam_answer(scene_record: dict[str, Any], velocity: float, workdir: Path,
     """DPMFoam at `velocity` for the window's duration, stored and scored like every dataset run."""
     from neuraldem.scenes.fluidized_bed.dataset.datagen import FieldSettings
     from neuraldem.scenes.fluidized_bed.dataset.store import write_fb_file
-    from neuraldem.scenes.fluidized_bed.solver import FluidizedBedScene, run_fluidized_bed
+    from neuraldem.scenes.fluidized_bed.solver.runner import run_fluidized_bed
+    from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
     from neuraldem.sim import openfoam
 
     scene = FluidizedBedScene.from_config(scene_record["fluidized_bed"], "model scene")

@@ -69,12 +69,10 @@ class HopperScene:
         checks.positive(f"{key}.stall_time", self.stall_time)
         checks.positive(f"{key}.max_time", self.max_time)
         checks.positive(f"{key}.timeout_s", self.timeout_s)
-        steps = self.snapshot_interval / self.material.dt
-        if abs(steps - round(steps)) > 1e-6:
+        if not checks.is_multiple(self.snapshot_interval, self.material.dt):
             raise ConfigError(f"{key}.snapshot_interval={self.snapshot_interval} must be a multiple of "
                               f"{key}.material.dt={self.material.dt}")
-        chunk = self.stall_time / self.snapshot_interval
-        if abs(chunk - round(chunk)) > 1e-6:
+        if not checks.is_multiple(self.stall_time, self.snapshot_interval):
             raise ConfigError(f"{key}.stall_time={self.stall_time} must be a multiple of "
                               f"{key}.snapshot_interval={self.snapshot_interval}")
 

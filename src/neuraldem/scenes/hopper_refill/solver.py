@@ -80,8 +80,7 @@ class RefillSettings:
         checks.number(f"{key}.region_height_d", self.region_height_d, lo=2.0, hi=50.0)
         if scene is None:
             return
-        steps = self.interval / scene.material.dt
-        if abs(steps - round(steps)) > 1e-6:
+        if not checks.is_multiple(self.interval, scene.material.dt):
             raise ConfigError(f"config value {key}.interval={self.interval} is invalid: must be a multiple of "
                               f"data.scene.material.dt={scene.material.dt} (override it, e.g. {key}.interval=0.05)")
         if self.interval > scene.stall_time:

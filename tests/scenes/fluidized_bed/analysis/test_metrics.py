@@ -99,7 +99,7 @@ def test_volume_statistics_and_blocks():
 
 @pytest.mark.solver
 def test_lacey_starts_near_zero_and_rises_on_real_data(fb_tiny_dataset: Path):
-    """Issue requirement on the real solver: the initial left/right split scores ~0, then mixing rises."""
+    """Requirement, on the real solver: the initial left/right split scores ~0, then mixing rises."""
     for path in sorted((fb_tiny_dataset / "sims").glob("*.h5")):
         with FbFile(path) as f:
             pos, alpha, mix = f.positions(), f.solid_fraction(), f.mixing()

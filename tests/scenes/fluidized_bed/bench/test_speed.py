@@ -96,7 +96,8 @@ def test_with_the_manifest_costs(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path
 
 def test_mirror_alternation_is_timed_when_asked(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tmp_path: Path,
                                                 monkeypatch: pytest.MonkeyPatch):
-    """--mirror-alternate times the rollout as the model is used (bubbles.md stop 41) and says so in the record."""
+    """--mirror-alternate times the rollout as the model is used (results/fluidized_bed/recipe.md) and says so in
+    the record."""
     seen = []
     real = fb_speed.ModelStepper
 

@@ -16,7 +16,7 @@ from neuraldem.scenes.fluidized_bed.analysis.evaluation import FieldSeries, comp
 from neuraldem.scenes.fluidized_bed.bench import speed_accuracy as fsa
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-from neuraldem.scenes.fluidized_bed.solver import FluidizedBedScene
+from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
 from tests.helpers import with_split
 
 

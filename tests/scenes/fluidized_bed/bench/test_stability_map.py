@@ -63,8 +63,8 @@ def test_map_of_two_checkpoints(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path,
 
 def test_rollout_options_reach_every_rollout_and_the_record(fb_tiny_flux_checkpoint: Path, fb_tiny_dataset: Path,
                                                             tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
-    """--advection-correction / --mirror-alternate (as the model is used: bubbles.md stop 41) go to each rollout's
-    stepper and into the map's record."""
+    """--advection-correction / --mirror-alternate (as the model is used: results/fluidized_bed/recipe.md) go to
+    each rollout's stepper and into the map's record."""
     seen = []
     real = fb_stability.ModelStepper
 

@@ -109,7 +109,7 @@ def test_displacements_are_next_minus_now():
 
 @pytest.mark.solver
 def test_real_kernel_field_holds_the_particle_volume(fb_tiny_dataset: Path):
-    """Issue requirement: solid volume of the kernel field = the particles' total volume within 1 %
+    """Requirement: solid volume of the kernel field = the particles' total volume within 1 %
     (it is exact up to float32 storage), at every snapshot of every trajectory."""
     for path in sorted((fb_tiny_dataset / "sims").glob("*.h5")):
         with FbFile(path) as f:

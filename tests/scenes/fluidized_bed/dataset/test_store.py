@@ -13,7 +13,7 @@ import pytest
 from neuraldem.errors import DataError
 from neuraldem.scenes.fluidized_bed.dataset.fields import solid_fraction
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile, write_fb_file
-from neuraldem.scenes.fluidized_bed.solver import FbTrajectory
+from neuraldem.scenes.fluidized_bed.solver.reader import FbTrajectory
 from neuraldem.sim.foam_reader import BoxGrid
 
 GRID = BoxGrid((0.0, 0.0, 0.0), (0.024, 0.006, 0.06), (6, 1, 15))

@@ -38,7 +38,7 @@ def test_every_fb_model_default_supervises_one_step(model: str, compose_train_cf
     assert _one_step_supervised(FbStability.from_config(cfg.model.stability))
 
 
-def test_the_fb_experiment_uses_the_issue_20_options(compose_train_cfg):
+def test_the_fb_experiment_uses_the_recipe_options(compose_train_cfg):
     s = FbStability.from_config(compose_train_cfg("experiment=fb").model.stability)
     assert s.unroll == (0.5, 0.3, 0.2) and s.loss_on == "every" and s.input_noise == "auto"
     assert s.conserve_volume and s.mixing == "advect" and s.advection_flux == "consistent"

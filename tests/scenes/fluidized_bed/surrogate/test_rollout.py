@@ -193,7 +193,7 @@ def test_solid_volume_projection_holds_the_first_states_volume(fb_tiny_checkpoin
     assert np.max(np.abs(va / va[0] - 1)) > 1e-3  # the untrained tiny model alone does not conserve it
 
 
-def test_issue_20_options_conserve_to_round_off_and_keep_mixing_bounded(fb_tiny_flux_checkpoint: Path,
+def test_the_recipe_options_conserve_to_round_off_and_keep_mixing_bounded(fb_tiny_flux_checkpoint: Path,
                                                                        fb_tiny_dataset: Path):
     from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
     from neuraldem.scenes.fluidized_bed.surrogate.rollout import (

@@ -32,7 +32,7 @@ def run_name(result: dict) -> str:
 
 
 def options_label(r: dict) -> str:
-    """The run's training and rollout options in a few words (issue-20 stability options when recorded)."""
+    """The run's training and rollout options in a few words (the stability options when recorded)."""
     if r.get("baseline"):  # neuraldem.scenes.fluidized_bed.analysis.baselines: no model
         return r.get("description", r["baseline"])
     t, st = r.get("training", {}), r.get("stability") or {}

@@ -8,7 +8,7 @@
 - --verified: output folders of `neuraldem predict fb inlet_velocity=V --verify` (each holds answer.json with
   the GP, field model and DPMFoam answers and times): tabled side by side with the time ratios. The solver
   runs are not repeated here (each costs minutes).
-Writes results/bench/whatif_fb.json and whatif_fb.md.
+Writes results/fluidized_bed/whatif/whatif_fb.json and whatif_fb.md.
 """
 
 from __future__ import annotations
@@ -100,7 +100,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--model", default=None, help="shipped bed model (default: the shipped one)")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--verified", type=Path, nargs="*", default=[], help="predict fb --verify output folders")
-    p.add_argument("--out", type=Path, default=None, help="results JSON (default results/bench/whatif_fb.json)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="results JSON (default results/fluidized_bed/whatif/whatif_fb.json)")
     args = p.parse_args(argv)
     machine = machine_info()
     warn_if_busy(machine)

@@ -2,13 +2,14 @@
 
 `python -m neuraldem.bench fb_speed --ckpt CKPT [--dataset DIR] [--sim SIM_ID] [--repeats 3]
 [--solver-repeats 3] [--sim-seconds 0.1] [--rollout-steps N] [--threads 1 N] [--reuse-dataset] [--out PATH]`
-writes results/bench/fb_speed.json, .md and .png.
+writes results/fluidized_bed/speed/fb_speed.json, .md and .png.
 
 The unit both are compared in is the cost of one simulated second of the bed. The solver: fresh DPMFoam runs
 of one trajectory of the checkpoint's dataset (its scene, inlet velocity and start-packing seed, through
-`scenes.fluidized_bed.solver.run_fluidized_bed`, the path datagen used): the dataset's spin-up plus `--sim-seconds`
-stored seconds, wall and CPU time of the DPMFoam process divided by the seconds it simulated (spin-up included, as
-the manifest's `cpu_s_per_simulated_s`); next to it the per-simulation costs the manifest recorded at datagen.
+`scenes.fluidized_bed.solver.runner.run_fluidized_bed`, the path datagen used): the dataset's spin-up plus
+`--sim-seconds` stored seconds, wall and CPU time of the DPMFoam process divided by the seconds it simulated
+(spin-up included, as the manifest's `cpu_s_per_simulated_s`); next to it the per-simulation costs the manifest
+recorded at datagen.
 The surrogate: `--rollout-steps` autoregressive steps (`scenes.fluidized_bed.rollout.rollout`, divergence check and
 particle re-sampling included) from snapshot 1 of the same trajectory, divided by the seconds they span, at
 each `--threads` setting. Ratios are solver / surrogate of the medians over repeats.
@@ -36,7 +37,8 @@ from neuraldem.eval.checkpoints import checkpoint_dataset
 from neuraldem.paths import data_dir
 from neuraldem.scenes.fluidized_bed.dataset.datagen import packing_seed
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-from neuraldem.scenes.fluidized_bed.solver import STATUS_OK, FluidizedBedScene, run_fluidized_bed
+from neuraldem.scenes.fluidized_bed.solver.runner import STATUS_OK, run_fluidized_bed
+from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
 from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
     DivergenceLimits,
@@ -53,7 +55,7 @@ NAME = "fb_speed"
 SOLVER_THREADS = 1  # DPMFoam runs serially, as in datagen
 DEFAULT_SIM_SECONDS = 0.1
 RECORDED = "dataset manifest: per-simulation costs recorded when the dataset was generated, not re-run"
-TARGET_SPEEDUP = 100.0  # issue 9: the fluidized-bed rollout >= 100x faster than DPMFoam
+TARGET_SPEEDUP = 100.0  # the target: the fluidized-bed rollout >= 100x faster than DPMFoam (docs/benchmarks.md)
 
 
 def usable_cpus() -> int:
@@ -339,7 +341,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--workdir", type=Path, default=None, help=f"DPMFoam runs (default <data dir>/bench/{NAME})")
     p.add_argument("--keep-runs", action="store_true", help="keep the DPMFoam case folders")
     p.add_argument("--out", type=Path, default=None,
-                   help=f"results JSON, or a folder for {NAME}.json (default results/bench/{NAME}.json); "
+                   help=f"results JSON, or a folder for {NAME}.json (default results/fluidized_bed/speed/{NAME}.json); "
                         ".md and .png beside it")
     a = p.parse_args(argv)
     out = resolve_out(a.out, NAME)

@@ -2,7 +2,7 @@
 
 `python -m neuraldem.bench fb_speed_accuracy --runs DIR... [--dataset DIR] [--solver-variants dt:2 substeps:0.5]
 [--solver-velocities 2] [--reuse-solver FILE | --skip-solver] [--steps 100] [--repeats 3] [--threads 1]
-[--tolerance 0.10] [--out PATH]` writes results/bench/fb_speed_accuracy.json, .png and .md.
+[--tolerance 0.10] [--out PATH]` writes results/speed_accuracy/fb_speed_accuracy.json, .png and .md.
 
 x = cost of one simulated second of the bed (CPU seconds, one thread); y = the error of what a practitioner
 asks of a bed, one panel each: the time-mean solid fraction per cell, its fluctuations (time std per cell),
@@ -52,7 +52,8 @@ from neuraldem.scenes.fluidized_bed.bench.speed import surrogate_timing
 from neuraldem.scenes.fluidized_bed.dataset.datagen import packing_seed
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile, write_fb_file
-from neuraldem.scenes.fluidized_bed.solver import STATUS_OK, FluidizedBedScene, run_fluidized_bed
+from neuraldem.scenes.fluidized_bed.solver.runner import STATUS_OK, run_fluidized_bed
+from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import initial_state, load_fb_checkpoint
 
 NAME = "fb_speed_accuracy"
@@ -283,7 +284,7 @@ def family_label(f: dict[str, Any]) -> str:
     if not f:
         return "all runs"
     st = f.get("trained_stability")
-    if st:  # issue-20 options
+    if st:  # the stability options of unrolled training (model.stability), when the run records them
         unroll = st.get("unroll", [1.0])
         parts = ["one-step" if len(unroll) == 1 else "unroll " + "/".join(f"{p:g}" for p in unroll),
                  f"input noise {st.get('input_noise') or f.get('input_noise', 0)}",

@@ -3,7 +3,7 @@ velocities and beyond them.
 
 `python -m neuraldem.bench fb_stability --ckpt CKPT [CKPT ...] [--labels NAME ...] [--velocities V ...]
 [--n-velocities 9 | --velocity-step DV] [--steps N] [--drift-limit-pct 5] [--bed-limit-pct 10] [--settle-steps N]
-[--out PATH]` writes results/bench/fb_stability.json and .png. A fine scan of the trained range:
+[--out PATH]` writes results/fluidized_bed/stability/fb_stability.json and .png. A fine scan of the trained range:
 `--velocity-step 0.005 --steps 500`; of one stretch: `--velocities $(seq 2.00 0.002 2.10)`.
 
 For every checkpoint (one series each, e.g. a model and its ablation without input noise) and every inlet
@@ -14,8 +14,9 @@ of the solid-fraction field drifts by more than `--drift-limit-pct` from the ini
 failure is the first step at which either happens. Default velocities: 0.8x the lowest to 1.2x the highest
 trained velocity (over all checkpoints), plus the two trained ends.
 
-A rollout can stay finite and hold its mass and still leave the physics: stop 43's net settled into a bed 21 %
-lower than CFD-DEM's at one velocity inside its trained range, 0.004 m/s wide. So inside the trained range a
+A rollout can stay finite and hold its mass and still leave the physics: a net with the velocity embedded at
+scale 1000 settled into a bed 21 % lower than CFD-DEM's at one velocity inside its trained range, in a hole
+0.004 m/s wide (results/fluidized_bed/options/velocity_embedding_scale1000_scan.png). So inside the trained range a
 velocity also fails when the rollout's time-mean bed height (after `--settle-steps`, the bed's start-up from its
 packing) is more than `--bed-limit-pct` from CFD-DEM's at that velocity: the time-mean bed heights of the
 checkpoint's own training trajectories (the same start-up left out), linear in velocity between the two around
@@ -58,12 +59,13 @@ from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
 from neuraldem.scenes.fluidized_bed.surrogate.rollout_flags import add_rollout_flags, check_rollout_flags
 
 NAME = "fb_stability"
-DEFAULT_DRIFT_LIMIT_PCT = 5.0  # issue 9: mass drift > 5 % is an unphysical state
+DEFAULT_DRIFT_LIMIT_PCT = 5.0  # mass drift > 5 % is an unphysical state (docs/benchmarks.md, fb_stability)
 DEFAULT_N_VELOCITIES = 9
 DEFAULT_SPAN = (0.8, 1.2)  # the grid runs from 0.8x the lowest to 1.2x the highest trained velocity
 DEFAULT_HORIZON_MULTIPLE = 10  # default --steps: 10x the training horizon, the longest horizon evaluation tests
 # a time-mean bed height this far from CFD-DEM's is another regime, not noise: CFD-DEM's own runs 0.03 m/s apart
-# differ by ~1 mm of ~42 (2 %); stop 43's collapsed bed was 21 % low (bubbles.md)
+# differ by ~1 mm of ~42 (2 %); a collapsed bed was 21 % low (results/fluidized_bed/options/
+# velocity_embedding_scale1000_scan.png)
 DEFAULT_BED_LIMIT_PCT = 10.0
 DEFAULT_SETTLE_FRACTION = 3  # default --settle-steps: a third of the training horizon (1 s of fb_small's 3 s)
 
@@ -320,8 +322,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--seed", type=int, default=0, help="seed of the rollouts' particle re-sampling")
     add_rollout_flags(p, default="as each checkpoint was trained")
     p.add_argument("--out", type=Path, default=None,
-                   help=f"results JSON, or a folder for {NAME}.json (default results/bench/{NAME}.json); "
-                        ".png beside it")
+                   help=f"results JSON, or a folder for {NAME}.json (default "
+                        f"results/fluidized_bed/stability/{NAME}.json); .png beside it")
     a = p.parse_args(argv)
     out = resolve_out(a.out, NAME)
     check_options(a.ckpt, a.labels, a.velocities, a.steps, a.drift_limit_pct, a.seed, a.bed_limit_pct,

@@ -12,9 +12,9 @@ trajectories only (`n_velocities: 0`, e.g. data=fb_small_longval) adds long stat
 changing its table: a model trained on fb_small is scored on it with `evaluate dataset_dir=...`.
 
 Resume: DPMFoam writes its time directories into runs/<sim_id>; a killed datagen restarts that case from
-its latest complete time directory (see neuraldem.scenes.fluidized_bed.solver), converts it into sims/<sim_id>.h5 when
-it is finished and then deletes the time directories (unless storage.keep_raw). A failed run keeps its folder for
-inspection and starts from scratch when retried (retry_failed=true).
+its latest complete time directory (see neuraldem.scenes.fluidized_bed.solver.runner), converts it into
+sims/<sim_id>.h5 when it is finished and then deletes the time directories (unless storage.keep_raw). A failed run
+keeps its folder for inspection and starts from scratch when retried (retry_failed=true).
 """
 
 from __future__ import annotations
@@ -37,14 +37,9 @@ from neuraldem.datagen.sampling import latin_hypercube
 from neuraldem.errors import ConfigError
 from neuraldem.scenes.fluidized_bed.analysis.metrics import bed_height_particles, fb_summary, lacey_from_particles
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile, write_fb_file
-from neuraldem.scenes.fluidized_bed.limits import VELOCITY_LIMITS
-from neuraldem.scenes.fluidized_bed.solver import (
-    STATUS_FAILED,
-    STATUS_OK,
-    FluidizedBedScene,
-    remove_time_dirs,
-    run_fluidized_bed,
-)
+from neuraldem.scenes.fluidized_bed.parameters import PARAMETERS
+from neuraldem.scenes.fluidized_bed.solver.runner import STATUS_FAILED, STATUS_OK, remove_time_dirs, run_fluidized_bed
+from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
 from neuraldem.sim import openfoam
 
 FAILED_MARKER = "FAILED"
@@ -139,16 +134,16 @@ class FluidizedBedPipeline(DataConfigPipeline):
         p = c.parameters
         self.seed = checks.positive_int("data.parameters.seed", p.seed, allow_zero=True)
         lo, hi = checks.interval("data.parameters.inlet_velocity", list(p.inlet_velocity))
-        checks.number("data.parameters.inlet_velocity[0]", lo, lo=VELOCITY_LIMITS[0], hi=VELOCITY_LIMITS[1],
-                      lo_open=True)
-        checks.number("data.parameters.inlet_velocity[1]", hi, lo=VELOCITY_LIMITS[0], hi=VELOCITY_LIMITS[1])
+        u_low, u_high = PARAMETERS.limits("inlet_velocity")
+        checks.number("data.parameters.inlet_velocity[0]", lo, lo=u_low, hi=u_high, lo_open=True)
+        checks.number("data.parameters.inlet_velocity[1]", hi, lo=u_low, hi=u_high)
         self.velocity_range = (lo, hi)
         self.n_velocities = checks.positive_int("data.parameters.n_velocities", p.n_velocities, allow_zero=True)
         self.packings = checks.positive_int("data.parameters.packings_per_velocity", p.packings_per_velocity)
         self.duration = self._duration("data.parameters.duration", p.duration)
         long = p.get("long") or {}
         self.long_velocities = [checks.number(f"data.parameters.long.inlet_velocities[{i}]", v,
-                                              lo=VELOCITY_LIMITS[0], hi=VELOCITY_LIMITS[1], lo_open=True)
+                                              lo=u_low, hi=u_high, lo_open=True)
                                 for i, v in enumerate(long.get("inlet_velocities") or [])]
         self.long_duration = (self._duration("data.parameters.long.duration", long.get("duration"))
                               if self.long_velocities else 0.0)
@@ -174,8 +169,7 @@ class FluidizedBedPipeline(DataConfigPipeline):
 
     def _duration(self, key: str, value: Any) -> float:
         d = checks.positive(key, value)
-        steps = d / self.scene.snapshot_interval
-        if abs(steps - round(steps)) > 1e-6:
+        if not checks.is_multiple(d, self.scene.snapshot_interval):
             raise ConfigError(f"config value {key}={value} is invalid: must be a multiple of "
                               f"data.scene.snapshot_interval={self.scene.snapshot_interval} "
                               f"(override it, e.g. {key}=...)")

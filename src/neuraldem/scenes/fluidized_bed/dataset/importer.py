@@ -39,7 +39,7 @@ from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.checkpoints import check_import_joins
 from neuraldem.scenes.fluidized_bed.dataset.datagen import FbMetricSettings, FieldSettings, file_metrics
 from neuraldem.scenes.fluidized_bed.dataset.store import KIND, FbFile, write_fb_file
-from neuraldem.scenes.fluidized_bed.solver import read_trajectory
+from neuraldem.scenes.fluidized_bed.solver.reader import read_trajectory
 from neuraldem.sim import openfoam
 from neuraldem.sim.foam_reader import BoxGrid, CloudSnapshot, FoamCase, mesh_bounds, read_dict_entries, resolve
 

@@ -52,7 +52,7 @@ from neuraldem.scenes.fluidized_bed.dataset.fields import (
     solids_flux,
     trajectory_fields,
 )
-from neuraldem.scenes.fluidized_bed.solver import FbTrajectory
+from neuraldem.scenes.fluidized_bed.solver.reader import FbTrajectory
 from neuraldem.sim.foam_reader import BoxGrid
 
 KIND = "fluidized_bed"

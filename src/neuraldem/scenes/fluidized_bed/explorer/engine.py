@@ -89,14 +89,14 @@ class BedEngine:
     def __init__(self, model: pretrained.Pretrained, lattice: int = LATTICE, cache_rollouts: int = 32):
         from neuraldem.eval.checkpoints import read_checkpoint
         from neuraldem.models.scalar_baselines import ArrayGaussianProcess
-        from neuraldem.scenes.fluidized_bed.limits import VELOCITY_LIMITS
+        from neuraldem.scenes.fluidized_bed.parameters import PARAMETERS
         from neuraldem.scenes.fluidized_bed.predict import fb_settings, fb_window
         from neuraldem.scenes.fluidized_bed.whatif import InitialStates, quantities
 
         self.model = model
         lo, hi = (float(x) for x in model.meta["trained_range"][KEY])
         self.trained_range = (lo, hi)
-        self.solver_limits = tuple(float(x) for x in VELOCITY_LIMITS)
+        self.solver_limits = tuple(float(x) for x in PARAMETERS.limits(KEY))
         self.window = fb_window(model)
         self.settings = fb_settings(model)
         self.quantities = quantities(self.window.lacey_time)

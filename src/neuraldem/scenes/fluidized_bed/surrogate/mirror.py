@@ -2,9 +2,10 @@
 
 Why: the bed (uniform inlet, equal side walls, gravity along -z) is symmetric under x -> lo + hi - x, so the
 mirror image of a CFD-DEM trajectory is another trajectory of the same physics (another packing). Trained on
-single 3-s windows, a model picks up their left-right accidents: the time-mean fields of the stop-33 rollouts
-lean to one wall where CFD-DEM's over many runs do not. Drawing the mirror image for half the training samples
-doubles the data at no solver cost and teaches the symmetry instead of the accidents.
+single 3-s windows, a model picks up their left-right accidents: the time-mean fields of single rollouts lean
+to one wall where CFD-DEM's over many runs do not (results/fluidized_bed/recipe.md). Drawing the mirror image
+for half the training samples doubles the data at no solver cost and teaches the symmetry instead of the
+accidents.
 
 What mirrors how: particle positions x -> lo + hi - x; every vector (displacement, fluid velocity, solids
 flux) has its x component negated; grid fields are reversed along the cell axis x. The mixing concentration is

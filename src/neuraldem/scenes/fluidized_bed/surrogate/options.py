@@ -1,6 +1,7 @@
 """Stability options of the fluidized-bed surrogate (`model.stability`), validated in one place.
 
-What each option is for (issue 20; measured in results/fluidized_bed/surrogate):
+What each option is for (each measured as an ablation row: results/fluidized_bed/recipe.md, tables in
+results/fluidized_bed/options/):
 
 unroll            probabilities of rolling 1, 2, ..., K steps from a data snapshot in a training batch (the
                   datamodule serves K = `data.datamodule.push_forward_steps` target steps). The model is
@@ -25,30 +26,32 @@ advection_flux    "predicted": the scheme moves the solid with the predicted flu
                   step's (projected) prediction, so the concentration pairs with the solid it describes and the
                   tagged volume is kept from step to step, not only within one (needs conserve_volume=true;
                   what the limiter cannot carry is settled at the pooled concentration). Measured on the
-                  training and validation trajectories (`advection_oracle --flux consistent`,
-                  results/fluidized_bed/surrogate/bubbles.md): with CFD-DEM's own fields (22 trajectories,
+                  training and validation trajectories (`advection_oracle --flux consistent`, results/
+                  fluidized_bed/options/advection_calibration/): with CFD-DEM's own fields (22 trajectories,
                   correction 0.75) the largest tagged-volume swing over 3 s fell from 26 % to 0 % and the Lacey
                   MAE from 0.038 to 0.023.
 flux_consistency  weight of a loss on the continuity of the predicted step: the predicted solids flux must carry
                   the input solid fraction to the predicted next one (`autoregressive.continuity_residual`, in
                   units of the data's RMS one-step change). 0 = off. Why: the gradient correction that
                   advection_flux=consistent applies was 31-35 % of the model's flux against 15-17 % of CFD-DEM's
-                  own (results/fluidized_bed/surrogate/flux_diagnostic_stop34_ema_seed1.md); that correction,
+                  own (results/fluidized_bed/options/flux_diagnostic/ema2000_seed1.md); that correction,
                   not the learned flux, then set the model's mixing. Needs data.datamodule.solids_flux=true.
 mirror_alternate  rollouts only: every other step is taken in the mirror image of the bed (state mirrored in x,
                   stepped, mirrored back; `neuraldem.scenes.fluidized_bed.surrogate.mirror`). The bed is left-right
                   symmetric, a trained net is not quite: its small lean to one wall, applied every step, builds
-                  a persistent bubble channel on that side (the 3000-step time means of stop 35 leaned by up to
-                  11 % of the bubbling to one side where CFD-DEM's lean < 2 %). Alternating flips the lean's sign
+                  a persistent bubble channel on that side (the 3000-step time means of 8000-step nets leaned by
+                  up to 11 % of the bubbling to one side where CFD-DEM's lean < 2 %, results/fluidized_bed/
+                  recipe.md). Alternating flips the lean's sign
                   each step so it cancels; the cost is nothing (the same one forward pass per step).
 rollout_noise     rollouts only: each step the net reads its input state plus Gaussian noise of this many times
                   the model's running one-step error per channel (what `input_noise=auto` trained it to
                   tolerate); the volume projection and the mixing advection still act on the clean state, so
                   the solid volume and the tagged volume are kept exactly. 0 = off. Why: a deterministic step
-                  settles into its most likely bubble path (the shipped model's bubbles keep to the middle of
-                  the bed: std-field share next to the walls 0.24 where CFD-DEM has 0.29, results/.../bubbles.md
-                  stop 38); perturbations of the size of its own error let the paths wander as a chaotic bed's
-                  do, at no cost per step. Needs a model with the running error (trained since issue 20).
+                  settles into its most likely bubble path (plain rollouts keep the bubbles to the middle of the
+                  bed: std-field share next to the walls 0.26 - 0.28 where CFD-DEM has 0.29, 0.28 - 0.31 with
+                  noise 3; results/fluidized_bed/options/rollout_noise_val.md); perturbations of the size of its
+                  own error let the paths wander as a chaotic bed's do, at no cost per step. Needs a model that
+                  records the running one-step error (input_noise=auto).
 ensemble          members per training sample: 1 = deterministic (MSE); >= 2 = a stochastic model (net
                   noise_dim > 0) trained with the fair CRPS over its members.
 """

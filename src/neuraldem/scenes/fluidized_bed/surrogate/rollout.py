@@ -190,8 +190,8 @@ class ModelStepper:
         lo_x, hi_x = self.norm.box_lo[0], self.norm.box_hi[0]
         return mirror_state(self._step(mirror_state(state, lo_x, hi_x)), lo_x, hi_x)
 
-    # inference_mode, not just no_grad: no version counters or view tracking (fb_speed, stop 42: 0.832 -> 0.791 s
-    # per simulated second at one thread, fields bit-identical)
+    # inference_mode, not just no_grad: no version counters or view tracking (bench fb_speed on the shipped net:
+    # 0.832 -> 0.791 s per simulated second at one thread, fields bit-identical)
     @torch.inference_mode()
     def _step(self, state: FbState) -> FbState:
         norm = self.norm
@@ -246,7 +246,8 @@ def perturbation_std(module: FluidizedBedModule, scale: float, device: str) -> d
     std = {name: getattr(module, f"step_error_{name}", None) for name in ("particles", "fluid", "mixing")}
     if any(s is None for s in std.values()) or not any(float(s.abs().sum()) > 0 for s in std.values()):
         raise ConfigError(f"rollout_noise={scale:g} needs the model's running one-step error, which this checkpoint "
-                          "does not hold (trained before issue 20 or as a residual model): use rollout_noise=0")
+                          "does not hold (trained without the running one-step error, or as a residual model): "
+                          "use rollout_noise=0")
     return {name: scale * s.detach().float().to(device) for name, s in std.items()}
 
 

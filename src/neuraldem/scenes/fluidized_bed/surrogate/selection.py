@@ -4,7 +4,8 @@ rollouts, with the rollout options it will be used with.
 
 Why: the rollout validation while training (`callbacks.rollout_validation`: 300 steps = 3 s from one trajectory per
 velocity, plain rollouts) keeps one checkpoint, but the model is judged on 3000-step (30-s) rollouts with rollout
-noise, and a bed that erupts after 10 s (stop 40: one seed at 2.05 m/s) scores well for 3 s. experiment=fb keeps
+noise, and a bed that erupts after 10 s (one seed at 2.05 m/s, results/fluidized_bed/options/
+flux_correction_test.md) scores well for 3 s. experiment=fb keeps
 every validated checkpoint in RUN_DIR/checkpoints/all/ (2.5 MB each for fb_tiny; elsewhere train with
 `callbacks.checkpoint.save_top_k=-1`); this then scores each one from `--from-step` on with `neuraldem.evaluate
 part=val` (3000-step rollouts from every validation velocity) under `--rollout-noise` / `--advection-correction` /
@@ -23,8 +24,9 @@ untouched until the choice is made.
 30 s of CFD-DEM at a validation velocity, `data.parameters.long.part: val`): each checkpoint is also rolled out
 against it (`evaluate dataset_dir=... part=val`, into .../stepNNNNNN_seedS/<dataset name>/evaluation/) and the ranking
 is the mean over every validation velocity of both (each velocity weighs the same). Why: a bed whose statistics
-drift after a few seconds (stop 41: one seed at 2.05 m/s, 3 mm too high from 3 s on) matches 3 s of CFD-DEM but not
-30. The ranking is then selection_<dataset name>.md (+ .json), per-source sums beside it.
+drift after a few seconds (one seed at 2.05 m/s, 3 mm too high from 3 s on, results/fluidized_bed/options/
+checkpoint_selection_test.md) matches 3 s of CFD-DEM but not 30. The ranking is then selection_<dataset name>.md
+(+ .json), per-source sums beside it.
 """
 
 from __future__ import annotations

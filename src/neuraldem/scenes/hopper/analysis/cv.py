@@ -153,7 +153,7 @@ def summarise(folds: list[dict[str, Any]], split: str, row: str, method: str) ->
 
 
 def floor_row(seed_floor: dict[str, Any] | None) -> dict[str, Any] | None:
-    """The seed-floor benchmark's 'rerun vs stored' errors (`results/bench/seed_floor.json`) in the table's
+    """The seed-floor benchmark's 'rerun vs stored' errors (`results/hopper/accuracy/seed_floor.json`) in the table's
     layout: LIGGGHTS rerun with another packing seed answering the stored run's question."""
     if not seed_floor:
         return None

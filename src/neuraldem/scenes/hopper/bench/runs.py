@@ -83,7 +83,7 @@ def read_run(run_dir: Path) -> EvaluatedRun | None:
     if "drainage_mae_s" not in aggregate:
         return None  # another scene's metrics (kept out of hopper charts)
     if "drainage_t95_pct_of_mean" not in aggregate:
-        raise DataError(f"{path} was scored with the metrics before drainage t95 (issue 19): re-run the "
+        raise DataError(f"{path} was scored with metrics older than drainage t95 (docs/metrics.md): re-run the "
                         "evaluation with this neuraldem (python -m neuraldem.evaluate ckpt=...)")
     missing = [k for k in HOPPER_ERRORS if k not in aggregate]
     if missing:

@@ -2,7 +2,7 @@
 
 `python -m neuraldem.bench hopper_scaling [--dataset DIR] [--particles 2000 5000 10000 20000 50000]
 [--steps 1000] [--full-up-to 5000] [--ckpt CKPT | --model hopper_base] [--queries ...] [--tokens ...]`
-writes results/bench/hopper_scaling.json and hopper_scaling.png (log-log).
+writes results/hopper/speed/hopper_scaling.json and hopper_scaling.png (log-log).
 
 LIGGGHTS: the dataset's hopper scaled to N particles (same shape); each N is filled, settled and drained for
 2 x `--steps` timesteps only (the first `--steps` start the flow). Measured: settle time, particle-steps per
@@ -183,7 +183,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--repeats", type=int, default=3, help="timed surrogate repeats (median)")
     p.add_argument("--threads", type=int, default=1, help="torch threads of the surrogate")
     p.add_argument("--workdir", type=Path, default=None, help=f"solver runs (default <data dir>/bench/{NAME})")
-    p.add_argument("--out", type=Path, default=None, help=f"default results/bench/{NAME}.json (+ .png beside it)")
+    p.add_argument("--out", type=Path, default=None,
+                   help=f"default results/hopper/speed/{NAME}.json (+ .png beside it)")
     a = p.parse_args(argv)
     params = {**DEFAULT_PARAMS, **parse_assignments(a.param, "--param", "alpha=30")}
     for key in params:

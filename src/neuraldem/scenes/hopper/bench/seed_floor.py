@@ -15,7 +15,7 @@ settings rescore the stored reruns without running them again). Reported:
   cost             median solver CPU (and wall) seconds per rerun: the method's time to answer
 
 `python -m neuraldem.bench seed_floor --dataset DIR [--n-sets 10] [--seeds 3] [--workers 1] [--seed 0]
-[--out results/bench/seed_floor.json] [--workdir DIR]` writes the JSON and a markdown table beside it. Every
+[--out results/hopper/accuracy/seed_floor.json] [--workdir DIR]` writes the JSON and a markdown table beside it. Every
 finished rerun is written at once to `<workdir>/reruns.json`; a restarted command reruns only what is missing.
 """
 
@@ -414,7 +414,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--seed", type=int, default=0, help="seed of the parameter-set choice")
     p.add_argument("--workdir", type=Path, default=None,
                    help=f"solver runs and the rerun cache (default <data dir>/bench/{NAME}/<dataset name>)")
-    p.add_argument("--out", type=Path, default=None, help=f"default results/bench/{NAME}.json (+ .md beside it)")
+    p.add_argument("--out", type=Path, default=None,
+                   help=f"default results/hopper/accuracy/{NAME}.json (+ .md beside it)")
     a = p.parse_args(argv)
     checks.positive_int("--n-sets", a.n_sets)
     checks.positive_int("--seeds", a.seeds)

@@ -1,7 +1,7 @@
 """LIGGGHTS against the trained surrogate on the same hopper questions, side by side in one run.
 
 `python -m neuraldem.bench hopper_speed --ckpt CKPT [--dataset DIR] [--repeats 5] [--solver-repeats 3]
-[--reuse-dataset] [--reduced-queries 1000] [--threads 1]` writes results/bench/hopper_speed.json and .md.
+[--reuse-dataset] [--reduced-queries 1000] [--threads 1]` writes results/hopper/speed/hopper_speed.json and .md.
 
 Question 1: occupancy, transport and residence at every initial particle position for every snapshot time.
 Question 2: the same at a reduced set of query points. The solver answers both by simulating the hopper
@@ -169,7 +169,7 @@ def main(argv: list[str]) -> int:
                         "stores), or exactly the stored run's snapshot times")
     p.add_argument("--workdir", type=Path, default=None, help=f"solver runs (default <data dir>/bench/{NAME})")
     p.add_argument("--keep-runs", action="store_true", help="keep the LIGGGHTS run folders")
-    p.add_argument("--out", type=Path, default=None, help=f"default results/bench/{NAME}.json (+ .md beside it)")
+    p.add_argument("--out", type=Path, default=None, help=f"default results/hopper/speed/{NAME}.json (+ .md beside it)")
     a = p.parse_args(argv)
     checks.positive_int("threads", a.threads)
     checks.positive_int("solver_repeats", a.solver_repeats)

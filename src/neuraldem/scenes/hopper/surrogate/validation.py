@@ -12,7 +12,7 @@ positions and every `time_stride`-th time, and logs:
   val/count_bias_pct     mean signed error of the soft count [% of the points], over runs and times
   val/count_abs_pct      mean absolute error of the soft count [% of the points]
   val/practitioner_score the three errors, each divided by the accuracy aimed at (`scales`: 2x LIGGGHTS's own
-                         seed spread, issue 19), summed; lower is better
+                         seed spread, results/hopper/accuracy/seed_floor.md), summed; lower is better
 
 so that `callbacks.checkpoint.monitor=val/practitioner_score` keeps the checkpoint users would want.
 """
@@ -35,7 +35,8 @@ from neuraldem.scenes.hopper.surrogate.inference import DemPredictor, ModelPredi
 
 log = logging.getLogger(__name__)
 
-# accuracy aimed at per quantity (issue 19: 2x the spread of LIGGGHTS rerun with other packing seeds)
+# accuracy aimed at per quantity: 2x the spread of LIGGGHTS rerun with other packing seeds
+# (results/hopper/accuracy/seed_floor.md)
 DEFAULT_SCALES = {"drainage_t95_pct_of_mean": 4.0, "residual_mae_pp": 0.8, "outflow_rel_err_pct": 2.5}
 LOGGED = {"drainage_t95_pct_of_mean": "drainage_t95_pct", "residual_mae_pp": "residual_pp",
           "outflow_rel_err_pct": "outflow_pct"}
