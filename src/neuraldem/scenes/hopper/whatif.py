@@ -25,7 +25,7 @@ from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings, flow_
 from neuraldem.scenes.hopper.solver import HopperGeometry, HopperScene
 
 if TYPE_CHECKING:
-    from neuraldem.scenes.hopper.surrogate.inference import TrajectoryFields
+    from neuraldem.scenes.hopper.surrogate.predictors import TrajectoryFields
 
 PACKING_FRACTION = 0.6  # random close packing of the settled fill: sets the lattice spacing
 QUANTITIES = {  # answer key -> (label, unit, scale to the unit)
@@ -37,12 +37,41 @@ QUANTITIES = {  # answer key -> (label, unit, scale to the unit)
 }
 
 
-def lattice_points(scene: HopperScene, alpha: float, box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:
-    """A cubic lattice at the packing's particle spacing: centres a radius inside the cylinder wall, above the
-    cone of angle `alpha` and the closed outlet, below the top of the box the model knows."""
+@dataclass(frozen=True)
+class QueryBudget:
+    """How many queries the field model's numbers cost: the lattice spacing in particle spacings (the query set
+    shrinks as 1 / spacing^3) and every n-th time of the snapshot grid. The numbers are fractions and times read
+    off a discharge curve, so far fewer queries than one per particle and per snapshot answer them nearly as
+    well (`neuraldem bench query_budget`, results/hopper/speed/query_budget.md)."""
+
+    spacing: float = 1.0
+    time_stride: int = 1
+
+    def __post_init__(self) -> None:
+        from neuraldem.config import checks
+
+        checks.number("query_spacing", self.spacing, lo=1.0, hi=MAX_SPACING)
+        checks.positive_int("time_stride", self.time_stride)
+        if self.time_stride > MAX_TIME_STRIDE:
+            raise DataError(f"time_stride={self.time_stride} is invalid: at most {MAX_TIME_STRIDE} (every "
+                            f"{MAX_TIME_STRIDE * 0.05:g} s of the 0.05-s grid; the drainage time needs finer)")
+
+    def as_dict(self) -> dict[str, float]:
+        return {"query_spacing": self.spacing, "time_stride": self.time_stride}
+
+
+MAX_SPACING = 6.0  # beyond this a small hopper keeps too few points to count layers
+MAX_TIME_STRIDE = 20
+
+
+def lattice_points(scene: HopperScene, alpha: float, box_lo: np.ndarray, box_hi: np.ndarray,
+                   spacing_factor: float = 1.0) -> np.ndarray:
+    """A cubic lattice at the packing's particle spacing (times `spacing_factor`): centres a radius inside the
+    cylinder wall, above the cone of angle `alpha` and the closed outlet, below the top of the box the model
+    knows."""
     d = scene.material.diameter
     geom = HopperGeometry.for_angle(scene, alpha)
-    spacing = d * (math.pi / 6 / PACKING_FRACTION) ** (1 / 3)
+    spacing = d * (math.pi / 6 / PACKING_FRACTION) ** (1 / 3) * spacing_factor
     r_max = geom.radius - d / 2
     xy = np.arange(-r_max, r_max + 1e-12, spacing)
     z = np.arange(d / 2, min(geom.wall_height, float(box_hi[2])) - d / 2 + 1e-12, spacing)
@@ -65,27 +94,43 @@ class FieldAnswer:
     extrapolation: dict[str, list[float]]
 
 
-def field_answer(net: Any, meta: dict[str, Any], params: dict[str, float], settings: HopperMetricSettings,
-                 threshold: float = 0.5, time_stride: int = 1) -> FieldAnswer:
-    """The field model's answer for scene parameters `params` (those of its conditioning besides t)."""
-    from neuraldem.data.manifest import SimRecord
+def predictor_for(net: Any, meta: dict[str, Any]) -> Any:
+    """The field predictor of a net: an exported one (`models.onnx_runtime.OnnxNet`) is answered without torch."""
     from neuraldem.data.normalization import HopperNormalizer
+
+    norm = HopperNormalizer.from_dict(meta["normalizer"])
+    if hasattr(net, "session"):
+        from neuraldem.scenes.hopper.surrogate.predictors import OnnxPredictor
+
+        return OnnxPredictor(net, norm, list(meta["conditioning"]), times_per_call=16)
+    from neuraldem.scenes.hopper.surrogate.inference import ModelPredictor  # torch: only for a torch net
+
+    return ModelPredictor(net, norm, list(meta["conditioning"]), times_per_call=16)
+
+
+def field_answer(net: Any, meta: dict[str, Any], params: dict[str, float], settings: HopperMetricSettings,
+                 threshold: float = 0.5, time_stride: int = 1, budget: QueryBudget | None = None) -> FieldAnswer:
+    """The field model's answer for scene parameters `params` (those of its conditioning besides t), from the
+    queries of `budget` (default: one per particle spacing, every `time_stride`-th snapshot)."""
+    from neuraldem.data.manifest import SimRecord
+    from neuraldem.scenes.hopper.analysis.metrics import metric_times
     from neuraldem.scenes.hopper.analysis.scoring import summarise
-    from neuraldem.scenes.hopper.surrogate.inference import ModelPredictor, time_grid  # torch: only for fields
 
     t0 = time.perf_counter()
-    norm = HopperNormalizer.from_dict(meta["normalizer"])
+    budget = budget or QueryBudget(1.0, time_stride)
+    predictor = predictor_for(net, meta)
+    norm = predictor.norm
     hop = meta["scene"]["hopper"]
     scene = HopperScene.from_config(hop, "model scene")
-    predictor = ModelPredictor(net, norm, list(meta["conditioning"]), times_per_call=16)
     rec = SimRecord("what-if", 0, dict(params))
-    lattice = lattice_points(scene, float(params["alpha"]), np.asarray(norm.box_lo), np.asarray(norm.box_hi))
+    lattice = lattice_points(scene, float(params["alpha"]), np.asarray(norm.box_lo), np.asarray(norm.box_hi),
+                             budget.spacing)
     start = predictor.fields(rec, np.array([0.0]), lattice).occupancy[0]
     points = lattice[start >= threshold]
     if len(points) == 0:
         raise DataError(f"the field model sees no material at t = 0 for {params}",
                         "ask within the trained ranges, or use the GP answer")
-    times = time_grid(norm.horizon, float(hop["snapshot_interval"]))[::time_stride]
+    times = metric_times(norm.horizon, float(hop["snapshot_interval"]))[::budget.time_stride]
     fields = predictor.fields(rec, times, points)
     summary, stripes = summarise(fields, points[:, 2], settings)
     return FieldAnswer(points, fields, summary, stripes, time.perf_counter() - t0, predictor.extrapolation(rec))

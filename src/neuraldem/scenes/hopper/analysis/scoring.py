@@ -26,7 +26,7 @@ from neuraldem.scenes.hopper.analysis.metrics import (
     layer_stripes,
 )
 from neuraldem.scenes.hopper.dataset.store import HopperFile
-from neuraldem.scenes.hopper.surrogate.inference import HopperPredictor, TrajectoryFields
+from neuraldem.scenes.hopper.surrogate.predictors import HopperPredictor, TrajectoryFields
 
 # error name -> (label, truth key, answer key); every table and chart uses these names
 HOPPER_ERRORS = {

@@ -77,7 +77,7 @@ class HopperEngine:
         from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings
         from neuraldem.scenes.hopper.parameters import PARAMETERS
         from neuraldem.scenes.hopper.solver import HopperScene
-        from neuraldem.scenes.hopper.surrogate.inference import time_grid
+        from neuraldem.scenes.hopper.surrogate.predictors import time_grid
 
         self.model = model
         self.inputs: list[str] = list(model.meta["inputs"])
@@ -236,7 +236,7 @@ class HopperEngine:
         the numbers are `neuraldem predict`'s."""
         from neuraldem.scenes.hopper.analysis.metrics import occupied_counts
         from neuraldem.scenes.hopper.analysis.scoring import summarise
-        from neuraldem.scenes.hopper.surrogate.inference import TrajectoryFields
+        from neuraldem.scenes.hopper.surrogate.predictors import TrajectoryFields
         from neuraldem.scenes.hopper.whatif import regime
 
         found = self._discharge.get(point)
