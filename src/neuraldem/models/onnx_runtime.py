@@ -9,6 +9,7 @@ second otherwise, and a test checks both give the same answers.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -60,7 +61,8 @@ def export_onnx(net: Any, inputs: Mapping[str, Any], outputs: Sequence[str], pat
 
     path = Path(path)
     tmp = path.with_suffix(".tmp")
-    with torch.no_grad():
+    with torch.no_grad(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the tracer's notes on shape-dependent branches: the check below decides
         torch.onnx.export(Outputs().eval(), tuple(inputs.values()), str(tmp), input_names=list(inputs),
                           output_names=list(outputs), dynamic_axes={**dynamic}, opset_version=OPSET, dynamo=False)
     tmp.replace(path)

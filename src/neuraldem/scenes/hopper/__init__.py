@@ -4,12 +4,13 @@ outflow, flow regime, stripes and residence time (`neuraldem.scenes.hopper.analy
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
-
-from omegaconf import DictConfig
+from typing import TYPE_CHECKING, Any
 
 from neuraldem.scenes import Scene
 from neuraldem.scenes.hopper.parameters import PARAMETERS
+
+if TYPE_CHECKING:
+    from omegaconf import DictConfig  # the configs a scene is handed; imported only for type checks
 
 
 def pipeline(data_cfg: DictConfig) -> Any:

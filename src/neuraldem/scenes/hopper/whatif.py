@@ -62,6 +62,9 @@ class QueryBudget:
 
 MAX_SPACING = 6.0  # beyond this a small hopper keeps too few points to count layers
 MAX_TIME_STRIDE = 20
+# the budget of `neuraldem predict`'s field numbers: the cheapest whose errors against LIGGGHTS stay within 10 %
+# of the full budget's on the validation runs (results/hopper/speed/query_budget.md)
+ANSWER_BUDGET = QueryBudget(2.0, 4)
 
 
 def lattice_points(scene: HopperScene, alpha: float, box_lo: np.ndarray, box_hi: np.ndarray,
@@ -134,6 +137,34 @@ def field_answer(net: Any, meta: dict[str, Any], params: dict[str, float], setti
     fields = predictor.fields(rec, times, points)
     summary, stripes = summarise(fields, points[:, 2], settings)
     return FieldAnswer(points, fields, summary, stripes, time.perf_counter() - t0, predictor.extrapolation(rec))
+
+
+@dataclass
+class FieldFrames:
+    points: np.ndarray  # (Q, 3) the whole lattice occupied at t = 0
+    fields: TrajectoryFields
+    stripes: np.ndarray  # (T, layers)
+
+
+def field_frames(net: Any, meta: dict[str, Any], params: dict[str, float], settings: HopperMetricSettings,
+                 time_stride: int = 2, threshold: float = 0.5) -> FieldFrames:
+    """The fields of the whole lattice (one query per particle spacing) at every `time_stride`-th time, answered
+    one frame per call: what pictures and ParaView files show, after the numbers."""
+    from neuraldem.data.manifest import SimRecord
+    from neuraldem.scenes.hopper.analysis.metrics import layer_edges, layer_stripes, metric_times
+
+    predictor = predictor_for(net, meta)
+    predictor.times_per_call = 1
+    norm = predictor.norm
+    hop = meta["scene"]["hopper"]
+    rec = SimRecord("what-if", 0, dict(params))
+    lattice = lattice_points(HopperScene.from_config(hop, "model scene"), float(params["alpha"]),
+                             np.asarray(norm.box_lo), np.asarray(norm.box_hi))
+    points = lattice[predictor.fields(rec, np.array([0.0]), lattice).occupancy[0] >= threshold]
+    fields = predictor.fields(rec, metric_times(norm.horizon, float(hop["snapshot_interval"]))[::time_stride],
+                              points)
+    stripes = layer_stripes(fields.occupancy, fields.transport[..., 2], layer_edges(points[:, 2], settings.n_layers))
+    return FieldFrames(points, fields, stripes)
 
 
 @dataclass

@@ -16,7 +16,6 @@ from neuraldem.data.manifest import SimRecord
 from neuraldem.data.normalization import HopperNormalizer
 from neuraldem.errors import DataError
 from neuraldem.scenes.hopper.analysis.metrics import metric_times
-from neuraldem.scenes.hopper.dataset.fields import trajectory_fields_at
 from neuraldem.scenes.hopper.dataset.store import HopperFile
 
 
@@ -68,6 +67,8 @@ class DemPredictor:
             pos = pos[snapshot_indices(f.times, times, f.path)]
         horizon = self.horizon if self.horizon is not None else float(times[-1])
         exits = np.where(np.isfinite(exits), exits, horizon)
+        from neuraldem.scenes.hopper.dataset.fields import trajectory_fields_at  # scipy: only for DEM fields
+
         occ, transport, residence = trajectory_fields_at(points, times, pos, exits, self.occupancy_radius)
         return TrajectoryFields(times, occ.astype(np.float64), transport, residence)
 
