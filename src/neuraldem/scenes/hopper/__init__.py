@@ -69,6 +69,8 @@ SCENE = Scene(
                            "LIGGGHTS cost vs particle count; surrogate cost vs query points and latent tokens"),
         "seed_floor": ("neuraldem.scenes.hopper.bench.seed_floor",
                        "LIGGGHTS rerun with other packing seeds: the noise floor of every hopper quantity"),
+        "query_budget": ("neuraldem.scenes.hopper.bench.query_budget",
+                         "the field model's errors against answer time over its query budget (lattice, times)"),
         "whatif": ("neuraldem.scenes.hopper.bench.predict_timing",
                    "neuraldem predict hopper: answer times, and GP / field model vs LIGGGHTS at random points"),
     },

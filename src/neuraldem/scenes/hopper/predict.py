@@ -30,10 +30,9 @@ def add_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--time-stride", type=int, default=2,
                    help="the fields in the stripes plot and ParaView files: every Nth time of the 0.05 s grid "
                         "(default 2: every 0.1 s)")
-    p.add_argument("--query-spacing", type=float, default=ANSWER_BUDGET.spacing,
-                   help="the field model's numbers: query lattice spacing in particle spacings (default "
-                        f"{ANSWER_BUDGET.spacing:g}, chosen in results/hopper/speed/query_budget.md; 1 = one query "
-                        "per particle)")
+    p.add_argument("--query-points", type=float, default=ANSWER_BUDGET.points,
+                   help="the field model's numbers: the share of the lattice's material points queried (default "
+                        f"{ANSWER_BUDGET.points:g}, chosen in results/hopper/speed/query_budget.md; 1 = every one)")
     p.add_argument("--answer-stride", type=int, default=ANSWER_BUDGET.time_stride,
                    help=f"the field model's numbers: every Nth time (default {ANSWER_BUDGET.time_stride})")
     p.add_argument("--runtime", choices=("auto", *RUNTIMES), default="auto",
@@ -47,7 +46,7 @@ def answer(point: dict[str, float], model_name: str, out: Path, args: argparse.N
 
     if args.time_stride < 1:
         raise ConfigError(f"time_stride={args.time_stride} is invalid: must be >= 1")
-    budget = QueryBudget(args.query_spacing, args.answer_stride)
+    budget = QueryBudget(args.query_points, args.answer_stride)
     check_threads(args.threads)
     return predict_hopper(point, model_name, out, args.fields, args.verify, budget=budget, runtime=args.runtime,
                           threads=args.threads)

@@ -39,42 +39,51 @@ QUANTITIES = {  # answer key -> (label, unit, scale to the unit)
 
 @dataclass(frozen=True)
 class QueryBudget:
-    """How many queries the field model's numbers cost: the lattice spacing in particle spacings (the query set
-    shrinks as 1 / spacing^3) and every n-th time of the snapshot grid. The numbers are fractions and times read
-    off a discharge curve, so far fewer queries than one per particle and per snapshot answer them nearly as
-    well (`neuraldem bench query_budget`, results/hopper/speed/query_budget.md)."""
+    """How many queries the field model's numbers cost: a share of the lattice points (a fixed, seeded subsample of
+    the material found at t = 0, so the points keep the fill's distribution) and every n-th time of the snapshot
+    grid. The numbers are fractions and times read off a discharge curve, so far fewer queries than one per
+    particle and snapshot answer them nearly as well (`neuraldem bench query_budget`,
+    results/hopper/speed/query_budget.md; a coarser lattice instead biased the outflow by a few percent)."""
 
-    spacing: float = 1.0
+    points: float = 1.0
     time_stride: int = 1
 
     def __post_init__(self) -> None:
         from neuraldem.config import checks
 
-        checks.number("query_spacing", self.spacing, lo=1.0, hi=MAX_SPACING)
+        checks.number("query_points", self.points, lo=MIN_POINT_SHARE, hi=1.0)
         checks.positive_int("time_stride", self.time_stride)
         if self.time_stride > MAX_TIME_STRIDE:
             raise DataError(f"time_stride={self.time_stride} is invalid: at most {MAX_TIME_STRIDE} (every "
                             f"{MAX_TIME_STRIDE * 0.05:g} s of the 0.05-s grid; the drainage time needs finer)")
 
     def as_dict(self) -> dict[str, float]:
-        return {"query_spacing": self.spacing, "time_stride": self.time_stride}
+        return {"query_points": self.points, "time_stride": self.time_stride}
+
+    def subsample(self, points: np.ndarray) -> np.ndarray:
+        """The budget's share of `points`: a seeded subsample, in the lattice's order (the same every call)."""
+        if self.points >= 1.0:
+            return points
+        keep = max(MIN_POINTS, int(round(self.points * len(points))))
+        if keep >= len(points):
+            return points
+        return points[np.sort(np.random.default_rng(0).permutation(len(points))[:keep])]
 
 
-MAX_SPACING = 6.0  # beyond this a small hopper keeps too few points to count layers
+MIN_POINT_SHARE = 0.01
+MIN_POINTS = 64  # fewer material points cannot count eight height layers
 MAX_TIME_STRIDE = 20
 # the budget of `neuraldem predict`'s field numbers: the cheapest whose errors against LIGGGHTS stay within 10 %
 # of the full budget's on the validation runs (results/hopper/speed/query_budget.md)
-ANSWER_BUDGET = QueryBudget(2.0, 4)
+ANSWER_BUDGET = QueryBudget(0.125, 4)
 
 
-def lattice_points(scene: HopperScene, alpha: float, box_lo: np.ndarray, box_hi: np.ndarray,
-                   spacing_factor: float = 1.0) -> np.ndarray:
-    """A cubic lattice at the packing's particle spacing (times `spacing_factor`): centres a radius inside the
-    cylinder wall, above the cone of angle `alpha` and the closed outlet, below the top of the box the model
-    knows."""
+def lattice_points(scene: HopperScene, alpha: float, box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:
+    """A cubic lattice at the packing's particle spacing: centres a radius inside the cylinder wall, above the
+    cone of angle `alpha` and the closed outlet, below the top of the box the model knows."""
     d = scene.material.diameter
     geom = HopperGeometry.for_angle(scene, alpha)
-    spacing = d * (math.pi / 6 / PACKING_FRACTION) ** (1 / 3) * spacing_factor
+    spacing = d * (math.pi / 6 / PACKING_FRACTION) ** (1 / 3)
     r_max = geom.radius - d / 2
     xy = np.arange(-r_max, r_max + 1e-12, spacing)
     z = np.arange(d / 2, min(geom.wall_height, float(box_hi[2])) - d / 2 + 1e-12, spacing)
@@ -114,7 +123,7 @@ def predictor_for(net: Any, meta: dict[str, Any]) -> Any:
 def field_answer(net: Any, meta: dict[str, Any], params: dict[str, float], settings: HopperMetricSettings,
                  threshold: float = 0.5, time_stride: int = 1, budget: QueryBudget | None = None) -> FieldAnswer:
     """The field model's answer for scene parameters `params` (those of its conditioning besides t), from the
-    queries of `budget` (default: one per particle spacing, every `time_stride`-th snapshot)."""
+    queries of `budget` (default: every lattice point, every `time_stride`-th snapshot)."""
     from neuraldem.data.manifest import SimRecord
     from neuraldem.scenes.hopper.analysis.metrics import metric_times
     from neuraldem.scenes.hopper.analysis.scoring import summarise
@@ -126,10 +135,9 @@ def field_answer(net: Any, meta: dict[str, Any], params: dict[str, float], setti
     hop = meta["scene"]["hopper"]
     scene = HopperScene.from_config(hop, "model scene")
     rec = SimRecord("what-if", 0, dict(params))
-    lattice = lattice_points(scene, float(params["alpha"]), np.asarray(norm.box_lo), np.asarray(norm.box_hi),
-                             budget.spacing)
+    lattice = lattice_points(scene, float(params["alpha"]), np.asarray(norm.box_lo), np.asarray(norm.box_hi))
     start = predictor.fields(rec, np.array([0.0]), lattice).occupancy[0]
-    points = lattice[start >= threshold]
+    points = budget.subsample(lattice[start >= threshold])
     if len(points) == 0:
         raise DataError(f"the field model sees no material at t = 0 for {params}",
                         "ask within the trained ranges, or use the GP answer")
