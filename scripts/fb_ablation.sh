@@ -13,8 +13,8 @@
 # training samples mirrored in x), continuity (+ the continuity loss on the predicted solids flux, weight 0.2),
 # long (16000 training steps, twice the default 8000), short (4000, the shipped fb_small model's length),
 # mirror_alt (rollouts alternate with the mirror image,
-# model.stability.mirror_alternate, in the run's rollout validation and evaluation too), mirror_both (mirrored
-# training samples + alternating rollouts), noise_sel (rollout noise 3, model.stability.rollout_noise, in the run's
+# rollout.mirror_alternate, in the run's rollout validation and evaluation too), mirror_both (mirrored
+# training samples + alternating rollouts), noise_sel (rollout noise 3, rollout.rollout_noise, in the run's
 # rollout validation, so the checkpoint is chosen on noisy rollouts, and in its evaluation), noise_pooled (noise_sel
 # + that validation scored against every CFD-DEM run at the velocity, callbacks.rollout_validation.reference=pooled),
 # cond10 (the inlet velocity's sin-cos embedding at scale 10 instead of the positions' 1000,
@@ -26,17 +26,20 @@
 # `pf`) is refused: it never trains the one-step map from data.
 # A variant may name a model config: "fb_base/full" trains model=fb_base (sizes side by side for
 # right-sizing: VARIANTS="fb_tiny/full fb_base/full fb_small/full").
-# A variant with rollout options after a + ("full+alt", "full+noise1", "full+alt+noise0.5") trains nothing: it
-# scores the kept checkpoint of the variant before the first + again, after the trainings, with those rollout
-# options: alt = mirror-alternating rollouts (fluidized_bed.mirror_alternate=true), noiseX = the net reads each
-# state + noise of X times its one-step error (fluidized_bed.rollout_noise=X), corrX = the mixing advection's flux
-# correction X in [0, 1] (fluidized_bed.advection_correction=X; 1 = full FCT, the least numerical mixing). The same net with and without
-# them, where mirror_alt trains a second net (its checkpoint chosen on alternating rollouts). sel chooses the
-# checkpoint first, under those rollout options (`neuraldem report fb-select`, its ranking in
-# RUNS_DIR/<trained variant>/selection/, the winner copied to RUNS_DIR/<variant>/selected.ckpt), and scores that one:
-# "full+noise3+corr1+alt+sel"; SELECT_FROM (training step, default 0), SELECT_SEEDS (rollout seeds, default "0 1")
-# and LONG_VAL (datasets of long validation trajectories, e.g. $NEURALDEM_DATA/datasets/fb_small_longval) are
-# passed on to fb-select as its from_step, seeds and long_val.
+# A variant with rollout options after a + trains nothing: it scores the kept checkpoint of the variant before the
+# first + again, after the trainings, with those rollout options, each spelled as every command takes it
+# (rollout.<option>=VALUE, conf/rollout/) and passed on unchanged: "full+rollout.mirror_alternate=true" (mirror-
+# alternating rollouts), "full+rollout.rollout_noise=1" (the net reads each state + noise of 1 times its one-step
+# error), "full+rollout.advection_correction=1+rollout.rollout_noise=0.5" (the mixing advection's flux correction
+# in [0, 1]; 1 = full FCT, the least numerical mixing). The same net with and without them, where mirror_alt trains
+# a second net (its checkpoint chosen on alternating rollouts). Such a variant's folder is its name without
+# "rollout." and with - for = (Hydra reads no = inside a value): RUNS_DIR/full+mirror_alternate-true. sel chooses
+# the checkpoint first, under those rollout options (`neuraldem report fb-select`, its ranking in
+# RUNS_DIR/<trained variant>/selection/, the winner copied to RUNS_DIR/<variant folder>/selected.ckpt), and scores
+# that one: "full+rollout.rollout_noise=3+rollout.advection_correction=1+rollout.mirror_alternate=true+sel";
+# SELECT_FROM (training step, default 0), SELECT_SEEDS (rollout seeds, default "0 1") and LONG_VAL (datasets of
+# long validation trajectories, e.g. $NEURALDEM_DATA/datasets/fb_small_longval) are passed on as --from-step,
+# --seeds and --long-val. CHECK=1 checks VARIANTS and exits (nothing runs; scripts/fb_recipe_eval.sh does so first).
 # Runs land in RUNS_DIR/<variant>/ (logs beside them), the table in RUNS_DIR/table.md (+ .json). A finished
 # training (RUNS_DIR/<variant>/.trained) is not repeated, a killed one goes on from its checkpoints/latest.ckpt
 # (ckpt_path=...) and a finished evaluation is skipped, so a killed sweep resumes.
@@ -53,8 +56,8 @@ VARIANTS=${VARIANTS:-"full no_unroll fixed_noise no_flux no_conserve stochastic 
 runs=$1; shift
 mkdir -p "$runs"
 # the one-step options (one-step training, no flux channels, absolute mixing, no projection)
-OLD="model.stability.unroll=[1.0] model.stability.input_noise=0.0 model.stability.conserve_volume=false \
-model.stability.mixing=absolute data.datamodule.solids_flux=false callbacks.ema=null"
+OLD="model.stability.unroll=[1.0] model.stability.input_noise=0.0 rollout.conserve_volume=false \
+rollout.mixing=absolute data.datamodule.solids_flux=false callbacks.ema=null"
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-1}
 export OMP_WAIT_POLICY=${OMP_WAIT_POLICY:-PASSIVE}
 overrides() {
@@ -72,27 +75,43 @@ overrides() {
     full) echo "" ;;
     no_unroll) echo "model.stability.unroll=[1.0]" ;;
     fixed_noise) echo "model.stability.input_noise=0.01" ;;
-    no_flux) echo "data.datamodule.solids_flux=false model.stability.mixing=absolute" ;;
-    no_conserve) echo "model.stability.conserve_volume=false" ;;
+    no_flux) echo "data.datamodule.solids_flux=false rollout.mixing=absolute" ;;
+    no_conserve) echo "rollout.conserve_volume=false" ;;
     stochastic) echo "model.stability.ensemble=2 model.net.noise_dim=8" ;;
     no_ema) echo "callbacks.ema=null" ;;
     mirror) echo "data.datamodule.mirror=true" ;;
     continuity) echo "model.stability.flux_consistency=0.2" ;;
     long) echo "trainer.max_steps=16000" ;;
     short) echo "trainer.max_steps=4000" ;;
-    mirror_alt) echo "model.stability.mirror_alternate=true" ;;
-    mirror_both) echo "data.datamodule.mirror=true model.stability.mirror_alternate=true" ;;
-    noise_sel) echo "model.stability.rollout_noise=3" ;;
-    noise_pooled) echo "model.stability.rollout_noise=3 callbacks.rollout_validation.reference=pooled" ;;
+    mirror_alt) echo "rollout.mirror_alternate=true" ;;
+    mirror_both) echo "data.datamodule.mirror=true rollout.mirror_alternate=true" ;;
+    noise_sel) echo "rollout.rollout_noise=3" ;;
+    noise_pooled) echo "rollout.rollout_noise=3 callbacks.rollout_validation.reference=pooled" ;;
     cond10) echo "model.net.scalar_coord_scale=10" ;;
     cond1000) echo "model.net.scalar_coord_scale=1000" ;;
     *) echo "fb_ablation: unknown variant '$1' (known: full no_unroll fixed_noise no_flux no_conserve stochastic no_ema mirror continuity long short mirror_alt mirror_both noise_sel noise_pooled cond10 cond1000 base noise grid_only residual grid_residual)" >&2; return 2 ;;
   esac
 }
 trained_of() { echo "${1%%+*}"; }
-# rollout_options "full+alt+noise1" [flags]: the evaluate overrides (or fb-select's flags) of its rollout options
-# shellcheck source=lib/fb_rollout_options.sh
-source "$ROOT/scripts/lib/fb_rollout_options.sh"
+# the rollout options (options.RolloutOptions; a test keeps this list equal to its fields)
+ROLLOUT_KEYS="conserve_volume mixing advection_correction advection_flux mirror_alternate rollout_noise"
+rollout_options() {  # "full+rollout.rollout_noise=1+sel" -> "rollout.rollout_noise=1": what every command is given
+  local rest=${1#*+} opt name out=""
+  case "$1" in *+*) ;; *) rest="" ;; esac
+  for opt in ${rest//+/ }; do
+    name=${opt%%=*}
+    name=${name#rollout.}
+    case "$opt" in
+      sel) continue ;;
+      rollout.*=?*) case " $ROLLOUT_KEYS " in *" $name "*) out="$out $opt"; continue ;; esac ;;
+    esac
+    echo "fb_ablation: unknown rollout option '$opt' in '$1' (give rollout.NAME=VALUE with NAME one of" \
+         "$ROLLOUT_KEYS, or sel)" >&2
+    return 2
+  done
+  echo "$out"
+}
+variant_dir() { local d=${1//rollout./}; echo "${d//=/-}"; }  # full+rollout.rollout_noise=1 -> full+rollout_noise-1
 for v in $VARIANTS; do
   overrides "$(trained_of "$v")" > /dev/null || exit 2
   case "$v" in *+*)
@@ -103,13 +122,15 @@ for v in $VARIANTS; do
     esac ;;
   esac
 done
+[ "${CHECK:-0}" = 1 ] && exit 0
+mkdir -p "$runs"
 TEST=${TEST:-1}
 test_off=()
 [ "$TEST" = 1 ] || test_off=(evaluate=false)
 failed=0
 running=0
 slot() { if [ "$running" -ge "$JOBS" ]; then wait -n || failed=$((failed + 1)); running=$((running - 1)); fi; }
-val_eval() {  # $1 variant, $2 checkpoint, then extra evaluate overrides
+val_eval() {  # $1 variant folder, $2 checkpoint, then extra evaluate overrides
   local v=$1 ckpt=$2; shift 2
   [ "${VAL:-0}" = 1 ] || return 0
   [ -f "$runs-val/$v/evaluation/metrics.json" ] && return 0
@@ -145,6 +166,7 @@ for v in $VARIANTS; do  # the trained nets again, with other rollout options
   case "$v" in *+*) ;; *) continue ;; esac
   opts=$(rollout_options "$v")
   b=$(trained_of "$v")
+  d=$(variant_dir "$v")
   ckpt="$runs/$b/checkpoints/last.ckpt"
   [ -f "$runs/$b/.trained" ] || [ -f "$ckpt" ] \
     || { echo "fb_ablation: $v: $b was not trained (see its log)" >&2; failed=$((failed + 1)); continue; }
@@ -152,22 +174,22 @@ for v in $VARIANTS; do  # the trained nets again, with other rollout options
   echo "start $v"
   (
     case "+${v#*+}+" in *+sel+*)
-      ckpt="$runs/$v/selected.ckpt"
+      ckpt="$runs/$d/selected.ckpt"
       if [ ! -f "$ckpt" ]; then
-        # shellcheck disable=SC2046,SC2086
-        "$PY" -m neuraldem.scenes.fluidized_bed.surrogate.selection "$runs/$b" $(rollout_options "$v" flags) \
+        # shellcheck disable=SC2086
+        "$PY" -m neuraldem.scenes.fluidized_bed.surrogate.selection "$runs/$b" $opts \
           --from-step "${SELECT_FROM:-0}" --seeds ${SELECT_SEEDS:-0 1} ${LONG_VAL:+--long-val $LONG_VAL} \
           --copy-to "$ckpt" || exit 1
       fi ;;
     esac
-    if [ "$TEST" = 1 ] && [ ! -f "$runs/$v/evaluation/metrics.json" ]; then
+    if [ "$TEST" = 1 ] && [ ! -f "$runs/$d/evaluation/metrics.json" ]; then
       # shellcheck disable=SC2086
       "$PY" -m neuraldem.evaluate ckpt="$ckpt" vtk=false $opts \
-        hydra.run.dir="$runs/$v/evaluation" || exit 1
+        hydra.run.dir="$runs/$d/evaluation" || exit 1
     fi
     # shellcheck disable=SC2086
-    val_eval "$v" "$ckpt" $opts
-  ) >> "$runs/$v.log" 2>&1 &
+    val_eval "$d" "$ckpt" $opts
+  ) >> "$runs/$d.log" 2>&1 &
   running=$((running + 1))
 done
 while [ "$running" -gt 0 ]; do wait -n || failed=$((failed + 1)); running=$((running - 1)); done

@@ -21,7 +21,8 @@ import torch
 
 from neuraldem.models.modules.conservative_advection import consistent_faces, face_fluxes
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, initial_state, load_fb_checkpoint
+from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, initial_state
+from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import load_fb_checkpoint
 
 BED = 0.1  # solid fraction above which a cell counts as bed
 

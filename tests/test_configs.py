@@ -8,6 +8,7 @@ from hydra.utils import instantiate
 
 from neuraldem.config.build import build_callbacks, build_trainer
 from neuraldem.paths import config_dir
+from neuraldem.train import model_kwargs
 
 EXPERIMENTS = sorted(p.stem for p in (config_dir() / "experiment").glob("*.yaml"))
 
@@ -26,7 +27,8 @@ def test_experiment_builds(experiment: str, compose_train_cfg, request: pytest.F
 
         export_dataset("gns", request.getfixturevalue("hopper_tiny_dataset"), tmp_path / "export", exits="hold")
         cfg = compose_train_cfg(f"experiment={experiment}", f"data.export_dir={tmp_path / 'export'}")
-        module = instantiate(cfg.model, datamodule=instantiate(cfg.data.datamodule), _recursive_=False)
+        module = instantiate(cfg.model, datamodule=instantiate(cfg.data.datamodule), _recursive_=False,
+                             **model_kwargs(cfg))
         assert cfg.task_name == experiment and module.metadata["scene_kind"] == "hopper"
         assert module.net.n_scalars == len(module.metadata["conditioning"]) and module.net.n_extra_walls == 0
         return
@@ -41,11 +43,15 @@ def test_experiment_builds(experiment: str, compose_train_cfg, request: pytest.F
     cfg = compose_train_cfg(f"experiment={experiment}", *overrides)
     assert cfg.task_name == experiment
     dm = instantiate(cfg.data.datamodule)
-    module = instantiate(cfg.model, datamodule=dm, _recursive_=False)
+    module = instantiate(cfg.model, datamodule=dm, _recursive_=False, **model_kwargs(cfg))  # as neuraldem.train
     assert isinstance(module, L.LightningModule)
     assert module.net.n_scalars == len(cfg.data.conditioning)
     # a GNS checkpoint is of kind "gns" (the field surrogates' tools refuse it) and names its scene apart
     assert module.metadata.get("scene_kind", module.metadata["kind"]) == kind == cfg.data.kind
+    if experiment == "fb":  # the rollout group's options are what the model trains with and its checkpoint records
+        recorded = module.hparams["stability"]
+        assert (recorded["conserve_volume"], recorded["mixing"], recorded["advection_flux"]) == (
+            True, "advect", "consistent")
     trainer = build_trainer(cfg.trainer, callbacks=build_callbacks(cfg.callbacks), loggers=[])
     assert trainer.max_steps == cfg.trainer.max_steps
 

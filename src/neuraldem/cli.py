@@ -110,7 +110,7 @@ class KeyValueFormatter(argparse.RawDescriptionHelpFormatter):
                       prefix: str | None) -> str:
         parts = []
         for a in actions:
-            if isinstance(a, argparse._HelpAction):
+            if isinstance(a, argparse._HelpAction) or a.help == argparse.SUPPRESS:  # e.g. an old flag's alias
                 continue
             if isinstance(a, argparse._SubParsersAction):
                 parts.append("{" + ",".join(a.choices) + "} ...")
@@ -128,15 +128,16 @@ class CommandParser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
 
     def options(self) -> dict[str, argparse.Action]:
-        return {key_of(a): a for a in self._actions
-                if not isinstance(a, (argparse._HelpAction, argparse._SubParsersAction))}
+        """The keys and their actions; a hidden action (an old flag kept as an alias of a key) is no key."""
+        return {key_of(a): a for a in self._actions if a.help != argparse.SUPPRESS
+                and not isinstance(a, (argparse._HelpAction, argparse._SubParsersAction))}
 
     def option_list(self) -> str:
         return ", ".join(f"{k}=" for k in self.options())
 
     def error(self, message: str) -> NoReturn:
         """argparse's messages in the key=value grammar, one line, status 2."""
-        message = re.sub(r"--([A-Za-z0-9][\w-]*)", lambda m: m.group(1).replace("-", "_") + "=", message)
+        message = re.sub(r"--([A-Za-z0-9][\w.-]*)", lambda m: m.group(1).replace("-", "_") + "=", message)
         message = message.replace("argument ", "option ")
         fail(f"{self.prog}: {message} ({self.prog} --help lists the options)")
 
@@ -179,7 +180,7 @@ class CommandParser(argparse.ArgumentParser):
                 i += 1 + len(taken)
                 continue
             key, sep, value = token.partition("=")
-            if not sep or not re.fullmatch(r"[A-Za-z_]\w*", key):
+            if not sep or not re.fullmatch(r"[A-Za-z_][\w.]*", key):  # a key may be dotted: rollout.rollout_noise
                 old.append(token)
                 flags.append(token)  # a bare positional (old spelling), e.g. a dataset folder
                 i += 1
@@ -357,6 +358,23 @@ def check_overrides(config_name: str, overrides: list[str]) -> None:
              f"{', '.join(sorted(k + '=' for k in known if k != 'hydra'))} (and their sub-keys, e.g. data.name=)")
 
 
+def renamed_overrides(config_name: str, overrides: list[str]) -> list[str]:
+    """Hydra overrides with the keys a scene renamed (`Scene.renamed_keys`, read one release) in their new
+    spelling, a note on stderr for each."""
+    from neuraldem.scenes import registry
+
+    renamed = {old: new for s in registry().values() for old, new in s.renamed_keys.get(config_name, {}).items()}
+    out = []
+    for token in overrides:
+        key, sep, value = token.partition("=")
+        bare = key.lstrip("+")
+        if sep and bare in renamed:
+            token = f"{renamed[bare]}={value}"
+            print(f"neuraldem: note: {bare}= is the old spelling (kept for one release): {token}", file=sys.stderr)
+        out.append(token)
+    return out
+
+
 def hydra_app(config_name: str) -> Callable[[Callable[[DictConfig], Any]], Callable[[], Any]]:
     """Decorator for `main(cfg)` functions: our config tree, our error reporting, offline defaults."""
 
@@ -373,6 +391,7 @@ def hydra_app(config_name: str) -> Callable[[Callable[[DictConfig], Any]], Calla
 
         @functools.wraps(app)
         def checked() -> Any:
+            sys.argv[1:] = renamed_overrides(config_name, sys.argv[1:])
             check_overrides(config_name, sys.argv[1:])
             return app()
 

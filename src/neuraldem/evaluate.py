@@ -3,7 +3,8 @@
 The checkpoint says what it is; its scene (`neuraldem.scenes`) scores it. A fluidized-bed model is scored by
 `neuraldem.scenes.fluidized_bed.analysis.evaluation`: one rollout per held-out inlet velocity against CFD-DEM (time
 statistics,
-mass drift, Lacey curves, stability at 1x, 3x, 10x the training horizon; options under `fluidized_bed:`), into
+mass drift, Lacey curves, stability at 1x, 3x, 10x the training horizon; options under `fluidized_bed:`, the
+rollout options as on every command, `rollout.<name>=`, conf/rollout/), into
 metrics.json, report.md, PNG figures and VTK. A refilling-hopper model is scored by
 `neuraldem.scenes.hopper_refill.evaluation` (transport `refill.horizon` seconds after a reference time, residence-time
 distribution at the outlet over a rollout with periodic reference resets; options under `refill:`). A hopper

@@ -51,7 +51,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
         require_dataset(Path(cfg.data.dataset_dir), str(cfg.data.name))
 
     datamodule = instantiate_checked("data.datamodule", cfg.data.datamodule)
-    module = instantiate_checked("model", cfg.model, datamodule=datamodule, _recursive_=False)
+    module = instantiate_checked("model", cfg.model, datamodule=datamodule, _recursive_=False, **model_kwargs(cfg))
     loggers = build_loggers(cfg.get("logger"))
     trainer = build_trainer(cfg.trainer, callbacks=build_callbacks(cfg.get("callbacks"), with_logger=bool(loggers)),
                             loggers=loggers, strategies=distributed.STRATEGIES)
@@ -89,14 +89,25 @@ def evaluate_after_training(cfg: DictConfig, trainer: L.Trainer) -> dict[str, fl
 RESUME_FIX = "resume with the killed run's <run>/checkpoints/latest.ckpt, or leave ckpt_path out to start afresh"
 
 
+def model_class(model_cfg: DictConfig) -> Any:
+    """The class `model._target_` names (None when it names none: a bad _target_ is reported where it is built)."""
+    try:
+        return get_class(str(model_cfg.get("_target_")))
+    except Exception:
+        return None
+
+
+def model_kwargs(cfg: DictConfig) -> dict[str, Any]:
+    """Constructor arguments the model's class derives from the whole config, not `model` alone, as the class
+    declares them (`config_kwargs(cfg)`, e.g. the bed's stability options with the `rollout` group's in place)."""
+    hook = getattr(model_class(cfg.model), "config_kwargs", None)
+    return hook(cfg) if hook is not None else {}
+
+
 def data_derived_net_keys(model_cfg: DictConfig) -> frozenset[str]:
     """Net keys the model's class sets from its dataset rather than from model.net, as the class declares them
     (`DATA_DERIVED_NET_KEYS`, e.g. the bed's grid channel count): a resumed run gets them from the same data."""
-    try:
-        cls = get_class(str(model_cfg.get("_target_")))
-    except Exception:  # a bad _target_ is reported where the model is built
-        return frozenset()
-    return frozenset(getattr(cls, "DATA_DERIVED_NET_KEYS", ()))
+    return frozenset(getattr(model_class(model_cfg), "DATA_DERIVED_NET_KEYS", ()))
 
 
 def check_resume_checkpoint(cfg: DictConfig) -> None:

@@ -7,6 +7,7 @@ from pathlib import Path
 import matplotlib
 import pytest
 
+from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
 from tests.helpers import run_notebook
 
 pytestmark = pytest.mark.solver
@@ -32,7 +33,7 @@ def test_fb_evaluation_notebook_runs(fb_tiny_checkpoint: Path, fb_tiny_dataset: 
     namespace = run_notebook("fb_evaluation.ipynb")
     model, projected = namespace["result"], namespace["projected"]
     assert model["aggregate"]["n_trajectories"] == projected["aggregate"]["n_trajectories"] == 1
-    assert not model["conserve_solid_volume"] and projected["conserve_solid_volume"]
+    assert not model[RESULT_CONSERVE_KEY] and projected[RESULT_CONSERVE_KEY]  # rollout.conserve_volume=true
     assert abs(projected["trajectories"][0]["mass"]["max_drift_pct"]) < 1e-3  # float32 files
     assert (tmp_path / "model" / "metrics.json").is_file() and (tmp_path / "projected" / "report.md").is_file()
 

@@ -66,7 +66,7 @@ class Scene:
     scan: str | None = None  # `neuraldem scan <scene>`: a module with main(argv) -> int
     page: str | None = None  # the explorer page
     release: str | None = None  # `neuraldem release <scene>`: build a shipped model from a checkpoint
-    rollout: Callable[[DictConfig], None] | None = None  # `neuraldem evaluate rollout ckpt=...`
+    rollout: Callable[[DictConfig], bool] | None = None  # `neuraldem evaluate rollout ckpt=...`; False: diverged
     benchmarks: Mapping[str, tuple[str, str]] = field(default_factory=dict)  # name -> (module[:function], what)
     reports: Mapping[str, tuple[str, str]] = field(default_factory=dict)  # `neuraldem report NAME`
     exports: Mapping[str, tuple[str, str]] = field(default_factory=dict)  # `neuraldem export NAME`
@@ -74,6 +74,8 @@ class Scene:
     import_match_keys: tuple[str, ...] = ()  # scene keys an imported run must share with a model's (1 %)
     import_report_keys: tuple[str, ...] = ()  # solver settings reported when they differ, not refused
     config_dir: Path | None = None  # a plug-in's own Hydra configs (data/, model/, experiment/)
+    # Hydra overrides renamed in this scene, read one release with a note: command config -> {old key: new key}
+    renamed_keys: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
 
     @property
     def route(self) -> str:

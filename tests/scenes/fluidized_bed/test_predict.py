@@ -143,9 +143,9 @@ def test_refresh_bad_input_ends_in_one_line(tmp_path: Path, flags: list[str], me
 
 
 def test_refresh_with_rollout_options_writes_them_into_the_shipped_model(fb_tiny_pretrained: Path, tmp_path: Path):
-    """--rollout-noise / --advection-correction are written into field.pt (so predict, the explorer and evaluate
-    roll out with them without a flag), its checksum in meta.json follows and the options are recorded; a value
-    out of range is refused in one line before the file is touched."""
+    """rollout.rollout_noise= / rollout.advection_correction= are written into field.pt (so predict, the explorer
+    and evaluate roll out with them without an option), its checksum in meta.json follows and the options are
+    recorded; a value out of range is refused in one line before the file is touched."""
     import shutil
 
     from neuraldem.data.integrity import digest
@@ -156,20 +156,22 @@ def test_refresh_with_rollout_options_writes_them_into_the_shipped_model(fb_tiny
     shutil.copytree(fb_tiny_pretrained / "fb_tiny_test", folder)
     field = folder / "field.pt"
     before = digest(field)
-    bad = run_module("neuraldem.scenes.hopper.release", "--name", "fb_tiny_test", "--out", str(tmp_path),
-                     "--refresh-field", "--rollout-noise", "-1")
-    assert bad.returncode != 0 and "--rollout-noise -1" in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
+    release = ("neuraldem.release", "fluidized_bed", "name=fb_tiny_test", f"out={tmp_path}", "refresh_field=true")
+    bad = run_module(*release, "rollout.rollout_noise=-1")
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr, bad.stderr
+    assert bad.stderr.strip() == ("neuraldem: error: rollout.rollout_noise=-1 is invalid: must be a number in [0, 10] "
+                                  "(e.g. rollout.rollout_noise=3)")
     assert digest(field) == before
-    proc = run_module("neuraldem.scenes.hopper.release", "--name", "fb_tiny_test", "--out", str(tmp_path),
-                      "--refresh-field", "--rollout-noise", "2", "--advection-correction", "1")
+    proc = run_module(*release, "rollout.rollout_noise=2", "rollout.advection_correction=1")
     assert proc.returncode == 0, proc.stderr
     meta = json.loads((folder / "meta.json").read_text())
     assert meta["rollout_options"] == {"rollout_noise": 2.0, "advection_correction": 1.0}
     assert meta["files"]["field"]["sha256"] == digest(field) != before
     assert "rollout options" in meta["refreshed"][-1]["what"]
-    assert meta["rebuild"][-1].endswith("--refresh-field --rollout-noise 2 --advection-correction 1")
+    assert meta["rebuild"][-1].endswith("refresh_field=true rollout.advection_correction=1 rollout.rollout_noise=2")
     stepper = ModelStepper(read_checkpoint(field).module("fluidized_bed", "cpu", "test"), 1.5)
     assert stepper.stability.rollout_noise == 2.0 and stepper.stability.advection_correction == 1.0
     assert stepper.noise_std is not None
-    wrong = run_module("neuraldem.scenes.hopper.release", "--name", "x", "--ckpt", str(field), "--rollout-noise", "1")
-    assert wrong.returncode != 0 and "go with --refresh-field" in wrong.stderr
+    wrong = run_module("neuraldem.release", "name=x", f"ckpt={field}", "rollout.rollout_noise=1")
+    assert wrong.returncode == 2 and "rollout.rollout_noise= / rollout.advection_correction= go with " \
+        "refresh_field=true" in wrong.stderr, wrong.stderr

@@ -45,7 +45,7 @@ from neuraldem.scenes.fluidized_bed.bench.stability_map import (
     velocity_grid,
     write_map,
 )
-from neuraldem.scenes.fluidized_bed.surrogate.rollout import initial_file
+from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import initial_file
 
 NAME = "gns_stability"
 

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 from neuraldem.config import checks
 from neuraldem.scenes import Scene
 from neuraldem.scenes.fluidized_bed.parameters import PARAMETERS
+from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RENAMED_OVERRIDES
 
 if TYPE_CHECKING:
     from omegaconf import DictConfig  # the configs a scene is handed; imported only for type checks
@@ -22,29 +23,17 @@ def pipeline(data_cfg: DictConfig) -> Any:
 
 def evaluate(cfg: DictConfig) -> None:
     from neuraldem.scenes.fluidized_bed.analysis.evaluation import evaluate_checkpoint
-    from neuraldem.scenes.fluidized_bed.surrogate.options import ADVECTION_FLUXES, MIXING_MODES, check_rollout_value
+    from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions
     from neuraldem.scenes.fluidized_bed.surrogate.rollout import DivergenceLimits
 
     fb = cfg.fluidized_bed
-    conserve = fb.conserve_solid_volume
-    correction = fb.get("advection_correction")
     result = evaluate_checkpoint(
         Path(cfg.ckpt), out_dir=Path(cfg.paths.output_dir), datasets_dir=Path(cfg.paths.datasets_dir),
         dataset_dir=cfg.dataset_dir, split=cfg.split, part=cfg.part, max_sims=cfg.max_sims,
         horizons=list(fb.horizons), limits=DivergenceLimits(fb.max_packing, fb.tolerance),
         seed=checks.positive_int("fluidized_bed.seed", fb.seed, allow_zero=True), vtk=cfg.vtk, device=cfg.device,
-        conserve_solid_volume=None if conserve is None else checks.boolean("fluidized_bed.conserve_solid_volume",
-                                                                           conserve),
-        mixing=None if fb.get("mixing") is None else checks.one_of("fluidized_bed.mixing", fb.mixing, MIXING_MODES),
         init_snapshot=checks.positive_int("fluidized_bed.init_snapshot", fb.get("init_snapshot", 1), allow_zero=True),
-        advection_correction=None if correction is None else check_rollout_value(
-            "advection_correction", correction, "fluidized_bed.advection_correction"),
-        advection_flux=None if fb.get("advection_flux") is None else checks.one_of(
-            "fluidized_bed.advection_flux", fb.advection_flux, ADVECTION_FLUXES),
-        mirror_alternate=None if fb.get("mirror_alternate") is None else checks.boolean(
-            "fluidized_bed.mirror_alternate", fb.mirror_alternate),
-        rollout_noise=None if fb.get("rollout_noise") is None else check_rollout_value(
-            "rollout_noise", fb.rollout_noise, "fluidized_bed.rollout_noise"))
+        options=RolloutOptions.from_config(cfg.get("rollout")))
     agg = result["aggregate"]
     print((Path(cfg.paths.output_dir) / "report.md").read_text())
     which = "held-out velocities" if cfg.part == "test" else f"{cfg.part} trajectories"
@@ -64,14 +53,16 @@ def evaluate_run(cfg: DictConfig, ckpt: Path) -> dict[str, Any]:
     return result
 
 
-def rollout(cfg: DictConfig) -> None:
-    from neuraldem.scenes.fluidized_bed.surrogate.rollout import rollout_command
+def rollout(cfg: DictConfig) -> bool:
+    """False when the rollout diverged (`neuraldem evaluate rollout` then exits 1)."""
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import rollout_command
 
-    rollout_command(cfg)
+    return rollout_command(cfg)
 
 
 SCENE = Scene(
     kind="fluidized_bed", description="OpenFOAM DPMFoam fluidized bed (CFD-DEM)", experiment="experiment=fb",
+    renamed_keys=RENAMED_OVERRIDES,  # the rollout options' old keys (surrogate/option_aliases.py)
     parameters=PARAMETERS, pipeline=pipeline, evaluate=evaluate, evaluate_run=evaluate_run, rollout=rollout,
     module="neuraldem.scenes.fluidized_bed.surrogate.module:FluidizedBedModule", aliases=("bed", "fb"),
     whatif="neuraldem.scenes.fluidized_bed.predict", page="neuraldem.scenes.fluidized_bed.explorer.page",

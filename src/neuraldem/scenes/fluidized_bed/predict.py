@@ -86,7 +86,7 @@ def fb_fields(model: pretrained.Pretrained, velocity: float, settings: Any, wind
     """The field model's rollout over the answer window: its answers, the animation and ParaView files."""
     from neuraldem.eval.checkpoints import read_checkpoint
     from neuraldem.scenes.fluidized_bed.analysis.plots import animate_fields
-    from neuraldem.scenes.fluidized_bed.surrogate.rollout import write_rollout_vtk
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import write_rollout_vtk
     from neuraldem.scenes.fluidized_bed.whatif import InitialStates, field_answer
 
     module = read_checkpoint(model.file("field")).module("fluidized_bed", "cpu", "predict")

@@ -151,16 +151,11 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
     return folder
 
 
-ROLLOUT_OPTIONS = ("rollout_noise", "advection_correction")
-
-
-def _flag(option: str) -> str:
-    """The release command's spelling of a rollout option (rollout_noise -> rollout_noise=)."""
-    return f"{option}="
+ROLLOUT_OPTIONS = ("rollout_noise", "advection_correction")  # the rollout options a shipped model may store
 
 
 def set_rollout_options(field: Path, options: dict[str, float]) -> dict[str, float]:
-    """Write rollout options (`model.stability.rollout_noise` / `advection_correction`, chosen on validation) into
+    """Write rollout options (`rollout.rollout_noise` / `rollout.advection_correction`, chosen on validation) into
     a shipped field checkpoint's stability, so every path that rolls the shipped model out (`predict fb`, the
     explorer, the benches, `evaluate ckpt=<field.pt>`) uses them without a flag of its own. Checked before the
     file is touched: the values' ranges and, for noise, that the checkpoint holds the running one-step error.
@@ -168,22 +163,18 @@ def set_rollout_options(field: Path, options: dict[str, float]) -> dict[str, flo
     import torch
 
     from neuraldem.eval.checkpoints import read_checkpoint
-    from neuraldem.scenes.fluidized_bed.surrogate.options import FbStability
+    from neuraldem.scenes.fluidized_bed.surrogate.options import FbStability, RolloutOptions
     from neuraldem.scenes.fluidized_bed.surrogate.rollout import perturbation_std
 
     unknown = sorted(set(options) - set(ROLLOUT_OPTIONS))
     if unknown:
         raise DataError(f"{field}: {unknown[0]} is not a rollout option of a shipped model (known: {ROLLOUT_OPTIONS})")
+    RolloutOptions(**options)  # their ranges: one line naming the key
     checkpoint = read_checkpoint(field)  # one read: its raw dict for the rewrite, its module for the check
     hp = checkpoint.hyper_parameters  # a copy: the read is shared within the process
     stability = dict(hp.get("stability") or {})
     stability.update({k: float(v) for k, v in options.items()})
-    try:  # ranges, in one line naming the flag
-        checked = FbStability.from_config(stability)
-    except ConfigError as e:
-        given = ", ".join(f"{_flag(k)}{v:g}" for k, v in options.items())
-        reason = str(e).split(" (override it")[0]
-        raise ConfigError(f"{given} for {field}: {reason} (give a value inside the range)") from e
+    checked = FbStability.from_config(stability)
     module = checkpoint.module("fluidized_bed", "cpu", "setting rollout options")
     perturbation_std(module, checked.rollout_noise, "cpu")
     hp["stability"] = stability
@@ -209,6 +200,7 @@ def refresh_field_answers(folder: Path, progress: bool = True,
     from neuraldem.eval.checkpoints import read_checkpoint
     from neuraldem.pretrained.building import commit
     from neuraldem.scenes.fluidized_bed.dataset.datagen import FbMetricSettings
+    from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions
     from neuraldem.scenes.fluidized_bed.whatif import AnswerWindow, InitialStates, field_answer
 
     path = folder / "meta.json"
@@ -223,9 +215,9 @@ def refresh_field_answers(folder: Path, progress: bool = True,
 
         meta["rollout_options"] = set_rollout_options(field, rollout_options)
         meta["files"]["field"].update(sha256=digest(field), bytes=field.stat().st_size)
-        flags = " ".join(f"{_flag(k)} {v:g}" for k, v in meta["rollout_options"].items())
-        meta["rebuild"] = [c for c in meta.get("rebuild", []) if "--refresh-field" not in c] + [
-            f"neuraldem release fluidized_bed name={meta['name']} refresh_field=true {flags}"]
+        keys = " ".join(RolloutOptions(**meta["rollout_options"]).overrides())
+        kept = [c for c in meta.get("rebuild", []) if "--refresh-field" not in c and "refresh_field=" not in c]
+        meta["rebuild"] = [*kept, f"neuraldem release fluidized_bed name={meta['name']} refresh_field=true {keys}"]
     module = read_checkpoint(field).module("fluidized_bed", "cpu", "refresh")
     states = InitialStates.load_npz(folder / meta["files"]["states"]["file"])
     settings = FbMetricSettings.from_config(meta["metric_settings"], f"{path} metric_settings")
@@ -249,22 +241,20 @@ def refresh_field_answers(folder: Path, progress: bool = True,
 
 
 def add_options(p: argparse.ArgumentParser) -> None:
+    from neuraldem.scenes.fluidized_bed.surrogate.options import add_arguments
+
     p.add_argument("--lacey-time", type=float, default=1.0,
                    help="fluidized bed: the time [s] of the Lacey-index answer (default 1)")
     p.add_argument("--refresh-field", action="store_true",
                    help="fluidized bed, no ckpt=: rerun the shipped model's field answers (test rows, probe) after "
                         "a change of the rollout code, keeping its files and the stored CFD-DEM answers")
-    p.add_argument("--rollout-noise", type=float, default=None,
-                   help="with refresh_field=true: rollouts read each state + noise of this many times the model's "
-                        "one-step error, written into field.pt")
-    p.add_argument("--advection-correction", type=float, default=None,
-                   help="with refresh_field=true: the mixing advection's flux correction in [0, 1], written into "
-                        "field.pt")
+    add_arguments(p, ROLLOUT_OPTIONS, default="as trained; with refresh_field=true: written into field.pt")
 
 
 def release(args: argparse.Namespace) -> str:
-    options = {k: v for k, v in (("rollout_noise", args.rollout_noise),
-                                 ("advection_correction", args.advection_correction)) if v is not None}
+    from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions
+
+    options = RolloutOptions.from_args(args).given()
     if args.refresh_field:
         if args.ckpt is not None:
             raise ConfigError("refresh_field=true reruns a shipped model's answers: give name= only, not ckpt=")
@@ -275,8 +265,8 @@ def release(args: argparse.Namespace) -> str:
     if args.ckpt is None:
         raise ConfigError("ckpt= is required (or refresh_field=true for a shipped fluidized-bed model)")
     if options:
-        raise ConfigError("rollout_noise= / advection_correction= go with refresh_field=true (build first, then "
-                          "set them)")
+        raise ConfigError(f"{' / '.join(f'rollout.{k}=' for k in ROLLOUT_OPTIONS)} go with refresh_field=true "
+                          "(build first, then set them)")
     folder = build_fluidized_bed(args.ckpt, args.name, args.out, args.dataset, args.lacey_time)
     sizes = ", ".join(f"{f.name} {f.stat().st_size / 1e6:.2f} MB" for f in sorted(folder.iterdir()))
     return f"wrote {folder} ({sizes})"

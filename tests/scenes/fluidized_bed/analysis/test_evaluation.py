@@ -118,7 +118,7 @@ def test_evaluation_of_a_model_writes_metrics_report_and_plots(fb_tiny_checkpoin
     assert proc.returncode == 0, proc.stderr
     assert "Fluidized-bed surrogate vs CFD-DEM" in proc.stdout and "held-out velocities" in proc.stdout
     train = run_module("neuraldem.evaluate", f"ckpt={fb_tiny_checkpoint}", "fluidized_bed.horizons=[1]", "part=train",
-                       "vtk=false", "fluidized_bed.mirror_alternate=true", f"hydra.run.dir={tmp_path}/train", env=env)
+                       "vtk=false", "rollout.mirror_alternate=true", f"hydra.run.dir={tmp_path}/train", env=env)
     assert train.returncode == 0 and "train trajectories:" in train.stdout, train.stderr  # not called held-out
     alternated = json.loads((tmp_path / "train" / "metrics.json").read_text())  # the override is recorded
     assert alternated["stability"]["mirror_alternate"] is True

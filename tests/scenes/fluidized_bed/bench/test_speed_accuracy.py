@@ -17,6 +17,7 @@ from neuraldem.scenes.fluidized_bed.bench import speed_accuracy as fsa
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
 from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
+from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
 from tests.helpers import with_split
 
 
@@ -59,7 +60,7 @@ def test_seeds_of_one_config_are_one_model_with_their_mean_error():
 def _configured(label: str, params: int, t: float, errs: tuple[float, float, float], **family) -> dict:
     opts = {"input_noise": 0.01, "push_forward_steps": 2, **family}
     net = {"dim": params // 1000, "particle_branch": opts.pop("particle_branch", True)}
-    config = {"net": net, "residual": False, "training": opts, "conserve_solid_volume": False}
+    config = {"net": net, "residual": False, "training": opts, RESULT_CONSERVE_KEY: False}
     return {**_point(label, params, t, 0.0), "errors": dict(zip(fsa.QUANTITIES, errs, strict=False)), "config": config}
 
 

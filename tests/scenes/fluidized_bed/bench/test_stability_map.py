@@ -63,7 +63,8 @@ def test_map_of_two_checkpoints(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path,
 
 def test_rollout_options_reach_every_rollout_and_the_record(fb_tiny_flux_checkpoint: Path, fb_tiny_dataset: Path,
                                                             tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
-    """--advection-correction / --mirror-alternate (as the model is used: results/fluidized_bed/recipe.md) go to
+    """rollout.advection_correction= / rollout.mirror_alternate= (as the model is used:
+    results/fluidized_bed/recipe.md) go to
     each rollout's stepper and into the map's record."""
     seen = []
     real = fb_stability.ModelStepper
@@ -75,12 +76,12 @@ def test_rollout_options_reach_every_rollout_and_the_record(fb_tiny_flux_checkpo
 
     monkeypatch.setattr(fb_stability, "ModelStepper", recording)
     out = tmp_path / "map.json"
-    assert bench_main(["fb_stability", "--ckpt", str(fb_tiny_flux_checkpoint), "--velocities", str(TRAINED_VELOCITY),
-                       "1.3", "--steps", "2", "--advection-correction", "1", "--mirror-alternate",
-                       "--dataset", str(fb_tiny_dataset), "--out", str(out)]) == 0
+    assert bench_main(["fb_stability", f"ckpt={fb_tiny_flux_checkpoint}", f"velocities=[{TRAINED_VELOCITY},1.3]",
+                       "steps=2", "rollout.advection_correction=1", "rollout.mirror_alternate=true",
+                       f"dataset={fb_tiny_dataset}", f"out={out}"]) == 0
     assert seen == [(1.0, True), (1.0, True)]  # both velocities
     r = json.loads(out.read_text())["results"]
-    assert r["advection_correction"] == 1.0 and r["mirror_alternate"] is True
+    assert r["advection_correction"] == 1.0 and r["mirror_alternate"] is True and r["rollout_noise"] is None
     seen.clear()
     fb_stability.run([fb_tiny_flux_checkpoint], velocities=[TRAINED_VELOCITY], steps=2, dataset_dir=fb_tiny_dataset,
                      progress=False)
@@ -177,32 +178,33 @@ def test_a_bed_off_cfd_dem_fails_inside_the_trained_range_only(fb_tiny_checkpoin
 
 
 @pytest.mark.parametrize(("args", "message"), [
-    (["--steps", "0"], "error: config value --steps=0 is invalid: must be a positive integer"),
-    (["--labels", "a", "b"], "error: --labels: 2 label(s) for 1 checkpoint(s)"),
-    (["--velocities", "1.2", "0"], "error: config value --velocities[1]=0.0 is invalid: must be > 0.0"),
-    (["--drift-limit-pct", "0"], "error: config value --drift-limit-pct=0.0 is invalid: must be > 0.0"),
-    (["--n-velocities", "0"], "error: config value --n-velocities=0 is invalid"),
-    (["--bed-limit-pct", "-5"], "error: config value --bed-limit-pct=-5.0 is invalid: must be > 0.0"),
-    (["--settle-steps", "-1"], "error: config value --settle-steps=-1 is invalid"),
-    (["--velocity-step", "0"], "error: config value --velocity-step=0.0 is invalid: must be > 0.0"),
-    (["--velocity-step", "0.01", "--velocities", "1.2"], "error: --velocity-step and --velocities both given"),
-    (["--rollout-noise", "-1"], "error: config value --rollout-noise=-1.0 is invalid: must be >= 0.0"),
-    (["--advection-correction", "2"], "error: config value --advection-correction=2.0 is invalid: must be <= 1.0"),
-    (["--out", "map.csv"], "error: --out=map.csv is invalid: pass a .json file or a folder"),
+    (["steps=0"], "config value --steps=0 is invalid: must be a positive integer"),
+    (["labels=[a,b]"], "--labels: 2 label(s) for 1 checkpoint(s)"),
+    (["velocities=[1.2,0]"], "config value --velocities[1]=0.0 is invalid: must be > 0.0"),
+    (["drift_limit_pct=0"], "config value --drift-limit-pct=0.0 is invalid: must be > 0.0"),
+    (["n_velocities=0"], "config value --n-velocities=0 is invalid"),
+    (["bed_limit_pct=-5"], "config value --bed-limit-pct=-5.0 is invalid: must be > 0.0"),
+    (["settle_steps=-1"], "config value --settle-steps=-1 is invalid"),
+    (["velocity_step=0"], "config value --velocity-step=0.0 is invalid: must be > 0.0"),
+    (["velocity_step=0.01", "velocities=[1.2]"], "--velocity-step and --velocities both given"),
+    (["rollout.rollout_noise=-1"], "rollout.rollout_noise=-1 is invalid: must be a number in [0, 10]"),
+    (["rollout.advection_correction=2"], "rollout.advection_correction=2 is invalid: must be a number in [0, 1]"),
+    (["rollout.mixing=stir"], "rollout.mixing=stir is invalid: must be one of absolute, advect"),
+    (["out=map.csv"], "--out=map.csv is invalid: pass a .json file or a folder"),
 ])
 def test_bad_values_fail_with_one_line(fb_tiny_checkpoint: Path, tmp_path: Path, capsys: pytest.CaptureFixture,
                                        args, message):
-    out = ["--out", str(tmp_path / "x.json")] if "--out" not in args else []
-    assert bench_main(["fb_stability", "--ckpt", str(fb_tiny_checkpoint), *out, *args]) == 2
+    out = [f"out={tmp_path / 'x.json'}"] if not any(a.startswith("out=") for a in args) else []
+    assert bench_main(["fb_stability", f"ckpt={fb_tiny_checkpoint}", *out, *args]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
-    assert len(err) == 1 and err[0].startswith(message), err
+    assert len(err) == 1 and err[0].startswith(f"neuraldem: error: {message}"), err
     assert not (tmp_path / "x.json").exists()
 
 
 def test_a_hopper_checkpoint_is_refused(fb_tiny_checkpoint: Path, tmp_path: Path, capsys: pytest.CaptureFixture):
     hopper = tmp_path / "hopper.ckpt"
     torch.save({"hyper_parameters": {"metadata": {"kind": "hopper", "data_name": "hopper_tiny"}}}, hopper)
-    argv = ["fb_stability", "--ckpt", str(fb_tiny_checkpoint), str(hopper), "--out", str(tmp_path / "x.json")]
+    argv = ["fb_stability", f"ckpt=[{fb_tiny_checkpoint},{hopper}]", f"out={tmp_path / 'x.json'}"]
     assert bench_main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "is a 'hopper' checkpoint" in err and "needs a fluidized_bed model" in err

@@ -17,18 +17,18 @@ import torch
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
 from neuraldem.scenes.fluidized_bed.surrogate.datamodule import grid_input
+from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
+from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
     DataStepper,
     DivergenceLimits,
     ExtrapolationWarning,
     FbState,
     ModelStepper,
-    RolloutFile,
     initial_state,
-    load_fb_checkpoint,
     rollout,
-    run_rollout,
 )
+from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import RolloutFile, load_fb_checkpoint, run_rollout
 from tests.helpers import run_module
 
 pytestmark = pytest.mark.solver
@@ -173,22 +173,22 @@ def test_cli(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tiny_checkpoint: P
     bad = run_module("neuraldem.rollout", f"ckpt={tiny_checkpoint}", "velocity=1.3",
                      f"hydra.run.dir={tmp_path / 'bad'}", env=env)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
-    assert "is a 'hopper' checkpoint" in bad.stderr
-    typo = run_module("neuraldem.rollout", f"ckpt={fb_tiny_checkpoint}", "velocity=1.3", "conserve_solid_volume=1",
+    assert "is a hopper model, which has no time-stepping rollout" in bad.stderr
+    typo = run_module("neuraldem.rollout", f"ckpt={fb_tiny_checkpoint}", "velocity=1.3", "rollout.conserve_volume=1",
                       f"hydra.run.dir={tmp_path / 'typo'}", env=env)
-    assert typo.returncode == 2 and "conserve_solid_volume=1 is invalid: must be true or false" in typo.stderr
+    assert typo.returncode == 2 and "rollout.conserve_volume=1 is invalid: must be true or false" in typo.stderr
 
 
 def test_solid_volume_projection_holds_the_first_states_volume(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path,
                                                                 tmp_path: Path):
     plain = _run(fb_tiny_checkpoint, fb_tiny_dataset, tmp_path / "plain", steps=20, vtk=False)
     kept = _run(fb_tiny_checkpoint, fb_tiny_dataset, tmp_path / "kept", steps=20, vtk=False,
-                conserve_solid_volume=True)
-    assert kept["conserve_solid_volume"] and not plain["conserve_solid_volume"]
+                options=RolloutOptions(conserve_volume=True))
+    assert kept[RESULT_CONSERVE_KEY] and not plain[RESULT_CONSERVE_KEY]
     with RolloutFile(tmp_path / "plain" / "rollout.h5") as a, RolloutFile(tmp_path / "kept" / "rollout.h5") as b:
         va = a.grid_field("solid_fraction").sum(axis=(1, 2, 3))
         vb = b.grid_field("solid_fraction").sum(axis=(1, 2, 3))
-        assert b.f.attrs["conserve_solid_volume"]
+        assert b.f.attrs[RESULT_CONSERVE_KEY]
     np.testing.assert_allclose(vb, vb[0], rtol=1e-5)  # float32 storage
     assert np.max(np.abs(va / va[0] - 1)) > 1e-3  # the untrained tiny model alone does not conserve it
 
@@ -196,12 +196,8 @@ def test_solid_volume_projection_holds_the_first_states_volume(fb_tiny_checkpoin
 def test_the_recipe_options_conserve_to_round_off_and_keep_mixing_bounded(fb_tiny_flux_checkpoint: Path,
                                                                        fb_tiny_dataset: Path):
     from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-    from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
-        ModelStepper,
-        initial_state,
-        load_fb_checkpoint,
-        rollout,
-    )
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, initial_state, rollout
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import load_fb_checkpoint
 
     module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
     assert module.stability.mixing == "advect" and module.stability.conserve_volume and module.net.noise_dim == 4
@@ -225,7 +221,8 @@ def test_a_projection_short_of_the_volume_is_named(fb_tiny_flux_checkpoint: Path
     projection fell short, and the rescale then moves capped cells past the cap: the step says so."""
     import neuraldem.scenes.fluidized_bed.surrogate.autoregressive as ar
     from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-    from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, initial_state, load_fb_checkpoint
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, initial_state
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import load_fb_checkpoint
 
     module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
     with FbFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
@@ -241,7 +238,7 @@ def test_a_projection_short_of_the_volume_is_named(fb_tiny_flux_checkpoint: Path
 
 def test_advection_correction_reaches_the_mixing_and_is_recorded(fb_tiny_flux_checkpoint: Path,
                                                                   fb_tiny_dataset: Path, tmp_path: Path):
-    """`rollout advection_correction=X` (as `evaluate fluidized_bed.advection_correction=X`) changes only how the
+    """`rollout.advection_correction=X` (of `evaluate rollout` and `evaluate`) changes only how the
     tagged solid is carried: the solid fraction is the same step for step, the mixing field is not, and the
     summary says which correction ran."""
     import h5py
@@ -249,7 +246,7 @@ def test_advection_correction_reaches_the_mixing_and_is_recorded(fb_tiny_flux_ch
     runs = {}
     for corr in (0.0, 1.0):
         summary = _run(fb_tiny_flux_checkpoint, fb_tiny_dataset, tmp_path / str(corr), steps=20, vtk=False,
-                       advection_correction=corr)
+                       options=RolloutOptions(advection_correction=corr))
         assert summary["advection_correction"] == corr
         with h5py.File(tmp_path / str(corr) / "rollout.h5") as f:
             runs[corr] = {k: f["snapshots"][k][...] for k in ("solid_fraction", "mixing")}
@@ -260,11 +257,13 @@ def test_advection_correction_reaches_the_mixing_and_is_recorded(fb_tiny_flux_ch
 def test_bad_rollout_requests_end_in_one_line(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tmp_path: Path):
     env = {"NEURALDEM_DATA": str(fb_tiny_dataset.parent.parent)}
     cases = [("init_snapshot=999", "init_snapshot=999 is invalid:", "e.g. init_snapshot=1"),
-             ("mixing=advect", "mixing=advect needs a model trained with the solids flux", "mixing=absolute"),
-             ("mixing=stir", "mixing='stir' is invalid", "must be one of"),
-             ("mirror_alternate=maybe", "mirror_alternate='maybe' is invalid", "must be true or false"),
-             ("rollout_noise=-1", "rollout_noise=-1 is invalid", "must be >= 0"),
-             ("advection_correction=2", "advection_correction=2 is invalid", "must be <= 1")]
+             ("rollout.mixing=advect", "rollout.mixing=advect needs a model trained with the solids flux",
+              "rollout.mixing=absolute"),
+             ("rollout.mixing=stir", "rollout.mixing=stir is invalid", "must be one of absolute, advect"),
+             ("rollout.mirror_alternate=maybe", "rollout.mirror_alternate=maybe is invalid", "must be true or false"),
+             ("rollout.rollout_noise=-1", "rollout.rollout_noise=-1 is invalid", "must be a number in [0, 10]"),
+             ("rollout.advection_correction=2", "rollout.advection_correction=2 is invalid",
+              "must be a number in [0, 1]")]
     for i, (override, message, fix) in enumerate(cases):
         proc = run_module("neuraldem.rollout", f"ckpt={fb_tiny_checkpoint}", f"velocity={TRAINED_VELOCITY}", "steps=3",
                           override,
@@ -288,7 +287,7 @@ def test_mirror_alternation_steps_every_second_state_in_the_mirror_image(fb_tiny
     twice = mirror_state(mirror_state(state, lo_x, hi_x), lo_x, hi_x)
     for name in ("positions", "displacement", "fluid_velocity", "solid_fraction", "mixing", "solids_flux"):
         np.testing.assert_allclose(getattr(twice, name), getattr(state, name), atol=1e-12)
-    alt = ModelStepper(module, TRAINED_VELOCITY, 0, mirror_alternate=True)
+    alt = ModelStepper(module, TRAINED_VELOCITY, 0, options=RolloutOptions(mirror_alternate=True))
     plain, by_hand = ModelStepper(module, TRAINED_VELOCITY, 0), ModelStepper(module, TRAINED_VELOCITY, 0)
     first = alt.step(state)
     np.testing.assert_array_equal(first.solid_fraction, plain.step(state).solid_fraction)
@@ -298,7 +297,8 @@ def test_mirror_alternation_steps_every_second_state_in_the_mirror_image(fb_tiny
     for name in ("solid_fraction", "fluid_velocity", "mixing", "solids_flux", "positions"):
         np.testing.assert_allclose(getattr(second, name), getattr(expected, name), rtol=1e-6, atol=1e-9)
     assert np.abs(second.solid_fraction - plain.step(first).solid_fraction).max() > 1e-6
-    r = rollout(ModelStepper(module, TRAINED_VELOCITY, 0, mirror_alternate=True), state, 30, progress=False)
+    r = rollout(ModelStepper(module, TRAINED_VELOCITY, 0, options=RolloutOptions(mirror_alternate=True)), state, 30,
+                progress=False)
     volume = r.solid_fraction.astype(np.float64).reshape(len(r.times), -1).sum(axis=1)
     np.testing.assert_allclose(volume, float(np.sum(state.solid_fraction)), rtol=2e-6)
     assert r.diverged_at is None and r.mixing.min() >= 0.0 and r.mixing.max() <= 1.0
@@ -314,10 +314,12 @@ def test_rollout_noise_perturbs_what_the_net_reads_and_nothing_else(fb_tiny_flux
     with FbFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
         state = initial_state(f)
     plain = rollout(ModelStepper(module, TRAINED_VELOCITY, 0), state, 30, progress=False)
-    off = rollout(ModelStepper(module, TRAINED_VELOCITY, 0, rollout_noise=0.0), state, 30, progress=False)
+    off = rollout(ModelStepper(module, TRAINED_VELOCITY, 0, options=RolloutOptions(rollout_noise=0.0)), state, 30,
+                  progress=False)
     np.testing.assert_array_equal(off.solid_fraction, plain.solid_fraction)
     for scale in (1.0, 10.0):
-        runs = [rollout(ModelStepper(module, TRAINED_VELOCITY, 0, rollout_noise=scale), state, 30, progress=False)
+        noisy = RolloutOptions(rollout_noise=scale)
+        runs = [rollout(ModelStepper(module, TRAINED_VELOCITY, 0, options=noisy), state, 30, progress=False)
                 for _ in range(2)]
         np.testing.assert_array_equal(runs[0].solid_fraction, runs[1].solid_fraction)
         r = runs[0]
@@ -329,7 +331,7 @@ def test_rollout_noise_perturbs_what_the_net_reads_and_nothing_else(fb_tiny_flux
     # what the net read: the state plus noise of 3 x the running error, per channel
     read, latents = [], module.net.latents
     module.net.latents = lambda x, **kw: read.append(x.grid.clone()) or latents(x, **kw)
-    stepper = ModelStepper(module, TRAINED_VELOCITY, 0, rollout_noise=3.0)
+    stepper = ModelStepper(module, TRAINED_VELOCITY, 0, options=RolloutOptions(rollout_noise=3.0))
     clean = torch.from_numpy(grid_input(module.norm, state.fluid_velocity, state.solid_fraction, state.solids_flux))
     stepper.step(state)
     spread = (read[0][0] - clean.float()).flatten(1).std(dim=1)
@@ -340,7 +342,7 @@ def test_rollout_noise_names_a_checkpoint_without_its_running_error(fb_tiny_flux
     module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
     for name in ("particles", "fluid", "mixing"):
         getattr(module, f"step_error_{name}").zero_()
-    with pytest.raises(ConfigError, match="rollout_noise=1 needs the model's running one-step error"):
-        ModelStepper(module, TRAINED_VELOCITY, 0, rollout_noise=1.0)
-    with pytest.raises(ConfigError, match="model.stability.rollout_noise=-0.5 is invalid"):
-        ModelStepper(module, TRAINED_VELOCITY, 0, rollout_noise=-0.5)
+    with pytest.raises(ConfigError, match="rollout.rollout_noise=1 needs the model's running one-step error"):
+        ModelStepper(module, TRAINED_VELOCITY, 0, options=RolloutOptions(rollout_noise=1.0))
+    with pytest.raises(ConfigError, match="rollout.rollout_noise=-0.5 is invalid"):
+        ModelStepper(module, TRAINED_VELOCITY, 0, options=RolloutOptions(rollout_noise=-0.5))

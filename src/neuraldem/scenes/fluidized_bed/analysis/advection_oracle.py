@@ -11,12 +11,12 @@ starts from the stored one at snapshot 0 and is advected step by step with the s
 the solids flux of the step t -> t+1 (deposited at the particles' positions at t + 1, as the model's next state
 carries it). Output: Lacey curves and their MAE against CFD-DEM's field Lacey index (the evaluation's
 definition) and the largest swing of the tagged solid volume (0 when nothing is mixed in or lost from step to
-step), JSON + a markdown table. It bounds what `model.stability.mixing=advect` can reach: a model's flux
+step), JSON + a markdown table. It bounds what `rollout.mixing=advect` can reach: a model's flux
 is at best this one.
 
 With `--ckpt` the fields come from the model instead: one rollout per trajectory and correction weight
 (`--steps` long, from snapshot 1, the model's own solid fraction and flux), scored the same way. Use it on the
-training and validation parts only, to choose `fluidized_bed.advection_correction` for a trained model
+training and validation parts only, to choose `rollout.advection_correction` for a trained model
 without looking at the test velocities.
 """
 
@@ -37,7 +37,7 @@ from neuraldem.paths import module_command
 from neuraldem.scenes.fluidized_bed.analysis.metrics import lacey_from_fields
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-from neuraldem.scenes.fluidized_bed.surrogate.options import ADVECTION_FLUXES
+from neuraldem.scenes.fluidized_bed.surrogate.options import ADVECTION_FLUXES, RolloutOptions
 
 
 def advected_mixing(f: FbFile, scheme: str, correction: float = 1.0, flux_mode: str = "predicted") -> np.ndarray:
@@ -87,9 +87,9 @@ def model_rows(ckpt: Path, paths: list[Path], settings: dict[str, Any], correcti
         DEFAULT_INIT_SNAPSHOT,
         ModelStepper,
         initial_state,
-        load_fb_checkpoint,
         rollout,
     )
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import load_fb_checkpoint
 
     module = load_fb_checkpoint(ckpt)
     block, min_count = tuple(settings["lacey_block"]), float(settings["lacey_min_count"])
@@ -105,8 +105,8 @@ def model_rows(ckpt: Path, paths: list[Path], settings: dict[str, Any], correcti
                                    "lacey_truth": lacey_truth.tolist()}
             state = initial_state(f)
             for c in corrections:
-                stepper = ModelStepper(module, f.inlet_velocity, 0, mixing="advect", advection_correction=c,
-                                       advection_flux=flux_mode)
+                options = RolloutOptions(mixing="advect", advection_correction=c, advection_flux=flux_mode)
+                stepper = ModelStepper(module, f.inlet_velocity, 0, options=options)
                 r = rollout(stepper, state, n, progress=False)
                 if r.diverged_at is not None:  # a few steps say nothing about mixing: not scored
                     row[f"lacey_{c:g}"], row[f"mae_{c:g}"] = [], float("nan")

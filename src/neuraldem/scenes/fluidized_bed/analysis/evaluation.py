@@ -33,24 +33,27 @@ from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import DataError
 from neuraldem.eval.checkpoints import IMPORTED_SPLIT, checkpoint_dataset, read_checkpoint, resolve_device
 from neuraldem.machine import machine_info
-from neuraldem.paths import invocation, portable
+from neuraldem.paths import invocation
 from neuraldem.scenes.fluidized_bed.analysis import metrics as fm
 from neuraldem.scenes.fluidized_bed.analysis import plots as fb_plots
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-from neuraldem.scenes.fluidized_bed.surrogate.options import rollout_overrides
+from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
+from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
     DEFAULT_INIT_SNAPSHOT,
     DivergenceLimits,
     ModelStepper,
     Rollout,
-    RolloutFile,
     Stepper,
+    initial_state,
+    rollout,
+)
+from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import (
+    RolloutFile,
     check_grid,
     check_velocity,
-    initial_state,
     load_fb_checkpoint,
-    rollout,
     write_rollout,
     write_rollout_vtk,
 )
@@ -288,13 +291,10 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
                         horizons: Sequence[int] = DEFAULT_HORIZONS, limits: DivergenceLimits | None = None,
                         seed: int = 0, vtk: bool = True, device: str = "auto", progress: bool = True,
                         make_stepper: Callable[[Any, float], Stepper] | None = None,
-                        conserve_solid_volume: bool | None = None, mixing: str | None = None,
                         init_snapshot: int = DEFAULT_INIT_SNAPSHOT,
-                        advection_correction: float | None = None,
-                        advection_flux: str | None = None,
-                        mirror_alternate: bool | None = None,
-                        rollout_noise: float | None = None) -> dict[str, Any]:
-    """Evaluate a fluidized-bed checkpoint on the held-out velocities; write and return metrics.json."""
+                        options: RolloutOptions | None = None) -> dict[str, Any]:
+    """Evaluate a fluidized-bed checkpoint on the held-out velocities, rolled out with `options` (None: as
+    trained); write and return metrics.json."""
     horizons = [checks.positive_int(f"fluidized_bed.horizons[{i}]", h) for i, h in enumerate(horizons)]
     if not horizons:
         raise DataError("fluidized_bed.horizons is empty: give the horizon multiples to test, e.g. [1,3,10]")
@@ -311,11 +311,9 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         raise DataError(f"no {part} trajectories in split {split!r} of {dataset_dir}")
     settings = metric_settings(m)
     steps = max(horizons) * norm.horizon_steps
-    make_stepper = make_stepper or (lambda mod, v: ModelStepper(mod, v, seed, device, conserve_solid_volume, mixing,
-                                                                advection_correction, advection_flux,
-                                                                mirror_alternate, rollout_noise))
-    options = rollout_overrides(module.stability, mixing, conserve_solid_volume, advection_correction,
-                                advection_flux, mirror_alternate, rollout_noise)
+    given = options or RolloutOptions()
+    make_stepper = make_stepper or (lambda mod, v: ModelStepper(mod, v, seed, device, given))
+    stability = given.apply(module.stability)  # what every rollout runs with
     out_dir = Path(out_dir)
     (out_dir / "rollouts").mkdir(parents=True, exist_ok=True)
     results, volumes = [], {}
@@ -326,8 +324,8 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
             check_grid(norm, f)
         attrs = {"extrapolation": check_velocity(norm, v), "checkpoint": str(Path(ckpt).resolve()),
                  "initial_state": f"{m.name}/{rec.sim_id} snapshot {init_snapshot}", "seed": seed,
-                 "conserve_solid_volume": options.conserve_volume, "mixing": options.mixing,
-                 "mirror_alternate": options.mirror_alternate, "rollout_noise": options.rollout_noise}
+                 RESULT_CONSERVE_KEY: stability.conserve_volume, "mixing": stability.mixing,
+                 "mirror_alternate": stability.mirror_alternate, "rollout_noise": stability.rollout_noise}
         e = evaluate_trajectory(path, rec.sim_id, v, make_stepper(module, v), steps, norm.horizon_steps, horizons,
                                 settings, limits, out_dir / "rollouts" / f"{rec.sim_id}.h5", attrs, progress,
                                 init_snapshot)
@@ -352,7 +350,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
                      "conserve_volume": module.stability.conserve_volume,
                      "trained_stability": module.stability.to_dict()},
         "training_horizon_steps": norm.horizon_steps, "horizons": horizons, "rollout_steps": steps,
-        "conserve_solid_volume": options.conserve_volume, "stability": options.to_dict(),
+        RESULT_CONSERVE_KEY: stability.conserve_volume, "stability": stability.to_dict(),
         "init_snapshot": init_snapshot,
         "limits": vars(limits or DivergenceLimits()), "metric_settings": settings,
         "aggregate": aggregate(results), "trajectories": results,
@@ -360,6 +358,8 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         "date_utc": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     atomic_write_json(out_dir / "metrics.json", _jsonable(result))
+    from neuraldem.scenes.fluidized_bed.analysis.evaluation_report import markdown_report
+
     (out_dir / "report.md").write_text(markdown_report(result))
     return result
 
@@ -396,85 +396,6 @@ def pooled_sum(terms: Sequence[float | None]) -> float | None:
     """The one number the bed's tables report and `report fb-select` ranks by: rel. L2 of the per-cell time mean
     + rel. L2 of the std field + Lacey MAE, each against every CFD-DEM run at the velocity (None if one is missing)."""
     return None if any(t is None for t in terms) else float(sum(terms))
-
-
-def markdown_report(result: dict[str, Any]) -> str:
-    h = result["training_horizon_steps"]
-    intro = (f"checkpoint `{portable(result['checkpoint'])}`, dataset `{portable(result['dataset'])}` "
-             f"({result['split']} split, "
-             f"{result['part']}), trained on inlet velocities {result['trained_velocity_range'][0]:g} - "
-             f"{result['trained_velocity_range'][1]:g} m/s, training horizon {h} steps of {result['dt']:g} s, "
-             f"rollouts of {result['rollout_steps']} steps. Statistics over the steps both the rollout and the "
-             "CFD-DEM trajectory have; mass drift over the whole rollout.")
-    header = ("| U0 [m/s] | extrapolation | steps compared | rel. L2 mean solid fraction (whole rollout) "
-              "| rel. L2 std solid fraction "
-              "| rel. L2 mean fluid speed | mass drift [%] (steps) | Lacey MAE | bed height [mm] pred / CFD-DEM "
-              "| bubble fraction pred / CFD-DEM |")
-    lines = ["# Fluidized-bed surrogate vs CFD-DEM", "", intro, "", header,
-             "|---|---|---|---|---|---|---|---|---|---|"]
-    for r in result["trajectories"]:
-        rl, ms, bh, bf = r["rel_l2"], r["mass"], r["bed_height"], r["bubble_fraction"]
-        full = r["rel_l2_full"]["solid_fraction_mean"]
-        lines.append(f"| {r['inlet_velocity']:.3f} | {'yes' if r.get('extrapolation') else 'no'} | "
-                     f"{r['window_steps']} | {rl['solid_fraction_mean']:.3f} ({full:.3f}) | "
-                     f"{rl['solid_fraction_std']:.3f} | "
-                     f"{rl['fluid_speed_mean']:.3f} | {ms['drift_pct']:+.2f} ({ms['steps']}) | "
-                     f"{r['lacey']['mae']:.3f} | {1000 * bh['mean_pred']:.1f} / {1000 * bh['mean_truth']:.1f} | "
-                     f"{bf['mean_pred']:.3f} / {bf['mean_truth']:.3f} |")
-    pooled = [r for r in result["trajectories"] if "pooled" in r]
-    if pooled:
-        lines += ["", "## Against every CFD-DEM trajectory at the velocity (pooled)", "",
-                  "The whole rollout's per-cell statistics against those of all CFD-DEM runs at its inlet velocity "
-                  "together (independent packings: a better estimate of the long-time statistics than one run); "
-                  "Lacey MAE against their mean curve.", "",
-                  "| U0 [m/s] | CFD-DEM runs (snapshots) | rollout snapshots | rel. L2 mean solid fraction "
-                  "| rel. L2 std solid fraction | rel. L2 mean mixing | Lacey MAE (steps) |",
-                  "|---|---|---|---|---|---|---|"]
-        for r in pooled:
-            q = r["pooled"]
-            lines.append(f"| {r['inlet_velocity']:.3f} | {len(q['sims'])} ({q['snapshots']}) | {q['pred_snapshots']} "
-                         f"| {q['rel_l2']['solid_fraction_mean']:.3f} | {q['rel_l2']['solid_fraction_std']:.3f} | "
-                         f"{q['rel_l2']['mixing_mean']:.3f} | {q['lacey_mae']:.3f} ({q['lacey_steps']}) |")
-    lines += structure_section(result["trajectories"])
-    mults = [x["multiple"] for x in result["trajectories"][0]["stability"]["horizons"]]
-    lines += ["", "## Stability", "",
-              "| U0 [m/s] | steps until divergence | " + " | ".join(f"{k}x ({k * h} steps)" for k in mults) + " |",
-              "|---|---|" + "---|" * len(mults)]
-    for r in result["trajectories"]:
-        s = r["stability"]
-        div = "none" if s["steps_to_divergence"] is None else f"{s['steps_to_divergence']} ({s['divergence']})"
-        marks = " | ".join("stable" if x["stable"] else "diverged" for x in s["horizons"])
-        lines.append(f"| {r['inlet_velocity']:.3f} | {div} | {marks} |")
-    machine = result["machine"]
-    footer = (f"Machine: {machine.get('cpu_model', '')} (GPU: {machine.get('cuda') or 'none'}); "
-              f"command: `{result['command']}`; {result['date_utc']}")
-    lines += ["", footer, ""]
-    return "\n".join(lines)
-
-
-def structure_section(trajectories: list[dict[str, Any]]) -> list[str]:
-    """The left-right table of the report (metrics.left_right_structure), against the run and, where
-    scored, against the pooled runs."""
-    rows = [(r["inlet_velocity"], ref, q["structure"]) for r in trajectories
-            for ref, q in (("run", r), ("pooled", r.get("pooled"))) if q is not None and "structure" in q]
-    if not rows:
-        return []
-    lines = ["", "## Left-right structure of the solid fraction", "",
-             "The time-mean error split into the height profile (x-mean per height) and the lateral rest "
-             "(profile^2 + lateral^2 = rel. L2^2); mirror asymmetry ||f - f mirrored|| / ||f|| of the time-mean "
-             "and std fields, the std field's lean (right - left) / total and its share in the columns next to the "
-             "walls (how much of the bubbling reaches them), rollout / CFD-DEM (the box is symmetric: CFD-DEM's "
-             "asymmetry and lean are sampling noise).", "",
-             "| U0 [m/s] | reference | time-mean error: profile / lateral | asymmetry of the time mean "
-             "| asymmetry of the std field | lean of the std field | wall share of the std field |",
-             "|---|---|---|---|---|---|---|"]
-    for v, ref, q in rows:
-        lines.append(f"| {v:.3f} | {ref} | {q['mean_profile_rel_l2']:.3f} / {q['mean_lateral_rel_l2']:.3f} | "
-                     f"{q['mean_asymmetry_pred']:.3f} / {q['mean_asymmetry_truth']:.3f} | "
-                     f"{q['std_asymmetry_pred']:.3f} / {q['std_asymmetry_truth']:.3f} | "
-                     f"{q['std_lean_pred']:+.3f} / {q['std_lean_truth']:+.3f} | "
-                     f"{q['std_wall_share_pred']:.3f} / {q['std_wall_share_truth']:.3f} |")
-    return lines
 
 
 def write_trajectory_figures(e: TrajectoryEvaluation, settings: dict[str, Any], out_dir: Path) -> dict[str, Any]:

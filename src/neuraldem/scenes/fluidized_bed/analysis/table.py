@@ -19,6 +19,7 @@ from neuraldem.cli import report_user_errors
 from neuraldem.errors import DataError
 from neuraldem.eval.run_results import find_results, table_main
 from neuraldem.scenes.fluidized_bed.analysis.evaluation import POOLED_SCORE_KEYS, aggregate, pooled_sum
+from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
 
 
 def run_name(result: dict) -> str:
@@ -27,7 +28,7 @@ def run_name(result: dict) -> str:
     construction, not the model's)."""
     name = result.get("run") or Path(result["path"]).parent.parent.name
     trained_with = (result.get("training") or {}).get("conserve_volume", False)
-    projected_on_top = result.get("conserve_solid_volume") and not trained_with
+    projected_on_top = result.get(RESULT_CONSERVE_KEY) and not trained_with
     return f"{name} (solid volume projected)" if projected_on_top else name
 
 

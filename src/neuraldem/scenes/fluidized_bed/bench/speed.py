@@ -1,8 +1,10 @@
 """DPMFoam against the fluidized-bed rollout on the same scene and machine, side by side in one run.
 
 `python -m neuraldem.bench fb_speed --ckpt CKPT [--dataset DIR] [--sim SIM_ID] [--repeats 3]
-[--solver-repeats 3] [--sim-seconds 0.1] [--rollout-steps N] [--threads 1 N] [--reuse-dataset] [--out PATH]`
-writes results/fluidized_bed/speed/fb_speed.json, .md and .png.
+[--solver-repeats 3] [--sim-seconds 0.1] [--rollout-steps N] [--threads 1 N] [--reuse-dataset]
+[rollout.rollout_noise=X] [rollout.mirror_alternate=true|false] [--out PATH]` writes
+results/fluidized_bed/speed/fb_speed.json, .md and .png. Of the rollout options it takes those that change a step's
+cost (`STEP_COST_OPTIONS`).
 
 The unit both are compared in is the cost of one simulated second of the bed. The solver: fresh DPMFoam runs
 of one trajectory of the checkpoint's dataset (its scene, inlet velocity and start-packing seed, through
@@ -40,22 +42,23 @@ from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
 from neuraldem.scenes.fluidized_bed.solver.runner import STATUS_OK, run_fluidized_bed
 from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
 from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
+from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions, add_arguments
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
     DivergenceLimits,
     FbState,
     ModelStepper,
-    check_grid,
     initial_state,
-    load_fb_checkpoint,
     rollout,
 )
-from neuraldem.scenes.fluidized_bed.surrogate.rollout_flags import add_rollout_flags, check_rollout_flags
+from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import check_grid, load_fb_checkpoint
 
 NAME = "fb_speed"
 SOLVER_THREADS = 1  # DPMFoam runs serially, as in datagen
 DEFAULT_SIM_SECONDS = 0.1
 RECORDED = "dataset manifest: per-simulation costs recorded when the dataset was generated, not re-run"
 TARGET_SPEEDUP = 100.0  # the target: the fluidized-bed rollout >= 100x faster than DPMFoam (docs/benchmarks.md)
+# the rollout options that change what a step costs (the others change its numbers, not its work)
+STEP_COST_OPTIONS = ("rollout_noise", "mirror_alternate")
 
 
 def usable_cpus() -> int:
@@ -168,12 +171,11 @@ def solver_recorded(m: Manifest, dataset_dir: Path) -> Timing:
 
 def surrogate_timing(module: FluidizedBedModule, velocity: float, state: FbState, steps: int, repeats: int,
                      threads: int, seed: int = 0, limits: DivergenceLimits | None = None,
-                     clock: Clock = SYSTEM_CLOCK, rollout_noise: float | None = None,
-                     mirror_alternate: bool | None = None) -> Timing:
+                     clock: Clock = SYSTEM_CLOCK, options: RolloutOptions | None = None) -> Timing:
     """Median over `repeats` (after one untimed warm-up) of a `steps`-step rollout from `state` on `threads`
     torch threads, per simulated second. A rollout that diverges is timed over the steps it computed."""
     def once():
-        stepper = ModelStepper(module, velocity, seed, mirror_alternate=mirror_alternate, rollout_noise=rollout_noise)
+        stepper = ModelStepper(module, velocity, seed, options=options)
         return rollout(stepper, state, steps, limits, progress=False)
 
     with torch_threads(threads):
@@ -261,21 +263,23 @@ class Plan:
     workdir: Path
     keep_runs: bool = False
     seed: int = 0
-    rollout_noise: float | None = None
-    mirror_alternate: bool | None = None
+    options: RolloutOptions = RolloutOptions()
 
 
 def prepare(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: int, solver_repeats: int,
             sim_seconds: float, rollout_steps: int | None, threads: list[int] | None, reuse_dataset: bool,
-            workdir: Path, keep_runs: bool = False, seed: int = 0, rollout_noise: float | None = None,
-            mirror_alternate: bool | None = None) -> Plan:
+            workdir: Path, keep_runs: bool = False, seed: int = 0, options: RolloutOptions | None = None) -> Plan:
     """Check every option and input (one clear error for a bad one) before anything is timed."""
     checks.positive_int("--repeats", repeats)
     checks.positive_int("--solver-repeats", solver_repeats)
     if rollout_steps is not None:
         checks.positive_int("--rollout-steps", rollout_steps)
     checks.positive_int("--seed", seed, allow_zero=True)
-    check_rollout_flags(rollout_noise)
+    options = options or RolloutOptions()
+    other = sorted(set(options.given()) - set(STEP_COST_OPTIONS))
+    if other:
+        raise ConfigError(f"rollout.{other[0]}= does not change what a step costs: fb_speed takes "
+                          f"{', '.join(f'rollout.{n}=' for n in STEP_COST_OPTIONS)} (leave it out)")
     threads = parse_threads(threads)
     t0 = time.perf_counter()
     module = load_fb_checkpoint(Path(ckpt))  # refuses other kinds with a message
@@ -293,7 +297,7 @@ def prepare(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: i
         recorded = None  # e.g. an imported dataset: no datagen costs, the measured runs stand alone
     return Plan(Path(ckpt), module, load_s, case, state, rollout_steps or module.norm.horizon_steps, threads,
                 repeats, solver_repeats, sim_seconds, recorded, reuse_dataset, Path(workdir), keep_runs, seed,
-                rollout_noise, mirror_alternate)
+                options)
 
 
 def measure(plan: Plan, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
@@ -304,8 +308,7 @@ def measure(plan: Plan, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
         measured = solver_measured(case, plan.sim_seconds, plan.solver_repeats, plan.workdir, plan.keep_runs)
         solvers = {"DPMFoam, measured": measured, **solvers}
     surrogates = {t: surrogate_timing(module, case.velocity, plan.state, plan.steps, plan.repeats, t, plan.seed,
-                                      clock=clock, rollout_noise=plan.rollout_noise,
-                                      mirror_alternate=plan.mirror_alternate) for t in plan.threads}
+                                      clock=clock, options=plan.options) for t in plan.threads}
     return {
         "scene": module.metadata["data_name"], "checkpoint": str(plan.ckpt.resolve()),
         "dataset": str(case.dataset_dir), "sim_id": case.record.sim_id, "inlet_velocity": case.velocity,
@@ -316,7 +319,7 @@ def measure(plan: Plan, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
         "solver": {label: t.as_dict() for label, t in solvers.items()},
         "surrogate": {str(t): s.as_dict() for t, s in surrogates.items()},
         "surrogate_parameters": sum(p.numel() for p in module.net.parameters()), "surrogate_load_s": plan.load_s,
-        "rollout_noise": plan.rollout_noise, "mirror_alternate": plan.mirror_alternate,
+        **plan.options.as_dict(STEP_COST_OPTIONS),
         "side_by_side": compare(solvers, surrogates), "target_speedup": TARGET_SPEEDUP,
     }
 
@@ -337,7 +340,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--reuse-dataset", action="store_true",
                    help="run no DPMFoam: compare with the costs the manifest recorded (labelled in the output)")
     p.add_argument("--seed", type=int, default=0, help="seed of the rollout's particle re-sampling")
-    add_rollout_flags(p, correction=False)
+    add_arguments(p, STEP_COST_OPTIONS)
     p.add_argument("--workdir", type=Path, default=None, help=f"DPMFoam runs (default <data dir>/bench/{NAME})")
     p.add_argument("--keep-runs", action="store_true", help="keep the DPMFoam case folders")
     p.add_argument("--out", type=Path, default=None,
@@ -347,7 +350,7 @@ def main(argv: list[str]) -> int:
     out = resolve_out(a.out, NAME)
     plan = prepare(a.ckpt, a.dataset, a.sim, a.repeats, a.solver_repeats, a.sim_seconds, a.rollout_steps,
                    a.threads, a.reuse_dataset, a.workdir or default_workdir(NAME), a.keep_runs, a.seed,
-                   a.rollout_noise, a.mirror_alternate)
+                   RolloutOptions.from_args(a))
     machine = machine_info()
     warning = warn_if_busy(machine)
     results = measure(plan)

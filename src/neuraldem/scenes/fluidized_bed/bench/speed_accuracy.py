@@ -54,7 +54,9 @@ from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile, write_fb_file
 from neuraldem.scenes.fluidized_bed.solver.runner import STATUS_OK, run_fluidized_bed
 from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
-from neuraldem.scenes.fluidized_bed.surrogate.rollout import initial_state, load_fb_checkpoint
+from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
+from neuraldem.scenes.fluidized_bed.surrogate.rollout import initial_state
+from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import load_fb_checkpoint
 
 NAME = "fb_speed_accuracy"
 QUANTITIES = {"solid_fraction_mean_rel_l2": "time-mean solid fraction [rel. L2]",
@@ -136,7 +138,7 @@ def surrogate_point(result: dict[str, Any], ref: Reference, steps: int, repeats:
     config = {"net": {"particle_branch": True, **{k: v for k, v in net.items() if k != "_target_"}},
               "residual": module.hparams.get("residual", False),
               "training": {k: v for k, v in result["training"].items() if k != "parameters"},
-              "conserve_solid_volume": result.get("conserve_solid_volume", False)}
+              RESULT_CONSERVE_KEY: result.get(RESULT_CONSERVE_KEY, False)}
     diverged = [t for t in trajectories if t["stability"].get("steps_to_divergence") is not None]
     return {"method": SURROGATE, "label": result.get("run", Path(result["path"]).parent.parent.name),
             "time_to_answer_s": timing["median_cpu_s"], "timing": timing,
@@ -277,7 +279,7 @@ def family_of(point: dict[str, Any]) -> dict[str, Any]:
     if not c:
         return {}
     return {"particle_branch": bool(c["net"].get("particle_branch", True)), "residual": bool(c.get("residual")),
-            **c.get("training", {}), "conserve_solid_volume": bool(c.get("conserve_solid_volume"))}
+            **c.get("training", {}), RESULT_CONSERVE_KEY: bool(c.get(RESULT_CONSERVE_KEY))}
 
 
 def family_label(f: dict[str, Any]) -> str:
@@ -294,7 +296,7 @@ def family_label(f: dict[str, Any]) -> str:
     else:
         parts = [f"input noise {f.get('input_noise', 0):g}", f"push-forward k = {f.get('push_forward_steps', 1)}"]
     parts += [name for key, name, on in (("particle_branch", "grid only", False), ("residual", "residual", True),
-                                          ("conserve_solid_volume", "solid volume projected", True))
+                                          (RESULT_CONSERVE_KEY, "solid volume projected", True))
               if f.get(key, not on) == on]
     return ", ".join(parts)
 

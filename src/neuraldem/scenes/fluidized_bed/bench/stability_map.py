@@ -3,7 +3,9 @@ velocities and beyond them.
 
 `python -m neuraldem.bench fb_stability --ckpt CKPT [CKPT ...] [--labels NAME ...] [--velocities V ...]
 [--n-velocities 9 | --velocity-step DV] [--steps N] [--drift-limit-pct 5] [--bed-limit-pct 10] [--settle-steps N]
-[--out PATH]` writes results/fluidized_bed/stability/fb_stability.json and .png. A fine scan of the trained range:
+[rollout.<option>=VALUE ...] [--out PATH]` writes results/fluidized_bed/stability/fb_stability.json and .png (the
+rollout options of every command, `options.RolloutOptions`; left out: as each checkpoint was trained). A fine scan of
+the trained range:
 `--velocity-step 0.005 --steps 500`; of one stretch: `--velocities $(seq 2.00 0.002 2.10)`.
 
 For every checkpoint (one series each, e.g. a model and its ablation without input noise) and every inlet
@@ -44,19 +46,17 @@ from neuraldem.scenes.fluidized_bed.analysis.metrics import bed_height, total_so
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
 from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
+from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions, add_arguments
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
     DEFAULT_INIT_SNAPSHOT,
     DivergenceLimits,
     ModelStepper,
     Rollout,
     Stepper,
-    check_grid,
-    initial_file,
     initial_state,
-    load_fb_checkpoint,
     rollout,
 )
-from neuraldem.scenes.fluidized_bed.surrogate.rollout_flags import add_rollout_flags, check_rollout_flags
+from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import check_grid, initial_file, load_fb_checkpoint
 
 NAME = "fb_stability"
 DEFAULT_DRIFT_LIMIT_PCT = 5.0  # mass drift > 5 % is an unphysical state (docs/benchmarks.md, fb_stability)
@@ -211,8 +211,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
         n_velocities: int = DEFAULT_N_VELOCITIES, steps: int | None = None, dataset_dir: Path | None = None,
         drift_limit_pct: float = DEFAULT_DRIFT_LIMIT_PCT, seed: int = 0, limits: DivergenceLimits | None = None,
         make_stepper: MakeStepper | None = None, progress: bool = True,
-        rollout_noise: float | None = None, advection_correction: float | None = None,
-        mirror_alternate: bool | None = None, bed_limit_pct: float = DEFAULT_BED_LIMIT_PCT,
+        options: RolloutOptions | None = None, bed_limit_pct: float = DEFAULT_BED_LIMIT_PCT,
         settle_steps: int | None = None, velocity_step: float | None = None) -> dict[str, Any]:
     """The stability map of every checkpoint over the same velocities and step count, rolled out with the
     given rollout options (None: as each checkpoint was trained)."""
@@ -220,7 +219,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
                            velocity_step)
     checks.positive_int("--n-velocities", n_velocities)
     limits = limits or DivergenceLimits()
-    check_rollout_flags(rollout_noise, advection_correction)
+    options = options or RolloutOptions()
     modules = [load_fb_checkpoint(Path(c)) for c in ckpts]  # refuses other kinds before any rollout
     ranges = [(m.norm.velocity_lo, m.norm.velocity_hi) for m in modules]
     grid = sorted({round(float(v), 6) for v in velocities}) if velocities else \
@@ -228,9 +227,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
     steps = steps or DEFAULT_HORIZON_MULTIPLE * modules[0].norm.horizon_steps
     if settle_steps is None:
         settle_steps = modules[0].norm.horizon_steps // DEFAULT_SETTLE_FRACTION
-    make_stepper = make_stepper or (lambda module, v, f: ModelStepper(
-        module, v, seed, advection_correction=advection_correction, mirror_alternate=mirror_alternate,
-        rollout_noise=rollout_noise))
+    make_stepper = make_stepper or (lambda module, v, f: ModelStepper(module, v, seed, options=options))
     series = []
     for label, ckpt, module in zip(labels, ckpts, modules, strict=False):
         norm, points = module.norm, []
@@ -263,8 +260,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
                        "bed_reference": reference.to_dict(), "points": points})
     return {"velocities": grid, "steps": steps, "drift_limit_pct": drift_limit_pct,
             "bed_limit_pct": bed_limit_pct, "settle_steps": settle_steps, "seed": seed,
-            "rollout_noise": rollout_noise, "advection_correction": advection_correction,
-            "mirror_alternate": mirror_alternate,
+            **options.as_dict(),
             "limits": {"max_packing": limits.max_packing, "tolerance": limits.tolerance}, "series": series}
 
 
@@ -320,7 +316,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--dataset", type=Path, default=None,
                    help="dataset dir of the checkpoints' scene (default: <data dir>/datasets/<data name>)")
     p.add_argument("--seed", type=int, default=0, help="seed of the rollouts' particle re-sampling")
-    add_rollout_flags(p, default="as each checkpoint was trained")
+    add_arguments(p, default="as each checkpoint was trained")
     p.add_argument("--out", type=Path, default=None,
                    help=f"results JSON, or a folder for {NAME}.json (default "
                         f"results/fluidized_bed/stability/{NAME}.json); .png beside it")
@@ -331,8 +327,7 @@ def main(argv: list[str]) -> int:
     checks.positive_int("--n-velocities", a.n_velocities)
     machine = machine_info()
     results = run(a.ckpt, a.labels, a.velocities, a.n_velocities, a.steps, a.dataset, a.drift_limit_pct, a.seed,
-                  rollout_noise=a.rollout_noise, advection_correction=a.advection_correction,
-                  mirror_alternate=a.mirror_alternate, bed_limit_pct=a.bed_limit_pct, settle_steps=a.settle_steps,
+                  options=RolloutOptions.from_args(a), bed_limit_pct=a.bed_limit_pct, settle_steps=a.settle_steps,
                   velocity_step=a.velocity_step)
     write_map(NAME, results, argv, out, machine)
     return 0

@@ -46,7 +46,7 @@ from neuraldem.scenes.fluidized_bed.surrogate.autoregressive import (
 )
 from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
 from neuraldem.scenes.fluidized_bed.surrogate.normalization import FbNormalizer
-from neuraldem.scenes.fluidized_bed.surrogate.options import FbStability
+from neuraldem.scenes.fluidized_bed.surrogate.options import FbStability, training_stability
 
 
 class FluidizedBedModule(SurrogateModule):
@@ -90,6 +90,12 @@ class FluidizedBedModule(SurrogateModule):
         for name, c in channels.items():
             self.register_buffer(f"step_error_{name}", torch.zeros(c), persistent=True)
         self.register_buffer("step_error_count", torch.zeros((), dtype=torch.long), persistent=True)
+
+    @staticmethod
+    def config_kwargs(cfg: DictConfig) -> dict[str, Any]:
+        """Constructor arguments from the whole training config besides `model` (`neuraldem.train`): the stability
+        options with the `rollout` group's given ones in place (`options.training_stability`)."""
+        return {"stability": training_stability(plain(cfg.model.get("stability")), plain(cfg.get("rollout")))}
 
     @staticmethod
     def inputs(batch: dict[str, torch.Tensor]) -> OperatorInputs:

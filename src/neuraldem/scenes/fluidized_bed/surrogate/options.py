@@ -1,4 +1,13 @@
-"""Stability options of the fluidized-bed surrogate (`model.stability`), validated in one place.
+"""Stability options of the fluidized-bed surrogate, validated in one place.
+
+Two objects. `FbStability` is every option a model trains and rolls out with, what a checkpoint stores (its
+`hyper_parameters["stability"]`); the training-only ones are set as `model.stability.<name>`. `RolloutOptions` is
+the six that a rollout may change (conserve_volume, mixing, advection_correction, advection_flux, mirror_alternate,
+rollout_noise), each None = "as the checkpoint was trained": one Hydra group `rollout` (conf/rollout/) and one
+spelling on every command, `rollout.<name>=VALUE` (train, evaluate, `evaluate rollout`, `report fb-select`,
+`bench fb_stability`, `bench fb_speed`, `release`). Training reads them from `rollout.*` too (experiment=fb sets
+them there), merged into FbStability when the module is built (`training_stability`), so a checkpoint records them
+as before. The old spellings are read one more release by `option_aliases` alone.
 
 What each option is for (each measured as an ablation row: results/fluidized_bed/recipe.md, tables in
 results/fluidized_bed/options/):
@@ -58,30 +67,208 @@ ensemble          members per training sample: 1 = deterministic (MSE); >= 2 = a
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import argparse
+import math
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
+from neuraldem.cli import FALSE, TRUE
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError
 from neuraldem.models.modules.conservative_advection import SCHEMES
+from neuraldem.scenes.fluidized_bed.surrogate import option_aliases
 
 KEY = "model.stability"
+GROUP = "rollout"  # the Hydra group of the rollout options and their key prefix on every command
 MIXING_MODES = ("absolute", "advect")
 ADVECTION_FLUXES = ("predicted", "consistent")
 LOSS_ON = ("every", "last")
 MAX_ENSEMBLE = 16
 MAX_ROLLOUT_NOISE = 10.0  # times the one-step error: beyond it the net reads noise, not a state
-# the numeric options a rollout may override, and their ranges: every spelling of them (model.stability.*, the
-# evaluate and rollout keys, the tools' --flags) is checked here, so the bounds cannot drift apart
-ROLLOUT_RANGES = {"rollout_noise": (0.0, MAX_ROLLOUT_NOISE), "advection_correction": (0.0, 1.0)}
 
 
-def check_rollout_value(option: str, value: Any, key: str | None = None) -> float:
-    """`value` of the rollout option `option` (a ROLLOUT_RANGES name) inside its range; the error names `key`,
-    the spelling the user typed (default: the option's own name)."""
-    lo, hi = ROLLOUT_RANGES[option]
-    return checks.number(key or option, value, lo=lo, hi=hi)
+@dataclass(frozen=True)
+class OptionSpec:
+    """What values one rollout option takes: "bool", "choice" (of `choices`) or "number" (in [lo, hi])."""
+
+    kind: str
+    help: str
+    example: str
+    choices: tuple[str, ...] = ()
+    lo: float = 0.0
+    hi: float = 0.0
+
+    @property
+    def values(self) -> str:
+        """The values, as the usage line and the errors say them."""
+        if self.kind == "bool":
+            return "true|false"
+        if self.kind == "choice":
+            return "|".join(self.choices)
+        return f"{self.lo:g}..{self.hi:g}"
+
+    def requirement(self) -> str:
+        if self.kind == "bool":
+            return "must be true or false"
+        if self.kind == "choice":
+            return f"must be one of {', '.join(self.choices)}"
+        return f"must be a number in [{self.lo:g}, {self.hi:g}]"
+
+
+# the six options a rollout may change, in the order of RolloutOptions' fields; every spelling of them is checked
+# here, so the ranges and choices cannot drift apart
+OPTION_SPECS: dict[str, OptionSpec] = {
+    "conserve_volume": OptionSpec("bool", "clamp >= 0 and scale the solid fraction to the input state's volume "
+                                  "inside every step", "true"),
+    "mixing": OptionSpec("choice", "absolute: re-predict the mixing concentration every step; advect: carry it "
+                         "with the predicted solids flux", "advect", choices=MIXING_MODES),
+    "advection_correction": OptionSpec("number", "mixing=advect: weight of the flux correction, 0 (upwind) .. 1 "
+                                       "(full FCT)", "0.75", lo=0.0, hi=1.0),
+    "advection_flux": OptionSpec("choice", "mixing=advect: predicted, or consistent (corrected to carry the "
+                                 "solid to the projected next field; needs conserve_volume=true)", "consistent",
+                                 choices=ADVECTION_FLUXES),
+    "mirror_alternate": OptionSpec("bool", "every second step in the mirror image of the bed (cancels a net's "
+                                   "left-right lean)", "true"),
+    "rollout_noise": OptionSpec("number", "the net reads each state + Gaussian noise of this many times its "
+                                "one-step error (0 = off)", "3", lo=0.0, hi=MAX_ROLLOUT_NOISE),
+}
+OPTION_NAMES = tuple(OPTION_SPECS)
+ROLLOUT_RANGES = {name: (s.lo, s.hi) for name, s in OPTION_SPECS.items() if s.kind == "number"}
+
+
+def option_key(name: str) -> str:
+    """How a user types rollout option `name` on every command: `rollout.<name>`."""
+    return f"{GROUP}.{name}"
+
+
+def typed(value: Any) -> str:
+    """A value as it is typed on a command line (true, 3, 0.75, advect)."""
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, float):
+        return f"{value:g}"
+    return str(value)
+
+
+def check_option(name: str, value: Any, key: str | None = None) -> Any:
+    """`value` of rollout option `name` if valid; else one line naming `key` (default `rollout.<name>`), the
+    values it takes and an example."""
+    spec, key = OPTION_SPECS[name], key or option_key(name)
+    if spec.kind == "bool":
+        ok = isinstance(value, bool)
+    elif spec.kind == "choice":
+        ok = isinstance(value, str) and value in spec.choices
+    else:
+        ok = (not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
+              and spec.lo <= value <= spec.hi)
+    if not ok:
+        shown = typed(value) if isinstance(value, (bool, int, float, str)) else repr(value)
+        raise ConfigError(f"{key}={shown} is invalid: {spec.requirement()} (e.g. {key}={spec.example})")
+    return value
+
+
+def check_flux(conserve_volume: Any, mixing: Any, advection_flux: Any) -> None:
+    """A consistent flux carries the solid to a field of the same volume: with the mixing advected it needs
+    the volume projection."""
+    if advection_flux == "consistent" and mixing == "advect" and conserve_volume is False:
+        raise ConfigError(f"{option_key('advection_flux')}=consistent needs {option_key('conserve_volume')}=true: "
+                          "fluxes can only carry the solid to a field of the same volume (or set "
+                          f"{option_key('advection_flux')}=predicted)")
+
+
+def parse_text(name: str, text: str) -> Any:
+    """A command line's text of rollout option `name` as its value (checked by `check_option`)."""
+    spec = OPTION_SPECS[name]
+    if spec.kind == "bool":
+        lowered = text.lower()
+        return True if lowered in TRUE else False if lowered in FALSE else text
+    if spec.kind == "number":
+        try:
+            return float(text)
+        except ValueError:
+            return text
+    return text
+
+
+@dataclass(frozen=True)
+class RolloutOptions:
+    """The rollout options a command was given; None = as the checkpoint was trained. Validated when made."""
+
+    conserve_volume: bool | None = None
+    mixing: str | None = None
+    advection_correction: float | None = None
+    advection_flux: str | None = None
+    mirror_alternate: bool | None = None
+    rollout_noise: float | None = None
+
+    def __post_init__(self) -> None:
+        for name, value in self.given().items():
+            check_option(name, value)
+        check_flux(self.conserve_volume, self.mixing, self.advection_flux)
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any] | None, key: str = GROUP) -> RolloutOptions:
+        """From the `rollout` group of a config (or any mapping of option names); an unknown key is refused."""
+        values = dict(cfg or {})
+        unknown = sorted(set(values) - set(OPTION_NAMES))
+        if unknown:
+            raise ConfigError(f"config key {key}.{unknown[0]} is unknown: the rollout options are "
+                              f"{', '.join(option_key(n) for n in OPTION_NAMES)} (fix the spelling, e.g. "
+                              f"{option_key('rollout_noise')}=3)")
+        return cls(**values)
+
+    @classmethod
+    def from_args(cls, args: argparse.Namespace) -> RolloutOptions:
+        """From a command's parsed options (`add_arguments`): the values typed, None for those left out."""
+        values = {}
+        for name in OPTION_NAMES:
+            text = getattr(args, option_key(name), None)
+            if text is not None:
+                values[name] = parse_text(name, text) if isinstance(text, str) else text
+        return cls(**values)
+
+    def given(self) -> dict[str, Any]:
+        """The options that were set (not None), by name."""
+        return {name: value for name, value in self.as_dict().items() if value is not None}
+
+    def as_dict(self, names: Iterable[str] = OPTION_NAMES) -> dict[str, Any]:
+        return {name: getattr(self, name) for name in names}
+
+    def apply(self, stability: FbStability) -> FbStability:
+        """The options a rollout uses: the checkpoint's, with the given ones replaced (validated together)."""
+        given = self.given()
+        return FbStability.from_config({**stability.to_dict(), **given}) if given else stability
+
+    def tag(self) -> str:
+        """A folder name for these options, from the given ones: `rollout_noise-3+mirror_alternate-true`
+        (`as_trained` when none is given), so that results under other options never share a folder."""
+        return "+".join(f"{name}-{typed(value)}" for name, value in self.given().items()) or "as_trained"
+
+    def overrides(self) -> list[str]:
+        """The given options as every command takes them: `rollout.rollout_noise=3 ...`."""
+        return [f"{option_key(name)}={typed(value)}" for name, value in self.given().items()]
+
+
+def add_arguments(p: argparse.ArgumentParser, names: Iterable[str] = OPTION_NAMES,
+                  default: str = "as the checkpoint was trained") -> None:
+    """The rollout options `names` as a command's options `rollout.<name>=VALUE` (argparse dest
+    `rollout.<name>`; read them back with `RolloutOptions.from_args`). The values are kept as typed and checked
+    when the RolloutOptions is made, so a bad one ends in the same line on every command."""
+    names = list(names)
+    option_aliases.add_old_flags(p, names)  # hidden: not keys (neuraldem.cli), only old flags read into the same dest
+    for name in names:
+        spec = OPTION_SPECS[name]
+        p.add_argument(f"--{option_key(name)}", dest=option_key(name), default=None, metavar=spec.values,
+                       help=f"{spec.help} (default: {default})")
+
+
+def training_stability(stability: Mapping[str, Any] | None, rollout: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The stability options a model trains with: `model.stability` with the `rollout` group's given options
+    in place (a checkpoint then stores them as it always did). Old spellings in `model.stability` are read with
+    a note (`option_aliases`)."""
+    stability, rollout = option_aliases.moved_stability_options(dict(stability or {}), dict(rollout or {}))
+    return {**stability, **RolloutOptions.from_config(rollout).given()}
 
 
 @dataclass(frozen=True)
@@ -107,7 +294,7 @@ class FbStability:
         unknown = sorted(set(cfg) - set(known))
         if unknown:
             raise ConfigError(f"config key {KEY}.{unknown[0]} is unknown: the stability options are {known} "
-                              f"(fix the spelling, e.g. {KEY}.mixing=advect)")
+                              f"(fix the spelling, e.g. {KEY}.input_noise=auto)")
         return cls(**cfg)
 
     def __post_init__(self) -> None:
@@ -126,18 +313,11 @@ class FbStability:
                               f"one-step map from data: give unroll[0] > 0 or use {KEY}.loss_on=every")
         if self.input_noise != "auto":
             checks.number(f"{KEY}.input_noise", self.input_noise, lo=0.0, hi=1.0)
-        checks.boolean(f"{KEY}.conserve_volume", self.conserve_volume)
-        checks.one_of(f"{KEY}.mixing", self.mixing, MIXING_MODES)
+        for name in OPTION_NAMES:  # the rollout options: their checks and keys (rollout.<name>) are RolloutOptions'
+            check_option(name, getattr(self, name))
+        check_flux(self.conserve_volume, self.mixing, self.advection_flux)
         checks.one_of(f"{KEY}.advection_scheme", self.advection_scheme, SCHEMES)
-        check_rollout_value("advection_correction", self.advection_correction, f"{KEY}.advection_correction")
-        checks.one_of(f"{KEY}.advection_flux", self.advection_flux, ADVECTION_FLUXES)
-        if self.advection_flux == "consistent" and self.mixing == "advect" and not self.conserve_volume:
-            raise ConfigError(f"config value {KEY}.advection_flux=consistent needs {KEY}.conserve_volume=true: "
-                              "fluxes can only carry the solid to a field of the same volume (or set "
-                              f"{KEY}.advection_flux=predicted)")
         checks.number(f"{KEY}.flux_consistency", self.flux_consistency, lo=0.0, hi=100.0)
-        checks.boolean(f"{KEY}.mirror_alternate", self.mirror_alternate)
-        check_rollout_value("rollout_noise", self.rollout_noise, f"{KEY}.rollout_noise")
         if isinstance(self.ensemble, bool) or not isinstance(self.ensemble, int) or self.ensemble < 1:
             raise ConfigError(f"config value {KEY}.ensemble={self.ensemble!r} is invalid: must be an integer >= 1 "
                               f"(1 = deterministic; 2 = a stochastic model trained with CRPS, e.g. {KEY}.ensemble=2)")
@@ -162,8 +342,8 @@ class FbStability:
                               f"{served_steps} target step(s): set data.datamodule.push_forward_steps="
                               f"{self.max_unroll}")
         if self.mixing == "advect" and not solids_flux:
-            raise ConfigError(f"config value {KEY}.mixing=advect needs the solids flux in the grid state: set "
-                              "data.datamodule.solids_flux=true")
+            raise ConfigError(f"config value {option_key('mixing')}=advect needs the solids flux in the grid state: "
+                              "set data.datamodule.solids_flux=true")
         if self.flux_consistency > 0 and not solids_flux:
             raise ConfigError(f"config value {KEY}.flux_consistency={self.flux_consistency} needs the solids flux in "
                               "the grid state: set data.datamodule.solids_flux=true (or flux_consistency=0)")
@@ -171,22 +351,3 @@ class FbStability:
             raise ConfigError(f"config value {KEY}.ensemble={self.ensemble} needs a stochastic net: set "
                               "model.net.noise_dim=8 (or ensemble=1)")
 
-
-def rollout_overrides(base: FbStability, mixing: str | None = None, conserve_volume: bool | None = None,
-                      advection_correction: float | None = None, advection_flux: str | None = None,
-                      mirror_alternate: bool | None = None, rollout_noise: float | None = None) -> FbStability:
-    """The options a rollout uses: the checkpoint's, with the rollout-time ones overridden (validated)."""
-    d = base.to_dict()
-    if rollout_noise is not None:
-        d["rollout_noise"] = rollout_noise
-    if mirror_alternate is not None:
-        d["mirror_alternate"] = mirror_alternate
-    if advection_flux is not None:
-        d["advection_flux"] = advection_flux
-    if advection_correction is not None:
-        d["advection_correction"] = advection_correction
-    if mixing is not None:
-        d["mixing"] = mixing
-    if conserve_volume is not None:
-        d["conserve_volume"] = conserve_volume
-    return FbStability.from_config(d)

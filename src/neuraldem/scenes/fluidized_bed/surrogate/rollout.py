@@ -1,4 +1,5 @@
-"""Autoregressive, field-based rollout of a fluidized-bed model, with divergence detection, HDF5 and VTK output.
+"""Autoregressive, field-based rollout of a fluidized-bed model, with divergence detection (its files and the
+command that writes them: `rollout_run.py`).
 
 Each step feeds the model its own previous prediction: the decoded fluid velocity, solid fraction and mixing
 grids, and particles re-sampled from the predicted solid fraction with the decoded displacement field at
@@ -9,8 +10,8 @@ fields).
 Every new state is checked; NaN/inf anywhere, or a solid fraction below -tolerance or above max_packing +
 tolerance, stops the rollout and names the step. The states before it are kept and written.
 
-Rollout file (kind "fluidized_bed_rollout"): the grid fields under the ground truth's names, so the same
-metric code reads both:
+Rollout file (kind "fluidized_bed_rollout", `rollout_run.write_rollout`): the grid fields under the ground truth's
+names, so the same metric code reads both:
   attrs: schema_version, kind, checkpoint, data_name, inlet_velocity, extrapolation, trained_velocity_range,
          steps_requested, diverged_at (-1 = never), divergence, initial_state, seed, max_packing, tolerance,
          created_utc, neuraldem_version
@@ -25,26 +26,16 @@ metric code reads both:
 
 from __future__ import annotations
 
-import json
 import logging
-import warnings
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
-from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
-import h5py
 import numpy as np
 import torch
 from tqdm import tqdm
 
-from neuraldem import __version__
 from neuraldem.config import checks
-from neuraldem.data.integrity import ValidatedH5File
-from neuraldem.data.schema import SCHEMA_VERSION, atomic_write_h5, atomic_write_json
 from neuraldem.errors import ConfigError, DataError
-from neuraldem.eval.checkpoints import checkpoint_dataset, read_checkpoint
-from neuraldem.eval.vtk_export import write_grid_series, write_point_series
 from neuraldem.models.multi_branch_operator import OperatorInputs
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
 from neuraldem.scenes.fluidized_bed.surrogate.autoregressive import advance, perturb_inputs
@@ -52,11 +43,7 @@ from neuraldem.scenes.fluidized_bed.surrogate.datamodule import grid_input, mixi
 from neuraldem.scenes.fluidized_bed.surrogate.mirror import mirror_grid, mirror_points, mirror_vectors
 from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
 from neuraldem.scenes.fluidized_bed.surrogate.normalization import FbNormalizer
-from neuraldem.scenes.fluidized_bed.surrogate.options import FbStability, rollout_overrides
-from neuraldem.sim.foam_reader import BoxGrid
-
-if TYPE_CHECKING:
-    from omegaconf import DictConfig
+from neuraldem.scenes.fluidized_bed.surrogate.options import FbStability, RolloutOptions
 
 log = logging.getLogger(__name__)
 
@@ -145,29 +132,26 @@ class Stepper(Protocol):
 class ModelStepper:
     """A trained FluidizedBedModule as a stepper, conditioned on one inlet velocity.
 
-    The step applies the checkpoint's stability options (`neuraldem.scenes.fluidized_bed.surrogate.options`), which
-    `mixing` and
-    `conserve_solid_volume` override (None = the checkpoint's): with volume conservation the predicted solid
-    fraction is clamped >= 0 and scaled to the solid volume of the first state it was given (the bed is closed:
-    CFD-DEM loses no particle), so the rollout holds it to round-off. A model trained without it and rolled
+    The step applies the checkpoint's stability options (`neuraldem.scenes.fluidized_bed.surrogate.options`), the
+    rollout options given in `options` in their place (`RolloutOptions`; None = the checkpoint's): with volume
+    conservation (`conserve_volume`) the predicted solid fraction is clamped >= 0 and scaled to the solid volume of
+    the first state it was given (the bed is closed: CFD-DEM loses no particle), so the rollout holds it to
+    round-off. A model trained without it and rolled
     out with it is a projection on top of the model: its drift is then 0 by construction and says nothing of
     the model's own conservation. A stochastic model draws its latent noise from this stepper's generator.
     With `mirror_alternate` every second step is taken in the mirror image of the bed, with `rollout_noise` the
     net reads a perturbed copy of each state (`FbStability`; both drawn from this stepper's generator)."""
 
     def __init__(self, module: FluidizedBedModule, velocity: float, seed: int = 0, device: str = "cpu",
-                 conserve_solid_volume: bool | None = None, mixing: str | None = None,
-                 advection_correction: float | None = None, advection_flux: str | None = None,
-                 mirror_alternate: bool | None = None, rollout_noise: float | None = None):
+                 options: RolloutOptions | None = None):
         base = getattr(module, "stability", None) or FbStability()
-        self.stability = rollout_overrides(base, mixing, conserve_solid_volume, advection_correction, advection_flux,
-                                           mirror_alternate, rollout_noise)
+        self.stability = (options or RolloutOptions()).apply(base)
         self.noise_std = perturbation_std(module, self.stability.rollout_noise, device)
         self.steps_taken = 0
         if self.stability.mixing == "advect" and not module.metadata.get("solids_flux", False):
-            raise ConfigError("config value mixing=advect needs a model trained with the solids flux "
-                              "(data.datamodule.solids_flux=true): use mixing=absolute for this checkpoint")
-        self.conserve_solid_volume = self.stability.conserve_volume
+            raise ConfigError("config value rollout.mixing=advect needs a model trained with the solids flux "
+                              "(data.datamodule.solids_flux=true): use rollout.mixing=absolute for this checkpoint")
+        self.conserve_volume = self.stability.conserve_volume
         self.solid_volume: float | None = None  # sum of the first state's solid fraction (cells are equal)
         self.net = module.net.to(device).eval()
         self.step_scales = getattr(module, "step_scales", None)  # a residual model's
@@ -218,7 +202,7 @@ class ModelStepper:
                       volume=volume, net_view=view)
         grid = np.moveaxis(nxt.grid[0].double().cpu().numpy(), 0, -1)
         solid_fraction = norm.field_back("solid_fraction", grid[..., 3:4])
-        if self.conserve_solid_volume:  # the step projected in float32: remove its round-off
+        if self.conserve_volume:  # the step projected in float32: remove its round-off
             total = float(np.sum(solid_fraction))
             if np.isfinite(total) and total > 0:  # a broken field is left for the divergence check
                 ratio = self.solid_volume / total
@@ -245,9 +229,9 @@ def perturbation_std(module: FluidizedBedModule, scale: float, device: str) -> d
         return None
     std = {name: getattr(module, f"step_error_{name}", None) for name in ("particles", "fluid", "mixing")}
     if any(s is None for s in std.values()) or not any(float(s.abs().sum()) > 0 for s in std.values()):
-        raise ConfigError(f"rollout_noise={scale:g} needs the model's running one-step error, which this checkpoint "
-                          "does not hold (trained without the running one-step error, or as a residual model): "
-                          "use rollout_noise=0")
+        raise ConfigError(f"rollout.rollout_noise={scale:g} needs the model's running one-step error, which this "
+                          "checkpoint does not hold (trained without the running one-step error, or as a residual "
+                          "model): use rollout.rollout_noise=0")
     return {name: scale * s.detach().float().to(device) for name, s in std.items()}
 
 
@@ -337,197 +321,3 @@ def _grid_fields(s: FbState) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]
 
 
 # ---- files
-def write_rollout(path: Path, r: Rollout, grid: BoxGrid, particle_volume: float, total_volume: float,
-                  attrs: dict[str, Any]) -> Path:
-    """The rollout as an HDF5 file (module docstring), written atomically."""
-
-    def fill(f: h5py.File) -> None:
-        f.attrs.update(schema_version=SCHEMA_VERSION, kind=ROLLOUT_KIND, steps_requested=r.steps_requested,
-                       diverged_at=-1 if r.diverged_at is None else r.diverged_at, divergence=r.divergence,
-                       neuraldem_version=__version__,
-                       created_utc=datetime.now(UTC).isoformat(timespec="seconds"))
-        for k, v in attrs.items():
-            f.attrs[k] = json.dumps(v) if isinstance(v, (dict, list, tuple)) or v is None else v
-        f.create_group("grid").attrs.update(lo=np.asarray(grid.lo), hi=np.asarray(grid.hi),
-                                            shape=np.asarray(grid.shape, dtype=np.int64))
-        f.create_group("particles").attrs.update(count=r.positions.shape[1], particle_volume=particle_volume,
-                                                 total_volume=total_volume)
-        s = f.create_group("snapshots")
-        s.create_dataset("time", data=r.times)
-        cells = tuple(grid.shape)
-        for name in ("fluid_velocity", "solid_fraction", "mixing"):
-            data = getattr(r, name).astype(np.float32)
-            s.create_dataset(name, data=data, chunks=(1, *cells, *data.shape[4:]), compression="gzip")
-        g = f.create_group("samples")
-        g.create_dataset("time", data=r.sample_times)
-        for name in ("positions", "displacement"):
-            g.create_dataset("position" if name == "positions" else name,
-                             data=getattr(r, name).astype(np.float32), compression="gzip")
-
-    atomic_write_h5(path, fill)
-    return path
-
-
-class RolloutFile(ValidatedH5File):
-    """Validating reader of a rollout file; the grid fields read like `FbFile`'s."""
-
-    KIND = ROLLOUT_KIND
-
-    def _read_meta(self) -> None:
-        g = self._field("grid").attrs
-        self.grid = BoxGrid(lo=tuple(float(v) for v in g["lo"]), hi=tuple(float(v) for v in g["hi"]),
-                            shape=tuple(int(v) for v in g["shape"]))  # type: ignore[arg-type]
-        p = self._field("particles").attrs
-        self.particle_volume = float(p["particle_volume"])
-        self.total_volume = float(p["total_volume"])
-        self.times = self._field("snapshots/time")[()]
-        self.diverged_at = int(self.f.attrs["diverged_at"])
-        self.divergence = str(self.f.attrs.get("divergence", ""))
-        self.attrs = {k: v for k, v in self.f.attrs.items()}
-
-    def validate(self) -> None:
-        T, cells = len(self.times), tuple(self.grid.shape)
-        for name, shape in (("fluid_velocity", (T, *cells, 3)), ("solid_fraction", (T, *cells)),
-                            ("mixing", (T, *cells))):
-            if self._field(f"snapshots/{name}").shape != shape:
-                raise DataError(f"{self.path}: /snapshots/{name} has shape {self._field(f'snapshots/{name}').shape}"
-                                f", expected {shape}")
-
-    def grid_field(self, name: str) -> np.ndarray:
-        return self._field(f"snapshots/{name}")[()].astype(np.float64)
-
-
-def write_rollout_vtk(folder: Path, name: str, r: Rollout, grid: BoxGrid, every: int = 10) -> list[Path]:
-    """ParaView series: the grid fields every `every` steps and the particle samples."""
-    checks.positive_int("vtk_every", every)
-    idx = list(range(0, len(r.times), every))
-    cell_data = [{"solid_fraction": r.solid_fraction[k], "fluid_velocity": r.fluid_velocity[k],
-                  "mixing": r.mixing[k]} for k in idx]
-    grid_pvd = write_grid_series(folder, f"{name}_grid", r.times[idx], grid.lo, grid.hi, grid.shape, cell_data)
-    pts_pvd = write_point_series(folder, f"{name}_particles", r.sample_times, list(r.positions),
-                                 [{"displacement": d} for d in r.displacement])
-    return [grid_pvd, pts_pvd]
-
-
-# ---- checkpoints and conditions
-def load_fb_checkpoint(path: Path, device: str = "cpu") -> FluidizedBedModule:
-    """A trained fluidized-bed model; a checkpoint of another kind is refused with a message."""
-    return read_checkpoint(path).module("fluidized_bed", device, "a fluidized-bed rollout or evaluation")
-
-
-def check_velocity(norm: FbNormalizer, velocity: float) -> bool:
-    """True (and a warning stating the trained range) when `velocity` is outside what the model saw."""
-    checks.positive("velocity", velocity)
-    if norm.in_trained_range(velocity):
-        return False
-    msg = (f"inlet velocity {velocity:g} m/s is outside the range the model was trained on "
-           f"[{norm.velocity_lo:g}, {norm.velocity_hi:g}] m/s: the rollout extrapolates (flagged in its outputs)")
-    warnings.warn(msg, ExtrapolationWarning, stacklevel=2)
-    log.warning("%s", msg)
-    return True
-
-
-def check_grid(norm: FbNormalizer, f: FbFile) -> None:
-    """The initial state must be on the grid the model was trained on."""
-    same_shape = list(f.grid.shape) == list(norm.grid_shape)
-    same_box = np.allclose(f.grid.lo, norm.box_lo, atol=1e-9) and np.allclose(f.grid.hi, norm.box_hi, atol=1e-9)
-    if not (same_shape and same_box):
-        raise DataError(f"{f.path}: grid {list(f.grid.shape)} cells over {list(f.grid.lo)} .. {list(f.grid.hi)} m "
-                        f"differs from the model's grid {norm.grid_shape} over {norm.box_lo} .. {norm.box_hi} m: "
-                        "start the rollout from a trajectory of the scene the model was trained on")
-
-
-def initial_file(meta: dict[str, Any], ckpt: Path, velocity: float, datasets_dir: Path,
-                 dataset_dir: Path | None = None, init: Path | None = None,
-                 init_sim: str | None = None) -> tuple[Path, str]:
-    """Where the first state comes from: the given file, else a trajectory of the model's dataset
-    (`init_sim`, or the one closest in inlet velocity). Returns (path, description)."""
-    if init is not None:
-        return Path(init), str(init)
-    dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), datasets_dir, dataset_dir)
-    if init_sim is not None:
-        rec = m.record(init_sim)
-        if not rec.usable:
-            raise DataError(f"simulation {init_sim} of {dataset_dir} is not finished (status {rec.status})")
-    else:
-        rec = min(m.usable(), key=lambda r: (abs(r.params.get("inlet_velocity", np.inf) - velocity), r.sim_id))
-    return dataset_dir / str(rec.file), f"{m.name}/{rec.sim_id}"
-
-
-def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets_dir: Path,
-                dataset_dir: Path | None = None, init: Path | None = None, init_sim: str | None = None,
-                init_snapshot: int = DEFAULT_INIT_SNAPSHOT, seed: int = 0, limits: DivergenceLimits | None = None,
-                particles_every: int = 10, vtk: bool = True, vtk_every: int = 10, device: str = "cpu",
-                progress: bool = True, conserve_solid_volume: bool | None = None,
-                mixing: str | None = None, mirror_alternate: bool | None = None,
-                rollout_noise: float | None = None, advection_correction: float | None = None) -> dict[str, Any]:
-    """Load, roll out, write rollout.h5 (+ vtk/, rollout.json) into `out_dir`; return the summary."""
-    checks.positive_int("steps", steps)
-    limits = limits or DivergenceLimits()
-    module = load_fb_checkpoint(ckpt, device)
-    meta, norm = module.metadata, module.norm
-    extrapolation = check_velocity(norm, velocity)
-    path, source = initial_file(meta, Path(ckpt), velocity, datasets_dir, dataset_dir, init, init_sim)
-    with FbFile(path) as f:
-        check_grid(norm, f)
-        state = initial_state(f, init_snapshot)
-        present = np.isfinite(f.positions(init_snapshot)).all(axis=1)
-        volumes = f.particle_volumes[present]
-        grid = f.grid
-    stepper = ModelStepper(module, velocity, seed, device, conserve_solid_volume, mixing,
-                           advection_correction=advection_correction, mirror_alternate=mirror_alternate,
-                           rollout_noise=rollout_noise)
-    r = rollout(stepper, state, steps, limits, particles_every, progress)
-    summary = {
-        "checkpoint": str(Path(ckpt).resolve()), "data_name": meta["data_name"], "inlet_velocity": float(velocity),
-        "extrapolation": extrapolation, "trained_velocity_range": [norm.velocity_lo, norm.velocity_hi],
-        "initial_state": f"{source} snapshot {init_snapshot}", "seed": seed, "max_packing": limits.max_packing,
-        "tolerance": limits.tolerance, "dt": norm.dt, "training_horizon_steps": norm.horizon_steps,
-        "conserve_solid_volume": stepper.stability.conserve_volume, "mixing": stepper.stability.mixing,
-        "mirror_alternate": stepper.stability.mirror_alternate, "rollout_noise": stepper.stability.rollout_noise,
-        "advection_correction": stepper.stability.advection_correction,
-    }
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_rollout(out_dir / "rollout.h5", r, grid, float(volumes.mean()), float(volumes.sum()), summary)
-    if vtk:
-        write_rollout_vtk(out_dir / "vtk", "rollout", r, grid, vtk_every)
-    summary |= {"steps_requested": steps, "steps_done": r.steps_done,
-                "diverged_at": r.diverged_at, "divergence": r.divergence, "message": r.message(),
-                "files": {"hdf5": str(out_dir / "rollout.h5"), "vtk": str(out_dir / "vtk") if vtk else None}}
-    atomic_write_json(out_dir / "rollout.json", summary)
-    return summary
-
-
-def rollout_command(cfg: DictConfig) -> bool:
-    """`neuraldem evaluate rollout ckpt=... velocity=... steps=...` for a bed checkpoint (conf/rollout.yaml);
-    False when the rollout diverged."""
-    from neuraldem.eval.checkpoints import resolve_device
-    from neuraldem.scenes.fluidized_bed.surrogate.options import MIXING_MODES, check_rollout_value
-
-    checks.required(cfg, "rollout", {"ckpt": "ckpt=<run>/checkpoints/last.ckpt", "velocity": "velocity=1.6"})
-    checks.one_of("device", cfg.device, ("auto", "cpu", "cuda"))
-    limits = DivergenceLimits(checks.number("max_packing", cfg.max_packing, lo=0.0, hi=1.0, lo_open=True),
-                              checks.number("tolerance", cfg.tolerance, lo=0.0, hi=0.5))
-    summary = run_rollout(
-        Path(cfg.ckpt), checks.positive("velocity", cfg.velocity), checks.positive_int("steps", cfg.steps),
-        out_dir=Path(cfg.paths.output_dir), datasets_dir=Path(cfg.paths.datasets_dir),
-        dataset_dir=cfg.dataset_dir, init=cfg.init, init_sim=cfg.init_sim, init_snapshot=cfg.init_snapshot,
-        seed=checks.positive_int("seed", cfg.seed, allow_zero=True), limits=limits,
-        particles_every=cfg.particles_every, vtk=bool(cfg.vtk), vtk_every=cfg.vtk_every,
-        device=resolve_device(cfg.device), progress=bool(cfg.progress),
-        conserve_solid_volume=None if cfg.conserve_solid_volume is None else checks.boolean(
-            "conserve_solid_volume", cfg.conserve_solid_volume),
-        mixing=None if cfg.get("mixing") is None else checks.one_of("mixing", cfg.mixing, MIXING_MODES),
-        mirror_alternate=None if cfg.get("mirror_alternate") is None else checks.boolean(
-            "mirror_alternate", cfg.mirror_alternate),
-        rollout_noise=None if cfg.get("rollout_noise") is None else check_rollout_value(
-            "rollout_noise", cfg.rollout_noise),
-        advection_correction=None if cfg.get("advection_correction") is None else check_rollout_value(
-            "advection_correction", cfg.advection_correction))
-    print(summary["message"])
-    if summary["extrapolation"]:
-        lo, hi = summary["trained_velocity_range"]
-        print(f"note: {cfg.velocity} m/s is outside the trained range [{lo:g}, {hi:g}] m/s (extrapolation)")
-    print(f"results in {cfg.paths.output_dir}")
-    return summary["diverged_at"] is None

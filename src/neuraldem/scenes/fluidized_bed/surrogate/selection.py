@@ -1,24 +1,24 @@
 """`python -m neuraldem.scenes.fluidized_bed.surrogate.selection RUN_DIR`: choose a bed model's checkpoint on long
-validation
-rollouts, with the rollout options it will be used with.
+validation rollouts, with the rollout options it will be used with.
 
 Why: the rollout validation while training (`callbacks.rollout_validation`: 300 steps = 3 s from one trajectory per
 velocity, plain rollouts) keeps one checkpoint, but the model is judged on 3000-step (30-s) rollouts with rollout
 noise, and a bed that erupts after 10 s (one seed at 2.05 m/s, results/fluidized_bed/options/
 flux_correction_test.md) scores well for 3 s. experiment=fb keeps
 every validated checkpoint in RUN_DIR/checkpoints/all/ (2.5 MB each for fb_tiny; elsewhere train with
-`callbacks.checkpoint.save_top_k=-1`); this then scores each one from `--from-step` on with `neuraldem.evaluate
-part=val` (3000-step rollouts from every validation velocity) under `--rollout-noise` / `--advection-correction` /
-`--mirror-alternate`, ranks them by the pooled score -- rel. L2 of the per-cell time mean + rel. L2 of the std
-field + Lacey MAE, each against every CFD-DEM run at the velocity, the sum the tables report
-(`scenes.fluidized_bed.table`) -- averaged over `--seeds` (rollout seeds: the noise draws and particle samples),
-and copies the winner to RUN_DIR/checkpoints/selected.ckpt (or `--copy-to`).
+`callbacks.checkpoint.save_top_k=-1`); this then scores each one from `--from-step` on as `neuraldem evaluate
+part=val` does (3000-step rollouts from every validation velocity; the evaluation is called as a function) under
+the rollout options, given as on every command (e.g. `rollout.rollout_noise=3 rollout.advection_correction=1
+rollout.mirror_alternate=true`; those left out: as trained), ranks them by the pooled score -- rel. L2 of the
+per-cell time mean + rel. L2 of the std field + Lacey MAE, each against every CFD-DEM run at the velocity, the sum
+the tables report (`scenes.fluidized_bed.table`) -- averaged over `--seeds` (rollout seeds: the noise draws and
+particle samples), and copies the winner to RUN_DIR/checkpoints/selected.ckpt (or `--copy-to`).
 
-Each evaluation lands in RUN_DIR/selection/OPTIONS/stepNNNNNN_seedS/evaluation/ (OPTIONS names the rollout
-options, e.g. noise3_corr1; metrics.json, report, plots; `neuraldem report fb-table RUN_DIR/selection/OPTIONS` puts
-them side by side); a finished one is not repeated, so a killed selection resumes. The ranking is
-RUN_DIR/selection/OPTIONS/selection.md (+ .json). Validation runs only: the test part stays
-untouched until the choice is made.
+Each evaluation lands in RUN_DIR/selection/OPTIONS/stepNNNNNN_seedS/evaluation/ (OPTIONS names the rollout options
+given, `RolloutOptions.tag()`, e.g. rollout_noise-3+advection_correction-1, or as_trained; metrics.json, report,
+plots; `neuraldem report fb-table RUN_DIR/selection/OPTIONS` puts them side by side); a finished one is not
+repeated, so a killed selection resumes. The ranking is RUN_DIR/selection/OPTIONS/selection.md (+ .json).
+Validation runs only: the test part stays untouched until the choice is made.
 
 `--long-val DATASET_DIR` adds a dataset of long validation trajectories of the same scene (e.g. data=fb_small_longval:
 30 s of CFD-DEM at a validation velocity, `data.parameters.long.part: val`): each checkpoint is also rolled out
@@ -34,7 +34,6 @@ from __future__ import annotations
 import json
 import re
 import shutil
-import subprocess
 import sys
 from collections.abc import Callable, Sequence
 from datetime import UTC, datetime
@@ -46,16 +45,18 @@ from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.data.manifest import find_dataset, require_dataset
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError, DataError
+from neuraldem.paths import data_dir
 from neuraldem.scenes.fluidized_bed.analysis.evaluation import POOLED_SCORE_KEYS as SCORE_KEYS
-from neuraldem.scenes.fluidized_bed.analysis.evaluation import pooled_sum
-from neuraldem.scenes.fluidized_bed.surrogate.rollout_flags import add_rollout_flags, check_rollout_flags
+from neuraldem.scenes.fluidized_bed.analysis.evaluation import evaluate_checkpoint, pooled_sum
+from neuraldem.scenes.fluidized_bed.surrogate.options import OPTION_NAMES, RolloutOptions, add_arguments
 
 STEP_CKPT = re.compile(r"^step(\d+)\.ckpt$")
 SELECTED = "selected.ckpt"
 VAL_SOURCE = "val"  # the run's own validation part, beside the --long-val datasets
 
-# (checkpoint, output folder, evaluate overrides) -> the evaluation's metrics.json
-Evaluator = Callable[[Path, Path, list[str]], Path]
+# (checkpoint, output folder, rollout seed, dataset folder (None: the checkpoint's), rollout options) -> the
+# evaluation's metrics.json
+Evaluator = Callable[[Path, Path, int, "Path | None", RolloutOptions], Path]
 
 
 def step_checkpoints(run_dir: Path, from_step: int) -> dict[int, Path]:
@@ -79,28 +80,6 @@ def step_checkpoints(run_dir: Path, from_step: int) -> dict[int, Path]:
     return chosen
 
 
-def options_tag(rollout_noise: float | None, advection_correction: float | None,
-                mirror_alternate: bool | None) -> str:
-    """The folder name of one set of rollout options (e.g. noise3_corr1_alt), so that a selection under other
-    options never reuses these evaluations."""
-    parts = ([] if rollout_noise is None else [f"noise{rollout_noise:g}"]) + \
-        ([] if advection_correction is None else [f"corr{advection_correction:g}"]) + \
-        ([] if mirror_alternate is None else ["alt" if mirror_alternate else "noalt"])
-    return "_".join(parts) or "as_trained"
-
-
-def rollout_overrides(rollout_noise: float | None, advection_correction: float | None, seed: int,
-                      mirror_alternate: bool | None = None) -> list[str]:
-    out = [f"fluidized_bed.seed={seed}"]
-    if mirror_alternate is not None:
-        out.append(f"fluidized_bed.mirror_alternate={str(mirror_alternate).lower()}")
-    if rollout_noise is not None:
-        out.append(f"fluidized_bed.rollout_noise={rollout_noise:g}")
-    if advection_correction is not None:
-        out.append(f"fluidized_bed.advection_correction={advection_correction:g}")
-    return out
-
-
 def long_val_datasets(paths: Sequence[Path]) -> dict[str, Path]:
     """--long-val datasets by name, each with long validation trajectories (refused in one line otherwise)."""
     out: dict[str, Path] = {}
@@ -116,15 +95,13 @@ def long_val_datasets(paths: Sequence[Path]) -> dict[str, Path]:
     return out
 
 
-def run_evaluate(ckpt: Path, out: Path, overrides: list[str]) -> Path:
-    """`neuraldem.evaluate` on the validation part, in its own process (as a user would run it)."""
-    cmd = [sys.executable, "-m", "neuraldem.evaluate", f"ckpt={ckpt}", "part=val", "vtk=false", *overrides,
-           f"hydra.run.dir={out}"]
-    done = subprocess.run(cmd, check=False)
-    metrics = out / "metrics.json"
-    if done.returncode != 0 or not metrics.is_file():
-        raise DataError(f"evaluating {ckpt} failed (exit {done.returncode}): see {out / 'evaluate.log'}")
-    return metrics
+def run_evaluate(ckpt: Path, out: Path, seed: int, dataset_dir: Path | None, options: RolloutOptions) -> Path:
+    """What `neuraldem evaluate ckpt=CKPT part=val vtk=false fluidized_bed.seed=SEED [dataset_dir=DIR]
+    <options> hydra.run.dir=OUT` computes and writes (metrics.json, report.md, figures, rollouts), called as a
+    function: the same rollouts, the same files."""
+    evaluate_checkpoint(ckpt, out_dir=out, datasets_dir=data_dir() / "datasets", dataset_dir=dataset_dir,
+                        part="val", seed=seed, vtk=False, options=options)
+    return out / "metrics.json"
 
 
 def pooled_score(metrics: dict, where: Path) -> dict[str, float]:
@@ -153,30 +130,28 @@ def combined_score(parts: Sequence[dict[str, float]]) -> dict[str, float]:
     return out
 
 
-def select(run_dir: Path, from_step: int = 0, rollout_noise: float | None = None,
-           advection_correction: float | None = None, seeds: Sequence[int] = (0,),
-           evaluator: Evaluator = run_evaluate, mirror_alternate: bool | None = None,
-           long_val: Sequence[Path] = (), copy_to: Path | None = None) -> dict:
-    """Score every kept checkpoint from `from_step` on (resumable), write the ranking, copy the winner."""
-    check_rollout_flags(rollout_noise, advection_correction)  # the same checks as the benches' and rollout's
+def select(run_dir: Path, from_step: int = 0, options: RolloutOptions | None = None, seeds: Sequence[int] = (0,),
+           evaluator: Evaluator = run_evaluate, long_val: Sequence[Path] = (), copy_to: Path | None = None) -> dict:
+    """Score every kept checkpoint from `from_step` on under the rollout `options` (resumable), write the
+    ranking, copy the winner."""
+    options = options or RolloutOptions()
     if not seeds or any(s < 0 for s in seeds):
         raise ConfigError(f"--seeds {list(seeds)}: give one or more rollout seeds >= 0 (e.g. --seeds 0 1)")
     longs = long_val_datasets(long_val)
     ckpts = step_checkpoints(run_dir, from_step)
-    sel = run_dir / "selection" / options_tag(rollout_noise, advection_correction, mirror_alternate)
+    sel = run_dir / "selection" / options.tag()
     rows = []
     for step, ckpt in ckpts.items():
         per_seed = []
         for seed in seeds:
             base = sel / f"step{step:06d}_seed{seed}"
-            overrides = rollout_overrides(rollout_noise, advection_correction, seed, mirror_alternate)
-            sources = {VAL_SOURCE: (base / "evaluation", [])}  # where the tables look (fb-table)
-            sources |= {name: (base / name / "evaluation", [f"dataset_dir={path}"]) for name, path in longs.items()}
+            sources = {VAL_SOURCE: (base / "evaluation", None)}  # where the tables look (fb-table)
+            sources |= {name: (base / name / "evaluation", path) for name, path in longs.items()}
             parts = {}
-            for name, (out, extra) in sources.items():
+            for name, (out, dataset_dir) in sources.items():
                 metrics = out / "metrics.json"
                 if not metrics.is_file():
-                    metrics = evaluator(ckpt, out, overrides + extra)
+                    metrics = evaluator(ckpt, out, seed, dataset_dir, options)
                 parts[name] = pooled_score(json.loads(metrics.read_text()), metrics)
             per_seed.append({**combined_score(list(parts.values())),
                              "by_source": {k: v["sum"] for k, v in parts.items()}})
@@ -190,9 +165,8 @@ def select(run_dir: Path, from_step: int = 0, rollout_noise: float | None = None
     tmp = target.with_suffix(".tmp")
     shutil.copyfile(best["checkpoint"], tmp)
     tmp.replace(target)
-    doc = {"run_dir": str(run_dir), "from_step": from_step, "rollout_noise": rollout_noise,
-           "advection_correction": advection_correction, "mirror_alternate": mirror_alternate,
-           "seeds": list(seeds), "long_val": {k: str(v) for k, v in longs.items()}, "rows": rows,
+    doc = {"run_dir": str(run_dir), "from_step": from_step, **options.as_dict(), "seeds": list(seeds),
+           "long_val": {k: str(v) for k, v in longs.items()}, "rows": rows,
            "selected": {"step": best["step"], "checkpoint": best["checkpoint"], "copied_to": str(target)},
            "date_utc": datetime.now(UTC).isoformat(timespec="seconds")}
     stem = "selection" + "".join(f"_{k}" for k in longs)
@@ -202,12 +176,9 @@ def select(run_dir: Path, from_step: int = 0, rollout_noise: float | None = None
 
 
 def render(doc: dict) -> str:
-    def opt(key: str) -> str:
-        return "as trained" if doc[key] is None else f"{doc[key]:g}"
-
-    mirror = {None: "as trained", True: "on", False: "off"}[doc.get("mirror_alternate")]
-    opts = (f"rollout noise {opt('rollout_noise')}, advection correction {opt('advection_correction')}, "
-            f"mirror-alternating steps {mirror}, rollout seeds {doc['seeds']}")
+    options = RolloutOptions.from_config({k: doc.get(k) for k in OPTION_NAMES})
+    opts = (f"rollout options {' '.join(options.overrides()) or 'as trained'}"
+            f"{' (the others as trained)' if options.given() else ''}, rollout seeds {doc['seeds']}")
     longs = list(doc.get("long_val") or {})
     where = "Validation part" + "".join(f" + the long validation trajectories of {k}" for k in longs)
     lines = [f"# Checkpoint selection: {doc['run_dir']}", "",
@@ -231,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     p = doc_parser("neuraldem.scenes.fluidized_bed.surrogate.selection", __doc__)
     p.add_argument("run_dir", type=Path, help="a fluidized-bed training run (hydra.run.dir of neuraldem.train)")
     p.add_argument("--from-step", type=int, default=0, help="skip checkpoints before this training step")
-    add_rollout_flags(p)
+    add_arguments(p)
     p.add_argument("--seeds", type=int, nargs="+", default=[0], help="rollout seeds to average over")
     p.add_argument("--long-val", type=Path, nargs="+", default=[],
                    help="datasets (folders or names under <data dir>/datasets, e.g. fb_small_longval) of long "
@@ -241,8 +212,8 @@ def main(argv: list[str] | None = None) -> int:
                    help=f"where the winner is copied (default RUN_DIR/checkpoints/{SELECTED}; one file per set of "
                         "options when several selections of one run are kept, as scripts/fb_ablation.sh does)")
     a = p.parse_args(argv)
-    doc = select(a.run_dir, a.from_step, a.rollout_noise, a.advection_correction, a.seeds,
-                 mirror_alternate=a.mirror_alternate, long_val=a.long_val, copy_to=a.copy_to)
+    doc = select(a.run_dir, a.from_step, RolloutOptions.from_args(a), a.seeds, long_val=a.long_val,
+                 copy_to=a.copy_to)
     print(render(doc), end="")
     return 0
 
