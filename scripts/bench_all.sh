@@ -11,5 +11,5 @@ PY=${PYTHON:-python}
 export OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 OMP_WAIT_POLICY=PASSIVE WANDB_MODE=offline
 load=$(cut -d' ' -f1 /proc/loadavg 2>/dev/null || echo 0)
 echo "1-minute load average before the benchmarks: $load (should be near 0)"
-"$PY" -m neuraldem.bench all "$@"
+"$PY" -m neuraldem bench all "$@"
 echo "redraw the charts and tables without measuring: neuraldem bench render [out_dir=DIR]"

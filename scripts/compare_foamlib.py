@@ -1,7 +1,7 @@
 """Does foamlib read what neuraldem's hand-written OpenFOAM reader reads? (the rule: use a well-kept
 library where outputs stay identical.) Needs `pip install foamlib` (not a neuraldem dependency).
 
-    python scripts/compare_foamlib.py CASE_DIR [--cloud kinematicCloud]
+    python scripts/compare_foamlib.py case=CASE_DIR [cloud=kinematicCloud]
 
 For every time directory: the cell fields alpha.air, U.air, p and the cloud's U, d, origId, read both ways,
 compared exactly, with the median read time of each reader.
@@ -9,7 +9,6 @@ compared exactly, with the median read time of each reader.
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import time
 from collections.abc import Callable
@@ -17,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from neuraldem.cli import CommandParser
 from neuraldem.sim.foam_reader import FoamCase, read_cell_field, read_cloud_field, time_dirs
 
 
@@ -29,7 +29,7 @@ def timed(fn: Callable[[], np.ndarray]) -> tuple[np.ndarray, float]:
 def main() -> None:
     import foamlib
 
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = CommandParser(prog="python scripts/compare_foamlib.py", description=__doc__)
     p.add_argument("case", type=Path)
     p.add_argument("--cloud", default="kinematicCloud")
     a = p.parse_args()

@@ -1,6 +1,6 @@
 """How far 2-process CPU DDP is from one process: the largest relative difference of every logged loss.
 
-    python scripts/ddp_loss_difference.py [--data-dir DIR] [--steps 4]
+    python scripts/ddp_loss_difference.py [data_dir=DIR] [steps=4]
 
 Trains the quick hopper and bed experiments (on DIR/datasets/hopper_tiny and fb_tiny, made by
 `neuraldem datagen data=hopper_tiny` / `data=fb_tiny`; default DIR: the data dir) for a few steps with
@@ -11,12 +11,12 @@ agree to 1e-5; this prints the measured difference.
 
 from __future__ import annotations
 
-import argparse
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+from neuraldem.cli import CommandParser
 from neuraldem.eval.run_results import logged_losses
 from neuraldem.paths import data_dir
 
@@ -33,7 +33,7 @@ def train(run: Path, trainer: str, overrides: list[str]) -> dict[tuple[int, str]
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = CommandParser(prog="python scripts/ddp_loss_difference.py", description=__doc__)
     p.add_argument("--data-dir", type=Path, default=None)
     p.add_argument("--steps", type=int, default=4)
     args = p.parse_args(argv)

@@ -54,7 +54,6 @@ PY=${PYTHON:-python}
 JOBS=${JOBS:-2}
 VARIANTS=${VARIANTS:-"full no_unroll fixed_noise no_flux no_conserve stochastic noise"}
 runs=$1; shift
-mkdir -p "$runs"
 # the one-step options (one-step training, no flux channels, absolute mixing, no projection)
 OLD="model.stability.unroll=[1.0] model.stability.input_noise=0.0 rollout.conserve_volume=false \
 rollout.mixing=absolute data.datamodule.solids_flux=false callbacks.ema=null"

@@ -1,9 +1,10 @@
 """A bed model's predicted solids flux against CFD-DEM's, on held-out trajectories (a diagnostic of the mixing error).
 
-    python scripts/fb_flux_diagnostic.py CKPT DATASET_DIR sim_0003 sim_0081 [--steps 200] [--out FILE.md]
+    python scripts/fb_flux_diagnostic.py ckpt=CKPT dataset=DATASET_DIR sims=[sim_0003,sim_0081] [steps=200] \\
+        [out=FILE.md]
 
 Why: the advected mixing is only as good as the flux that carries it. Per trajectory, over a rollout of
-`--steps` steps from snapshot 1 and the same CFD-DEM steps: the mean solids flux magnitude in the bed (cells
+`steps=` steps from snapshot 1 and the same CFD-DEM steps: the mean solids flux magnitude in the bed (cells
 with solid fraction > 0.1), its autocorrelation in time at lags 1 and 5 steps (an oscillating bed has a
 negative one), and how far the flux is from carrying the solid fraction's own change over the step: the norm
 of the smallest gradient correction that makes it consistent (`consistent_faces`, as advection_flux=consistent
@@ -13,12 +14,12 @@ kernel field of moving particles), which is the scale to compare with.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from neuraldem.cli import CommandParser
 from neuraldem.models.modules.conservative_advection import consistent_faces, face_fluxes
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, initial_state
@@ -54,7 +55,7 @@ def correction_ratio(alpha: np.ndarray, flux: np.ndarray, dt: float, spacing: li
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = CommandParser(prog="python scripts/fb_flux_diagnostic.py", description=__doc__)
     p.add_argument("ckpt", type=Path)
     p.add_argument("dataset", type=Path, help="the dataset dir (its sims/<id>.h5 are read)")
     p.add_argument("sims", nargs="+")
@@ -62,8 +63,8 @@ def main() -> None:
     p.add_argument("--out", type=Path, default=None)
     args = p.parse_args()
     module = load_fb_checkpoint(args.ckpt)
-    lines = [f"`python scripts/fb_flux_diagnostic.py {args.ckpt} {args.dataset} {' '.join(args.sims)} "
-             f"--steps {args.steps}`", "",
+    lines = [f"`python scripts/fb_flux_diagnostic.py ckpt={args.ckpt} dataset={args.dataset} "
+             f"sims=[{','.join(args.sims)}] steps={args.steps}`", "",
              "| trajectory | U0 [m/s] | mean abs. flux in bed [mm/s] model / CFD-DEM | lag-1 autocorr. model / "
              "CFD-DEM | lag-5 autocorr. model / CFD-DEM | correction / flux model / CFD-DEM |",
              "|---|---|---|---|---|---|"]

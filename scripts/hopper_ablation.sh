@@ -8,7 +8,7 @@
 # Runs land in GRID_DIR/<experiment>-<split>/ (logs beside them); the table in GRID_DIR/table4.md (+ .json).
 # A run whose folder already holds evaluation/metrics.json is skipped, so a killed grid resumes.
 # Cross-validation: FOLDS="0 1 2 3 4" trains every fold (data.datamodule.fold=k, runs in
-# GRID_DIR/<experiment>-<split>-f<k>/) and the table is the cross-validated one of neuraldem.scenes.hopper.analysis.cv
+# GRID_DIR/<experiment>-<split>-f<k>/) and the table is the cross-validated one of `neuraldem report hopper-cv`
 # (constant, Gaussian process and field model on the same held-out runs; SEED_FLOOR=FILE adds the LIGGGHTS
 # seed-floor row). NEURALDEM_DATASET overrides the dataset dir the table reads (default: hopper_small).
 set -uo pipefail
@@ -33,7 +33,7 @@ for split in $SPLITS; do
       if [ "$running" -ge "$JOBS" ]; then wait -n || failed=$((failed + 1)); running=$((running - 1)); fi
       echo "start $name"
       rm -rf "$run"
-      "$PY" -m neuraldem.train experiment="$exp" data.split="$split" hydra.run.dir="$run" \
+      "$PY" -m neuraldem train experiment="$exp" data.split="$split" hydra.run.dir="$run" \
         callbacks.progress=null "${extra[@]}" "$@" > "$grid/$name.log" 2>&1 &
       running=$((running + 1))
     done
@@ -46,10 +46,12 @@ if [ -n "${NEURALDEM_NO_TABLE:-}" ]; then
 elif [ -n "$FOLDS" ]; then
   dataset=${NEURALDEM_DATASET:-$("$PY" -c 'from neuraldem.paths import data_dir; print(data_dir() / "datasets" / "hopper_small")')}
   nsims=$(printf '%s\n' "$@" | sed -n 's/^data.datamodule.n_sims=//p' | tail -1)
+  as_list() { local IFS=,; echo "[$*]"; }  # words as one key=value list: [a,b]
   # shellcheck disable=SC2086
-  "$PY" -m neuraldem.scenes.hopper.analysis.cv "$grid" --dataset "$dataset" --splits $SPLITS --folds $FOLDS \
-    ${nsims:+--n-sims "$nsims"} ${SEED_FLOOR:+--seed-floor "$SEED_FLOOR"} --out "$grid/table4_cv.md"
+  "$PY" -m neuraldem report hopper-cv grids="$grid" dataset="$dataset" splits="$(as_list $SPLITS)" \
+    folds="$(as_list $FOLDS)" ${nsims:+n_sims="$nsims"} ${SEED_FLOOR:+seed_floor="$SEED_FLOOR"} \
+    out="$grid/table4_cv.md"
 else
-  "$PY" -m neuraldem.scenes.hopper.analysis.table "$grid" --out "$grid/table4.md"
+  "$PY" -m neuraldem report hopper-table folders="$grid" out="$grid/table4.md"
 fi
 exit "$failed"

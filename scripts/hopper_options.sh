@@ -39,6 +39,7 @@ dataset=${NEURALDEM_DATASET:-$("$PY" -c 'from neuraldem.paths import data_dir; p
 grids=()
 for v in $VARIANTS; do grids+=("$study/$v"); done
 nsims=$(printf '%s\n' "$@" | sed -n 's/^data.datamodule.n_sims=//p' | tail -1)
+as_list() { local IFS=,; echo "[$*]"; }  # words as one key=value list: [a,b]
 # shellcheck disable=SC2086
-"$PY" -m neuraldem.scenes.hopper.analysis.cv "${grids[@]}" --dataset "$dataset" --splits random --folds $FOLDS \
-  ${nsims:+--n-sims "$nsims"} --out "$study/options.md"
+"$PY" -m neuraldem report hopper-cv grids="$(as_list "${grids[@]}")" dataset="$dataset" splits=random \
+  folds="$(as_list $FOLDS)" ${nsims:+n_sims="$nsims"} out="$study/options.md"

@@ -26,7 +26,7 @@ field() {  # name, then overrides of that size
   if [ -f "$run/evaluation/metrics.json" ]; then echo "skip $name (evaluated)"; return 0; fi
   rm -rf "$run"
   echo "start $name"
-  "$PY" -m neuraldem.train experiment=hopper_micro "$@" "${common[@]}" data.datamodule.batch_size=8 \
+  "$PY" -m neuraldem train experiment=hopper_micro "$@" "${common[@]}" data.datamodule.batch_size=8 \
     data.datamodule.n_queries=512 trainer.max_steps="$FIELD_STEPS" trainer.val_check_interval=500 \
     hydra.run.dir="$run" "${EXTRA[@]}" > "$out/fields/$name.log" 2>&1
 }
@@ -62,7 +62,7 @@ elif [ -f "$out/gns/checkpoints/last.ckpt" ]; then
 else
   rm -rf "$out/gns"
   echo "start gns"
-  "$PY" -m neuraldem.train experiment=gns_hopper "${common[@]}" trainer.max_steps="$GNS_STEPS" \
+  "$PY" -m neuraldem train experiment=gns_hopper "${common[@]}" trainer.max_steps="$GNS_STEPS" \
     trainer.val_check_interval=$((GNS_STEPS / 2)) model.scheduler.warmup_steps=50 hydra.run.dir="$out/gns" \
     > "$out/gns.log" 2>&1 || { echo "gns failed: see $out/gns.log" >&2; wait "$fields"; exit 1; }
 fi

@@ -9,9 +9,9 @@ bash scripts/setup.sh
 VENV=${NEURALDEM_VENV:-$(pwd)/.venv}
 export OMP_WAIT_POLICY=PASSIVE WANDB_MODE=offline
 PY="$VENV/bin/python"
-"$PY" -m neuraldem.doctor
+"$PY" -m neuraldem doctor
 # a what-if from the shipped model in seconds, then LIGGGHTS on the same hopper (~2 CPU minutes) beside it
-"$PY" -m neuraldem predict hopper alpha=45 mu_s=0.4 mu_r=0.1 --verify
+"$PY" -m neuraldem predict hopper alpha=45 mu_s=0.4 mu_r=0.1 verify=true
 WORKERS=$("$PY" -c 'import os; print(max(1, min(2, len(os.sched_getaffinity(0)))))')
-"$PY" -m neuraldem.datagen data=hopper_tiny workers="$WORKERS"
-"$PY" -m neuraldem.train experiment=hopper_quickstart
+"$PY" -m neuraldem datagen data=hopper_tiny workers="$WORKERS"
+"$PY" -m neuraldem train experiment=hopper_quickstart

@@ -25,9 +25,9 @@ field() {  # key run: a value of the run's first evaluation (the checkpoint it k
   "$PY" -c "import json,sys; print(json.load(open(sys.argv[1]))[sys.argv[2]])" "$2/evaluation/metrics.json" "$1"
 }
 
-evaluation() {  # run ckpt dataset out_dir [overrides...]: one neuraldem.evaluate of the run's test runs
+evaluation() {  # run ckpt dataset out_dir [overrides...]: one neuraldem evaluate of the run's test runs
   local run=$1 ckpt=$2 data=$3 dir=$4; shift 4
-  "$PY" -m neuraldem.evaluate ckpt="$ckpt" dataset_dir="$data" hydra.run.dir="$dir" "$@" >> "$run.log" 2>&1 \
+  "$PY" -m neuraldem evaluate ckpt="$ckpt" dataset_dir="$data" hydra.run.dir="$dir" "$@" >> "$run.log" 2>&1 \
     || { echo "$(basename "$run") evaluation $(basename "$dir") failed: $run.log"; return 1; }
 }
 
@@ -54,7 +54,7 @@ one() {  # variant [overrides...]
     rm -rf "$run"
     echo "start $name"
     # shellcheck disable=SC2086  # the variant's overrides are separate words
-    "$PY" -m neuraldem.train experiment=hopper_refill $ov trainer=cpu logger=csv callbacks.progress=null \
+    "$PY" -m neuraldem train experiment=hopper_refill $ov trainer=cpu logger=csv callbacks.progress=null \
       "${steps[@]}" hydra.run.dir="$run" "$@" > "$out/$name.log" 2>&1 || { echo "$name failed: $out/$name.log"; return 1; }
   fi
   local ckpt data h first=""  # the checkpoint and dataset the first evaluation used

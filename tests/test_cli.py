@@ -98,3 +98,30 @@ def test_every_tools_output_option_is_checked_when_parsed(capsys):
 def test_an_old_flag_takes_its_values_even_when_they_look_like_keys():
     a = parser().parse_args(["ckpt=a", "--param", "alpha=30", "--labels", "x", "y", "n_velocities=2"])
     assert a.param == ["alpha=30"] and a.labels == ["x", "y"] and a.n_velocities == 2
+
+
+def test_a_bare_choice_of_a_positional_is_the_commands_object(capsys):
+    p = CommandParser(prog="neuraldem export")
+    p.add_argument("format", choices=["gns", "lagrangebench"])
+    p.add_argument("dataset")
+    a = p.parse_args(["gns", "dataset=d"])
+    assert (a.format, a.dataset) == ("gns", "d") and capsys.readouterr().err == ""
+    b = p.parse_args(["dataset=d", "lagrangebench"])  # anywhere on the line
+    assert (b.format, b.dataset) == ("lagrangebench", "d")
+    with pytest.raises(SystemExit):
+        p.parse_args(["gns", "format=gns", "dataset=d"])
+    assert "format= is given twice" in capsys.readouterr().err
+
+
+def test_help_shows_the_object_bare_and_a_subcommand_once(capsys):
+    p = CommandParser(prog="neuraldem export")
+    p.add_argument("format", choices=["gns", "lagrangebench"])
+    p.add_argument("--out", required=True)
+    with pytest.raises(SystemExit):
+        p.parse_args(["--help"])
+    assert capsys.readouterr().out.startswith("usage: neuraldem export gns|lagrangebench out=OUT\n")
+    q = CommandParser(prog="neuraldem export")
+    q.add_subparsers(dest="cmd").add_parser("pack").add_argument("dataset")
+    with pytest.raises(SystemExit):
+        q.parse_args(["pack", "--help"])
+    assert capsys.readouterr().out.startswith("usage: neuraldem export pack dataset=DATASET\n")

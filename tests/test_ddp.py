@@ -45,7 +45,7 @@ def test_two_processes_train_as_one(scene: str, request: pytest.FixtureRequest, 
         del cfg["hydra"]  # as Hydra hands it to a task (the CSV logger writes the resolved config)
     train(cfg)  # one process, in this one
     run = tmp_path / "ddp"
-    proc = run_module("neuraldem.train", *overrides, "trainer=ddp_cpu", f"hydra.run.dir={run}", timeout=300)
+    proc = run_module("neuraldem", "train", *overrides, "trainer=ddp_cpu", f"hydra.run.dir={run}", timeout=300)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "Starting with 2 processes" in proc.stdout + proc.stderr
 
@@ -72,7 +72,7 @@ def test_sweeps(launcher: str, trainer: str, hopper_tiny_dataset: Path, tmp_path
     processes and process group are gone before the next starts); with submitit, each sweep point in a process of
     its own, as jobs run on Slurm (hydra/launcher=slurm; a 2-process run inside a submitit job works the same)."""
     extra = ["hydra/launcher=submitit_local", "hydra.launcher.timeout_min=5"] if launcher != "basic" else []
-    proc = run_module("neuraldem.train", "-m", "experiment=hopper_quickstart", f"trainer={trainer}",
+    proc = run_module("neuraldem", "train", "-m", "experiment=hopper_quickstart", f"trainer={trainer}",
                       "trainer.max_steps=2", "trainer.val_check_interval=2", "evaluate=false",
                       "callbacks.progress=null", "trainer.enable_model_summary=false",
                       f"data.dataset_dir={hopper_tiny_dataset}", "seed=0,1", f"hydra.sweep.dir={tmp_path}", *extra,

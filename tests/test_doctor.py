@@ -18,7 +18,7 @@ def test_torch_cluster_check_knows_the_answer():
 
 @pytest.mark.solver
 def test_all_green_here():
-    proc = run_module("neuraldem.doctor")
+    proc = run_module("neuraldem", "doctor")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     lines = proc.stdout.strip().splitlines()
     assert sum(line.startswith("[") for line in lines) == len(doctor.CHECKS)
@@ -26,15 +26,16 @@ def test_all_green_here():
 
 
 def test_missing_liggghts_is_red_with_the_fix():
-    proc = run_module("neuraldem.doctor", "--only", "liggghts", env={"NEURALDEM_LIGGGHTS": "no-such-liggghts"})
+    proc = run_module("neuraldem", "doctor", "only=[liggghts]", env={"NEURALDEM_LIGGGHTS": "no-such-liggghts"})
     assert proc.returncode == 1
     line = proc.stdout.splitlines()[0]
     assert line.startswith("[FAIL] LIGGGHTS") and "apt-get install liggghts" in line
     assert "Traceback" not in proc.stdout + proc.stderr
+    assert "old spelling" not in proc.stderr
 
 
 def test_unset_openfoam_environment_is_red_with_the_fix():
-    proc = run_module("neuraldem.doctor", "--only", "openfoam", env={"WM_PROJECT_DIR": "/nonexistent/openfoam"})
+    proc = run_module("neuraldem", "doctor", "only=[openfoam]", env={"WM_PROJECT_DIR": "/nonexistent/openfoam"})
     assert proc.returncode == 1
     line = proc.stdout.splitlines()[0]
     assert line.startswith("[FAIL] OpenFOAM") and "WM_PROJECT_DIR" in line and "fix:" in line
@@ -43,7 +44,7 @@ def test_unset_openfoam_environment_is_red_with_the_fix():
 def test_unwritable_data_dir_is_red(tmp_path: Path):
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
-    proc = run_module("neuraldem.doctor", "--only", "data-dir", env={"NEURALDEM_DATA": str(blocker / "sub")})
+    proc = run_module("neuraldem", "doctor", "only=[data-dir]", env={"NEURALDEM_DATA": str(blocker / "sub")})
     assert proc.returncode == 1
     assert proc.stdout.startswith("[FAIL] data dir") and "NEURALDEM_DATA" in proc.stdout
 

@@ -14,7 +14,7 @@ pytestmark = pytest.mark.solver
 
 def test_fb_quick_trains_and_evaluates(fb_tiny_dataset: Path, tmp_path: Path):
     env = {"NEURALDEM_DATA": str(fb_tiny_dataset.parent.parent)}
-    proc = run_module("neuraldem.train", "experiment=fb_quick", "trainer.max_steps=10",
+    proc = run_module("neuraldem", "train", "experiment=fb_quick", "trainer.max_steps=10",
                       f"hydra.run.dir={tmp_path}", env=env)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "Fluidized-bed surrogate vs CFD-DEM" in proc.stdout and "## Stability" in proc.stdout

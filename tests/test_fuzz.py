@@ -6,12 +6,11 @@ checks the error: one line, the file or key in it, a fix, and every other file o
 HDF5 cases re-record the file's checksum in the manifest (as if another tool wrote the file), so that the
 reader itself is tested, not only the checksum.
 
-`python -m tests.test_fuzz --table docs/fuzz-table.md` writes the table of cases and messages (docs).
+`python -m tests.test_fuzz dataset=DIR table=docs/fuzz-table.md` writes the table of cases and messages (docs).
 """
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import shutil
@@ -226,14 +225,16 @@ def write_table(dataset: Path, out: Path, work: Path) -> None:
         rows.append(f"| {case.name} | `` {msg} `` |")
     out.write_text("# Bad inputs and what they say\n\nEvery row is a case of `tests/test_fuzz.py` (run in the default "
                    "test suite), on a copy of the tiny hopper dataset; written by `python -m tests.test_fuzz "
-                   "--dataset DIR --table docs/fuzz-table.md`. Each message is one line with the file or key and a "
+                   "dataset=DIR table=docs/fuzz-table.md`. Each message is one line with the file or key and a "
                    "fix, and the rest of the dataset is unchanged.\n\n" + "\n".join(rows) + "\n")
 
 
 if __name__ == "__main__":
     import tempfile
 
-    p = argparse.ArgumentParser(description="write the table of bad inputs and their messages")
+    from neuraldem.cli import CommandParser
+
+    p = CommandParser(prog="python -m tests.test_fuzz", description="write the table of bad inputs and their messages")
     p.add_argument("--dataset", type=Path, required=True, help="a hopper_tiny dataset (the tests make one)")
     p.add_argument("--table", type=Path, required=True)
     a = p.parse_args()

@@ -18,8 +18,8 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 
 # (layer name, module-name prefixes); the first matching prefix (longest first) decides a module's layer
 LAYERS = [
-    ("base", ["neuraldem.errors", "neuraldem.paths", "neuraldem.machine", "neuraldem.cli", "neuraldem.config",
-              "neuraldem.__init__",
+    ("base", ["neuraldem.errors", "neuraldem.paths", "neuraldem.commands", "neuraldem.machine", "neuraldem.cli",
+              "neuraldem.config", "neuraldem.__init__",
               # the scene plug-in API: the Scene record, the registry and parameter tables (no scene imported)
               "neuraldem.scenes.__init__", "neuraldem.scenes.parameters"]),
     ("sim", ["neuraldem.sim"]),

@@ -64,3 +64,11 @@ def test_a_tool_and_a_hydra_command_run_through_the_console_entry():
     assert proc.returncode == 0 and "`neuraldem evaluate` takes Hydra overrides" in proc.stdout
     proc = run_module("neuraldem", "evaluate")  # a missing required value is one line, exit 2
     assert proc.returncode == 2 and "ckpt=" in proc.stderr
+
+
+def test_a_tool_started_as_a_module_names_its_command():
+    """`python -m neuraldem.<module>` still runs a tool; its usage line and errors name the documented command."""
+    proc = run_module("neuraldem.scenes.hopper.analysis.cv", "--help")
+    assert proc.returncode == 0 and proc.stdout.startswith("usage: neuraldem report hopper-cv ")
+    proc = run_module("neuraldem.export", "gns", "no_such_key=1")
+    assert proc.returncode == 2 and proc.stderr.startswith("neuraldem: error: neuraldem export: unknown option")

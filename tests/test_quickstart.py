@@ -15,10 +15,10 @@ pytestmark = pytest.mark.solver
 def test_hopper_quickstart_end_to_end(hopper_tiny_dataset: Path, data_root: Path, tmp_path: Path):
     # the dataset fixture made data=hopper_tiny in data_root; datagen finds it finished and returns at once
     env = {"NEURALDEM_DATA": str(data_root)}
-    gen = run_module("neuraldem.datagen", "data=hopper_tiny", "n_sims=8", "progress=false", env=env)
+    gen = run_module("neuraldem", "datagen", "data=hopper_tiny", "n_sims=8", "progress=false", env=env)
     assert gen.returncode == 0, gen.stderr
     assert "8 finished, 0 to run" in gen.stdout + gen.stderr
-    proc = run_module("neuraldem.train", "experiment=hopper_quickstart", "trainer.max_steps=60",
+    proc = run_module("neuraldem", "train", "experiment=hopper_quickstart", "trainer.max_steps=60",
                       "trainer.val_check_interval=30", f"hydra.run.dir={tmp_path}/run", env=env, timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "| drainage t95 [% of mean] |" in proc.stdout

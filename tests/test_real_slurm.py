@@ -44,7 +44,7 @@ def test_a_datagen_array_is_cancelled_and_resumes(slurm: None, tmp_path: Path):
     ones (this cluster keeps no accounting, so squeue tells that the cancelled tasks ended); the same command
     then runs only those, leaving the finished file as it was."""
     env = dict(os.environ, NEURALDEM_DATA=str(tmp_path))
-    proc = subprocess.Popen([sys.executable, "-m", "neuraldem.datagen", *FAST, "n_sims=3", *SLURM,
+    proc = subprocess.Popen([sys.executable, "-m", "neuraldem", "datagen", *FAST, "n_sims=3", *SLURM,
                              "executor.array_parallelism=1"], env=env, cwd=REPO, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 300
@@ -59,7 +59,7 @@ def test_a_datagen_array_is_cancelled_and_resumes(slurm: None, tmp_path: Path):
     assert proc.returncode == 2 and "ended without a result and stay pending" in err, err
     first = tmp_path / "datasets" / "hopper_tiny" / "sims" / "sim_0000.h5"
     digest = hashlib.sha256(first.read_bytes()).hexdigest()
-    again = run_module("neuraldem.datagen", *FAST, "n_sims=3", *SLURM, "executor.array_parallelism=2",
+    again = run_module("neuraldem", "datagen", *FAST, "n_sims=3", *SLURM, "executor.array_parallelism=2",
                        env={"NEURALDEM_DATA": str(tmp_path)}, timeout=300)
     assert again.returncode == 0, again.stderr
     assert "1 finished, 2 to run on Slurm, partition debug" in again.stdout + again.stderr
@@ -80,8 +80,9 @@ def test_a_two_process_training_joined_by_slurm(slurm: None, hopper_tiny_dataset
     # a node of one CPU accepts the two-task job and leaves it pending for ever: say so instead of waiting
     assert cpus and int(cpus[0]) >= 2, (f"the local Slurm node has {cpus} CPUs and this job needs 2: restart it "
                                         "with `bash scripts/local_slurm.sh start` (it counts the machine's cores)")
-    cmd = [sys.executable, "-m", "neuraldem.train", "-m", "hydra/launcher=slurm_ddp", "hydra.launcher.partition=debug",
-           "hydra.launcher.cpus_per_task=1", "hydra.launcher.mem_gb=1", "hydra.launcher.timeout_min=10",
+    cmd = [sys.executable, "-m", "neuraldem", "train", "-m", "hydra/launcher=slurm_ddp",
+           "hydra.launcher.partition=debug", "hydra.launcher.cpus_per_task=1", "hydra.launcher.mem_gb=1",
+           "hydra.launcher.timeout_min=10",
            "experiment=hopper_quickstart", "trainer=ddp_cpu", "trainer.devices=2",
            "data.datamodule.batch_size=4", "trainer.max_steps=3", "trainer.val_check_interval=3",
            "evaluate=false", "callbacks.progress=null", "logger=none", "seed=0",

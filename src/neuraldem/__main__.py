@@ -12,6 +12,8 @@ import importlib
 import sys
 from collections.abc import Callable
 
+from neuraldem.commands import SHARED_REPORTS
+
 # verb -> (module whose main() runs it, one line of help, an example)
 VERBS: dict[str, tuple[str, str, str]] = {
     "doctor": ("neuraldem.doctor", "check solvers, torch, torch-cluster and the data dir", "neuraldem doctor"),
@@ -35,13 +37,6 @@ VERBS: dict[str, tuple[str, str, str]] = {
     "import": ("", "your own solver runs as a dataset", "neuraldem import liggghts dump=DIR ..."),
     "export": ("neuraldem.export.__main__", "a dataset for GNS / LagrangeBench, or packed for moving",
                "neuraldem export gns dataset=DIR out=DIR"),
-}
-
-# reports that span scenes; each scene adds its own (`Scene.reports`)
-SHARED_REPORTS: dict[str, tuple[str, str]] = {
-    "dataset": ("neuraldem.eval.dataset_report", "what a generated dataset holds and what it cost"),
-    "step-displacement": ("neuraldem.gns.step_displacement", "how far particles move per snapshot (GNS step)"),
-    "gns-rollout": ("neuraldem.gns.rollout", "roll out and score a GNS (particle) checkpoint"),
 }
 
 # old verb -> the new command line it stands for (kept one release)
@@ -103,7 +98,7 @@ def resolve(argv: list[str]) -> tuple[str, str, list[str]] | str:
     name = rest[0]
     entry = entries.get(name) or entries.get(name.replace("_", "-"))
     if entry is None:
-        return f"neuraldem {verb}: error: unknown {verb} {name!r}: choose from {', '.join(entries)}"
+        return f"neuraldem: error: neuraldem {verb}: unknown {verb} {name!r}: choose from {', '.join(entries)}"
     return f"neuraldem {verb} {name}", entry[0], rest[1:]
 
 

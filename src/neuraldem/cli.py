@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
+from neuraldem.commands import command_or_module
 from neuraldem.errors import ConfigError, NeuraldemError
 from neuraldem.paths import config_dir
 
@@ -60,9 +61,10 @@ def report_user_errors(fn: Callable[..., Any]) -> Callable[..., Any]:
 
 
 def tool_prog(module: str) -> str:
-    """A tool's name in its usage line: `neuraldem report fb-table` when the `neuraldem` command runs it
-    (which puts that name in argv[0]), else `python -m <module>` (e.g. `neuraldem.bench fb_speed`)."""
-    return sys.argv[0] if sys.argv[0].startswith("neuraldem ") else f"python -m {module}"
+    """A tool's name in its usage line and errors: the command typed when the `neuraldem` command runs it
+    (which puts that name in argv[0], e.g. `neuraldem report fb-table`), else the command that runs the module
+    (`neuraldem.bench fb_speed` is `neuraldem bench fb_speed`; `python -m <module>` where no verb runs it)."""
+    return sys.argv[0] if sys.argv[0].startswith("neuraldem ") else command_or_module(module)
 
 
 def key_of(action: argparse.Action) -> str:
@@ -96,14 +98,21 @@ def value_text(action: argparse.Action) -> str:
     return f"[{name},...]" if many else str(name)
 
 
+def is_object(action: argparse.Action) -> bool:
+    """A positional with choices: the command's object, typed bare (`neuraldem export gns ...`)."""
+    return not action.option_strings and bool(action.choices) and not isinstance(action, argparse._SubParsersAction)
+
+
 class KeyValueFormatter(argparse.RawDescriptionHelpFormatter):
-    """Help that shows every option as `key=VALUE`."""
+    """Help that shows every option as `key=VALUE` (the command's object as its bare choices)."""
 
     def _format_action_invocation(self, action: argparse.Action) -> str:
         if isinstance(action, argparse._HelpAction):
             return "-h, --help"
         if isinstance(action, argparse._SubParsersAction):
             return super()._format_action_invocation(action)
+        if is_object(action):
+            return value_text(action)
         return f"{key_of(action)}={value_text(action)}"
 
     def _format_usage(self, usage: str | None, actions: Iterable[argparse.Action], groups: Any,
@@ -115,9 +124,9 @@ class KeyValueFormatter(argparse.RawDescriptionHelpFormatter):
             if isinstance(a, argparse._SubParsersAction):
                 parts.append("{" + ",".join(a.choices) + "} ...")
                 continue
-            item = f"{key_of(a)}={value_text(a)}"
+            item = value_text(a) if is_object(a) else f"{key_of(a)}={value_text(a)}"
             parts.append(item if a.required or not a.option_strings and a.nargs not in ("?", "*") else f"[{item}]")
-        return f"usage: {self._prog} {' '.join(parts)}\n\n"
+        return f"{'usage: ' if prefix is None else prefix}{self._prog} {' '.join(parts)}".rstrip() + "\n\n"
 
 
 class CommandParser(argparse.ArgumentParser):
@@ -179,6 +188,12 @@ class CommandParser(argparse.ArgumentParser):
                 flags += [token, *taken]
                 i += 1 + len(taken)
                 continue
+            obj = self._object(token, positional)
+            if obj is not None:  # `export gns dataset=...`: a bare choice of a positional is the command's object
+                positional[key_of(obj)] = [token]
+                seen.add(key_of(obj))
+                i += 1
+                continue
             key, sep, value = token.partition("=")
             if not sep or not re.fullmatch(r"[A-Za-z_][\w.]*", key):  # a key may be dotted: rollout.rollout_noise
                 old.append(token)
@@ -199,6 +214,14 @@ class CommandParser(argparse.ArgumentParser):
         if old:
             self._note_old_spelling(argv)
         return [*self._ordered(positional), *flags]
+
+    def _object(self, token: str, given: dict[str, list[str]]) -> argparse.Action | None:
+        """The positional whose choices hold `token` (a bare word naming what the command acts on), if not given."""
+        for a in self._actions:
+            if (not a.option_strings and a.choices and not isinstance(a, argparse._SubParsersAction)
+                    and token in a.choices and key_of(a) not in given):
+                return a
+        return None
 
     def _old_values(self, flag: str, rest: list[str], options: dict[str, argparse.Action]) -> list[str]:
         """The tokens an old `--flag` takes (`--param alpha=30`: the value looks like key=value, and is not)."""
@@ -268,7 +291,8 @@ def new_spelling(parser: CommandParser, argv: list[str]) -> list[str]:
                     break
             out.append(f"{key}={values[0]}" if len(values) == 1 else f"{key}=[{','.join(values)}]")
         elif not token.startswith("-") and "=" not in token and positionals:
-            out.append(f"{key_of(positionals.pop(0))}={token}")
+            first = positionals.pop(0)
+            out.append(token if first.choices and token in first.choices else f"{key_of(first)}={token}")
             i += 1
         else:
             out.append(token)
@@ -316,7 +340,7 @@ def split_kind_factor(text: str) -> tuple[str, float]:
     return kind, factor
 
 
-def parse_assignments(items: list[str], flag: str, example: str) -> dict[str, float]:
+def parse_assignments(items: list[str], key: str, example: str) -> dict[str, float]:
     """`NAME=NUMBER` values (e.g. `param=[alpha=30,mu_s=0.4]`) as a dict."""
     out = {}
     for item in items:
@@ -326,7 +350,7 @@ def parse_assignments(items: list[str], flag: str, example: str) -> dict[str, fl
         except ValueError:
             sep = ""
         if not sep or not key:
-            raise ConfigError(f"{flag} {item!r}: expected NAME=NUMBER, e.g. {example}")
+            raise ConfigError(f"{key}= {item!r}: expected NAME=NUMBER, e.g. {key}=[{example}]")
     return out
 
 

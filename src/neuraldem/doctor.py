@@ -1,4 +1,4 @@
-"""`python -m neuraldem.doctor`: is this machine ready? One line per check, with the fix for each failure.
+"""`neuraldem doctor`: is this machine ready? One line per check, with the fix for each failure.
 
 Required checks (torch, torch-cluster, the Python stack, LIGGGHTS, OpenFOAM, the data dir) make the exit
 status non-zero when they fail; the GPU check only informs.

@@ -13,7 +13,7 @@ scalars alone, its occupancy and transport fields are evaluated at the initial p
 same functions that scored the DEM data compute drainage time, residual, outflow, flow regime, stripes and
 residence time. Writes metrics.json, table.md (layout of the paper's Table 4), PNG figures and VTK files into
 the run folder, and prints the table. A GNS (particle) checkpoint is rolled out on one stored run with its
-stability checks (options under `gns:`). (`python -m neuraldem.evaluate` is the same command.)
+stability checks (options under `gns:`). (`python -m neuraldem.evaluate` runs the same code.)
 """
 
 from __future__ import annotations

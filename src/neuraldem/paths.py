@@ -9,6 +9,8 @@ import os
 import sys
 from pathlib import Path
 
+from neuraldem.commands import command_or_module
+
 ENV_VAR = "NEURALDEM_DATA"
 
 
@@ -55,18 +57,20 @@ def portable(text: str) -> str:
 
 
 def module_command(module: str, argv: list[str] | None = None) -> str:
-    """`python -m <module> <argv>` (default: this process's arguments), portable: what a tool records."""
-    return portable(" ".join([f"python -m {module}", *(sys.argv[1:] if argv is None else argv)]))
+    """The command that runs `module` (`neuraldem VERB [OBJECT]`, neuraldem.commands) with `argv` (default: this
+    process's arguments), portable: what a tool records."""
+    return portable(" ".join([command_or_module(module), *(sys.argv[1:] if argv is None else argv)]))
 
 
 def invocation(argv: list[str] | None = None) -> str:
     """The command line that ran this process, portable: a script of this package (Hydra apps run as
-    `python -m neuraldem.train`, whose argv[0] is the file) is written as `python -m neuraldem.<module>`."""
+    `python -m neuraldem.train`, whose argv[0] is the file) is written as the command that runs it
+    (`neuraldem train ...`), or `python -m neuraldem.<module>` where no verb runs it."""
     argv = list(sys.argv if argv is None else argv)
     if argv and argv[0].endswith(".py"):
         package = Path(__file__).resolve().parent
         script = Path(argv[0]).resolve()
         if script.is_relative_to(package):
             module = ".".join(("neuraldem", *script.relative_to(package).with_suffix("").parts))
-            argv[:1] = ["python", "-m", module.removesuffix(".__main__")]
+            argv[:1] = [command_or_module(module)]
     return portable(" ".join(argv))

@@ -1,4 +1,4 @@
-"""`python -m neuraldem.train experiment=NAME`: compose the config, build data + model, fit with Lightning.
+"""`neuraldem train experiment=NAME`: compose the config, build data + model, fit with Lightning.
 
 Outputs (checkpoints, logs, the composed config) go to the run folder under the data dir.
 `--cfg job` prints the composed config, `--help` lists the config groups, `-m` runs a Hydra sweep.
@@ -45,7 +45,7 @@ def train(cfg: DictConfig) -> dict[str, float]:
         validate_net(cfg.model.net)
     check_resume_checkpoint(cfg)
     if OmegaConf.is_missing(cfg.data, "export_dir"):
-        raise ConfigError("data.export_dir is required: python -m neuraldem.train experiment=gns_export_tiny "
+        raise ConfigError("data.export_dir is required: neuraldem train experiment=gns_export_tiny "
                           "data.export_dir=DIR (a folder written by `neuraldem export gns`)")
     if cfg.data.get("export_dir") is None:  # else trained from an export, which its datamodule reads
         require_dataset(Path(cfg.data.dataset_dir), str(cfg.data.name))

@@ -52,8 +52,8 @@ def test_measured_counts_are_read_and_a_power_law_is_extrapolated_exactly(tmp_pa
 
 def test_cpu_hours_per_batch_and_the_bed(tmp_path: Path):
     out = tmp_path / "cluster_cost.json"
-    assert main(["--hopper-scaling", str(synthetic_scaling(tmp_path)), "--fb-speed", str(synthetic_fb_speed(tmp_path)),
-                 "--hopper-runs", "1000", "--bed-trajectories", "10", "--out", str(out)]) == 0
+    assert main([f"hopper_scaling={synthetic_scaling(tmp_path)}", f"fb_speed={synthetic_fb_speed(tmp_path)}",
+                 "hopper_runs=1000", "bed_trajectories=10", f"out={out}"]) == 0
     res = json.loads(out.read_text())["results"]
     by_n = {r["n_particles"]: r for r in res["hopper"]}
     assert by_n[50000]["cpu_hours_per_batch"] == pytest.approx((settle(50000) + drain(50000)) * 1000 / 3600)
@@ -87,7 +87,7 @@ def test_a_datasets_own_costs_are_its_manifests_medians(tmp_path: Path, hopper_t
 def test_wrong_or_incomplete_inputs_are_refused_by_name(tmp_path: Path):
     fb = synthetic_fb_speed(tmp_path)
     with pytest.raises(DataError, match="not 'hopper_scaling'"):
-        main(["--hopper-scaling", str(fb), "--fb-speed", str(fb), "--out", str(tmp_path / "x.json")])
+        main([f"hopper_scaling={fb}", f"fb_speed={fb}", f"out={tmp_path / 'x.json'}"])
     broken = write_results("hopper_scaling", {"solver": {}}, command="synthetic", path=tmp_path / "broken.json")
     with pytest.raises(DataError, match="lack solver.points"):
-        main(["--hopper-scaling", str(broken), "--fb-speed", str(fb), "--out", str(tmp_path / "x.json")])
+        main([f"hopper_scaling={broken}", f"fb_speed={fb}", f"out={tmp_path / 'x.json'}"])

@@ -20,16 +20,16 @@ def test_an_unlisted_benchmark_writes_to_results_bench():
 
 
 def test_every_benchmark_writes_into_the_folder_of_its_question():
-    from neuraldem.bench.__main__ import BENCHMARKS
+    from neuraldem.bench.__main__ import benchmarks
 
-    assert (set(BENCHMARKS) - {"all", "render"}) | {"serve_latency_fb"} == set(RESULT_FOLDERS)
+    assert (set(benchmarks()) - {"all", "render"}) | {"serve_latency_fb"} == set(RESULT_FOLDERS)
     for name, folder in RESULT_FOLDERS.items():
         assert default_path(name) == results_dir() / folder / f"{name}.json"
         assert default_path(name).parent.is_dir(), f"{name}: results/{folder}/ is not in the checkout"
 
 
 def test_write_results(tmp_path):
-    path = write_results("demo", [{"a": 1}], command="python -m neuraldem.bench demo",
+    path = write_results("demo", [{"a": 1}], command="neuraldem bench demo",
                          path=tmp_path / "sub" / "demo.json", machine={"cpu_model": "test"})
     data = json.loads(path.read_text())
     assert data["results"] == [{"a": 1}] and data["machine"] == {"cpu_model": "test"}
@@ -62,4 +62,4 @@ def test_busy_machine_warning(capsys):
     assert warn_if_busy({"load_average_1_5_15min": [0.1, 0.1, 0.1]}) is None
     assert "quiet machine" in warn_if_busy({"load_average_1_5_15min": [1.9, 1.0, 1.0]})
     assert "load average 1.90" in capsys.readouterr().err
-    assert command_line("x", ["--a", "b c"]) == "python -m neuraldem.bench x --a 'b c'"
+    assert command_line("x", ["a=1", "note=b c"]) == "neuraldem bench x a=1 'note=b c'"

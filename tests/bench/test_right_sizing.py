@@ -72,7 +72,7 @@ def test_from_a_speed_accuracy_file(tmp_path: Path):
     src = write_results("speed_accuracy", {"points": points}, command="test", path=tmp_path / "sa.json",
                         machine={})
     out = tmp_path / "rs.json"
-    assert bench_main(["right_sizing", "--from", str(src), "--out", str(out)]) == 0
+    assert bench_main(["right_sizing", f"from_file={src}", f"out={out}"]) == 0
     picks = json.loads(out.read_text())["results"]["picks"]
     assert {p["pick"]["label"] for p in picks} == {"base-8tok", "theta"}
     assert "| base-8tok | 800,000 | 8 | 512 | 0.1 | 10.90 | pick |" in out.with_suffix(".md").read_text()
@@ -84,7 +84,7 @@ def test_all_quantities_at_once(tmp_path: Path):
             for r in TABLE]
     src = write_results("speed_accuracy", {"points": rows}, command="test", path=tmp_path / "sa.json", machine={})
     out = tmp_path / "rs.json"
-    assert bench_main(["right_sizing", "--from", str(src), "--metric", "all", "--out", str(out)]) == 0
+    assert bench_main(["right_sizing", f"from_file={src}", "metric=all", f"out={out}"]) == 0
     picks = json.loads(out.read_text())["results"]["picks"]
     by_metric = {(p["metric"], tuple(p["conditioning"])): p["pick"]["label"] for p in picks}
     main = ("t", "alpha", "mu_s", "mu_r")
@@ -95,7 +95,7 @@ def test_all_quantities_at_once(tmp_path: Path):
 
 def test_wrong_results_file_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture):
     other = write_results("hopper_speed", {}, command="test", path=tmp_path / "speed.json", machine={})
-    assert bench_main(["right_sizing", "--from", str(other), "--out", str(tmp_path / "rs.json")]) == 2
+    assert bench_main(["right_sizing", f"from_file={other}", f"out={tmp_path / 'rs.json'}"]) == 2
     assert "holds results of benchmark 'hopper_speed', not 'speed_accuracy'" in capsys.readouterr().err
 
 
@@ -109,6 +109,6 @@ def test_a_scalar_baseline_is_a_candidate(tmp_path: Path):
                    "method": "constant (training mean)"})
     src = write_results("speed_accuracy", {"points": points}, command="test", path=tmp_path / "sa.json", machine={})
     out = tmp_path / "rs.json"
-    assert bench_main(["right_sizing", "--from", str(src), "--out", str(out)]) == 0
+    assert bench_main(["right_sizing", f"from_file={src}", f"out={out}"]) == 0
     pick = next(p for p in json.loads(out.read_text())["results"]["picks"] if p["conditioning"][-1] == "mu_r")
     assert pick["pick"]["label"] == "gp, 5-fold CV"

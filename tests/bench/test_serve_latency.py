@@ -18,7 +18,7 @@ def test_median_p90_and_max_per_latency():
 
 
 def test_the_table_says_which_target_is_met():
-    result = {"model": "m", "command": "python -m neuraldem.bench serve_latency", "browser": "chrome 1",
+    result = {"model": "m", "command": "neuraldem bench serve_latency", "browser": "chrome 1",
               "pause_s": 1.0, "warmup": 3, "machine": {"load_average_1_5_15min": [0.2], "cpu_count": 2},
               "summary": {"parameter_moves": summary(rows([80, 90], [350, 400])),
                           "time_moves": summary(rows([0, 0], [100, 120]))}}

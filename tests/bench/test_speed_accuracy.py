@@ -39,7 +39,8 @@ def test_runs_of_several_scenes_need_a_choice():
             self.data_name = name
 
     runs = [Run("hopper_small"), Run("hopper_tiny")]
-    with pytest.raises(ConfigError, match=r"several datasets \['hopper_small', 'hopper_tiny'\]: pick one with --scene"):
+    with pytest.raises(ConfigError, match=r"several datasets \['hopper_small', 'hopper_tiny'\]: pick one with "
+                                          r"scene=NAME"):
         runs_of_one_scene(runs, None)
     assert runs_of_one_scene(runs, "hopper_tiny") == [runs[1]]
     with pytest.raises(ConfigError, match="no evaluated run of that dataset"):
@@ -48,8 +49,8 @@ def test_runs_of_several_scenes_need_a_choice():
 
 def test_surrogate_points_only(evaluated_runs: Path, tmp_path: Path):
     out = tmp_path / "sa.json"
-    assert bench_main(["speed_accuracy", "--runs", str(evaluated_runs), "--skip-solver", "--repeats", "1",
-                       "--out", str(out)]) == 0
+    assert bench_main(["speed_accuracy", f"runs=[{evaluated_runs}]", "skip_solver=true", "repeats=1",
+                       f"out={out}"]) == 0
     r = json.loads(out.read_text())["results"]
     assert [p["label"] for p in r["points"]] == ["multirun/0", "tiny"]
     assert all(p["time_to_answer_s"] > 0 and p["timing"]["repeats"] == 1 for p in r["points"])
@@ -60,35 +61,35 @@ def test_surrogate_points_only(evaluated_runs: Path, tmp_path: Path):
 @pytest.mark.solver
 def test_with_a_cheaper_solver_and_reuse(evaluated_runs: Path, tmp_path: Path):
     out = tmp_path / "sa.json"
-    argv = ["speed_accuracy", "--runs", str(evaluated_runs / "tiny"), "--repeats", "1", "--solver-variants",
-            "fewer:0.5", "--solver-sims", "1", "--workdir", str(tmp_path / "w"), "--out", str(out)]
+    argv = ["speed_accuracy", f"runs=[{evaluated_runs / 'tiny'}]", "repeats=1", "solver_variants=[fewer:0.5]",
+            "solver_sims=1", f"workdir={tmp_path / 'w'}", f"out={out}"]
     assert bench_main(argv) == 0
     r = json.loads(out.read_text())["results"]
     solver = [p for p in r["points"] if p["method"] == "liggghts"]
     assert [p["variant"] for p in solver] == ["fewer:0.5"] and solver[0]["errors"]
     assert r["reference"]["source"].startswith("dataset manifest")  # no same:1 variant was run
     again = tmp_path / "again.json"
-    assert bench_main(["speed_accuracy", "--runs", str(evaluated_runs / "tiny"), "--repeats", "1",
-                       "--reuse-solver", str(out), "--out", str(again)]) == 0
+    assert bench_main(["speed_accuracy", f"runs=[{evaluated_runs / 'tiny'}]", "repeats=1", f"reuse_solver={out}",
+                       f"out={again}"]) == 0
     r2 = json.loads(again.read_text())["results"]
     assert [p["label"] for p in r2["points"] if p["method"] == "liggghts"] == ["LIGGGHTS fewer x0.5"]
     assert any("not re-run" in n for n in r2["notes"])
 
 
 def test_bad_inputs_are_one_line(evaluated_runs: Path, tmp_path: Path, capsys: pytest.CaptureFixture):
-    out = ["--out", str(tmp_path / "x.json")]
-    assert bench_main(["speed_accuracy", "--runs", str(tmp_path), *out]) == 2
+    out = [f"out={tmp_path / 'x.json'}"]
+    assert bench_main(["speed_accuracy", f"runs=[{tmp_path}]", *out]) == 2
     assert "no evaluated hopper run" in capsys.readouterr().err
-    assert bench_main(["speed_accuracy", "--runs", str(evaluated_runs), "--solver-variants", "finer:2", *out]) == 2
+    assert bench_main(["speed_accuracy", f"runs=[{evaluated_runs}]", "solver_variants=[finer:2]", *out]) == 2
     assert "KIND:FACTOR" in capsys.readouterr().err
-    assert bench_main(["speed_accuracy", "--runs", str(evaluated_runs), "--reuse-solver",
-                       str(tmp_path / "none.json"), *out]) == 2
+    assert bench_main(["speed_accuracy", f"runs=[{evaluated_runs}]", f"reuse_solver={tmp_path / 'none.json'}",
+                       *out]) == 2
     assert "no results at" in capsys.readouterr().err
     assert not (tmp_path / "x.json").exists()
 
 
 def test_cross_validated_points_and_the_seed_floor(tmp_path: Path):
-    """`--cv`: the constant, the GP and the field model at their cross-validated errors, LIGGGHTS rerun with
+    """`cv=`: the constant, the GP and the field model at their cross-validated errors, LIGGGHTS rerun with
     another seed as a point and as the floor line (hand-written CV file: a unit test of the assembly)."""
     def summary(err: float, t: float) -> dict:
         return {"n_folds": 5, "n_test": 40, "n_parameters": 100, "answer_s": {"mean": t, "std": 0.0},
@@ -102,11 +103,11 @@ def test_cross_validated_points_and_the_seed_floor(tmp_path: Path):
     path = tmp_path / "cv.json"
     path.write_text(json.dumps(cv))
     out = tmp_path / "sa.json"
-    assert bench_main(["speed_accuracy", "--cv", str(path), "--skip-solver", "--out", str(out)]) == 0
+    assert bench_main(["speed_accuracy", f"cv={path}", "skip_solver=true", f"out={out}"]) == 0
     r = json.loads(out.read_text())["results"]
     methods = {p["method"]: p for p in r["points"]}
     assert set(methods) == {"constant (training mean)", "Gaussian process", "field model (CV)",
                             "LIGGGHTS, another packing seed"}
     assert methods["Gaussian process"]["errors"]["drainage_t95_pct_of_mean"] == 10.0
     assert r["floor"]["residual_mae_pp"] == 2.0 and out.with_suffix(".png").is_file()
-    assert bench_main(["speed_accuracy", "--skip-solver", "--out", str(out)]) == 2  # nothing to chart
+    assert bench_main(["speed_accuracy", "skip_solver=true", f"out={out}"]) == 2  # nothing to chart

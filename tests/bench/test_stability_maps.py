@@ -71,16 +71,16 @@ def test_map_on_the_tiny_dataset(tiny_checkpoint: Path, hopper_tiny_dataset: Pat
         assert 0 <= p["stable_time_s"] <= p["time_s"] and (p["failed"] == bool(p["failure"]))
     assert all(p["steps"] == 3 for p in graph["points"])
     out = tmp_path / "hs.json"
-    assert bench_main(["hopper_stability", "--ckpt", str(tiny_checkpoint), "--sims", "1", "--mu-s", "0.5",
-                       "--dataset", str(hopper_tiny_dataset), "--out", str(out)]) == 0
+    assert bench_main(["hopper_stability", f"ckpt=[{tiny_checkpoint}]", "sims=1", "mu_s=[0.5]",
+                       f"dataset={hopper_tiny_dataset}", f"out={out}"]) == 0
     md = out.with_suffix(".md").read_text()
     assert out.with_suffix(".png").is_file() and "| LIGGGHTS (stored run) |" in md and "| tiny |" in md
 
 
 def test_bad_options_are_refused(tiny_checkpoint: Path):
-    with pytest.raises(ConfigError, match="--labels"):
+    with pytest.raises(ConfigError, match="labels=: 2 label"):
         hopper_stability.run([tiny_checkpoint], [], ["a", "b"])
-    with pytest.raises(ConfigError, match="--sims"):
+    with pytest.raises(ConfigError, match=r"config value sims=0 is invalid.*e\.g\. sims=\.\.\."):
         hopper_stability.run([tiny_checkpoint], n_sims=0)
-    with pytest.raises(ConfigError, match="--ckpt is required"):
+    with pytest.raises(ConfigError, match="ckpt= is required"):
         hopper_stability.run([])

@@ -1,5 +1,5 @@
-"""`all` runs the hopper benchmarks and, with --fb-ckpt, the fluidized bed's, with consistent options; `render`
-redraws from results files."""
+"""`all` runs the hopper benchmarks and, with fb_ckpt=, the fluidized bed's, with consistent options (each
+benchmark's command line in key=value form); `render` redraws from results files."""
 
 from __future__ import annotations
 
@@ -17,12 +17,19 @@ from neuraldem.scenes.hopper.bench import scaling as hopper_scaling
 from tests.scenes.hopper.bench.test_scaling import HAND_MADE
 
 
+def opts(argv: list[str]) -> dict[str, str]:
+    """A benchmark command line (key=value tokens) as a dict; every token is key=value and every key is once."""
+    pairs = [token.split("=", 1) for token in argv]
+    assert all(len(p) == 2 for p in pairs) and len({k for k, _ in pairs}) == len(pairs), argv
+    return dict(pairs)
+
+
 def test_plan_measures_everything_by_default(tmp_path: Path):
     steps = dict(plan([Path("/runs")], Path("/c.ckpt"), None, tmp_path, no_solver=False, repeats=5, threads=1))
     assert list(steps) == ["hopper_speed", "hopper_scaling", "speed_accuracy", "right_sizing", "hopper_stability"]
-    assert "--reuse-dataset" not in steps["hopper_speed"] and "--skip-solver" not in steps["speed_accuracy"]
-    assert steps["right_sizing"][:2] == ["--from", str(tmp_path / "speed_accuracy.json")]
-    assert steps["hopper_speed"][steps["hopper_speed"].index("--repeats") + 1] == "5"
+    assert "reuse_dataset" not in opts(steps["hopper_speed"]) and "skip_solver" not in opts(steps["speed_accuracy"])
+    assert opts(steps["right_sizing"])["from_file"] == str(tmp_path / "speed_accuracy.json")
+    assert opts(steps["hopper_speed"])["repeats"] == "5"
 
 
 def test_plan_without_out_dir_writes_each_file_into_the_folder_of_its_question():
@@ -30,20 +37,21 @@ def test_plan_without_out_dir_writes_each_file_into_the_folder_of_its_question()
                       fb_ckpts=[Path("/fb.ckpt")]))
     for name in ("hopper_speed", "hopper_scaling", "speed_accuracy", "right_sizing", "hopper_stability", "fb_speed",
                  "fb_stability"):
-        assert steps[name][-1] == str(default_path(name))
-    assert steps["right_sizing"][:2] == ["--from", str(default_path("speed_accuracy"))]
-    assert "hopper/speed" in steps["hopper_speed"][-1] and "fluidized_bed/stability" in steps["fb_stability"][-1]
+        assert opts(steps[name])["out"] == str(default_path(name))
+    assert opts(steps["right_sizing"])["from_file"] == str(default_path("speed_accuracy"))
+    assert "hopper/speed" in opts(steps["hopper_speed"])["out"]
+    assert "fluidized_bed/stability" in opts(steps["fb_stability"])["out"]
 
 
 def test_plan_without_solver_reuses_what_exists(tmp_path: Path):
     (tmp_path / "hopper_scaling.json").write_text("{}")
     steps = dict(plan([Path("/runs")], Path("/c.ckpt"), Path("/d"), tmp_path, no_solver=True, repeats=3, threads=2,
                       skip_unevaluated=True))
-    assert "--reuse-dataset" in steps["hopper_speed"]
-    assert steps["hopper_scaling"][-2:] == ["--reuse-solver", str(tmp_path / "hopper_scaling.json")]
-    assert steps["speed_accuracy"][-1] == "--skip-solver"  # nothing earlier to reuse
-    assert "--skip-unevaluated" in steps["speed_accuracy"]
-    assert "/d" in steps["speed_accuracy"]
+    assert opts(steps["hopper_speed"])["reuse_dataset"] == "true"
+    assert opts(steps["hopper_scaling"])["reuse_solver"] == str(tmp_path / "hopper_scaling.json")
+    accuracy = opts(steps["speed_accuracy"])
+    assert accuracy["skip_solver"] == "true" and "reuse_solver" not in accuracy  # nothing earlier to reuse
+    assert accuracy["skip_unevaluated"] == "true" and accuracy["dataset"] == "/d"
 
 
 def test_all_without_solver_then_render(evaluated_runs: Path, tiny_checkpoint: Path, hopper_tiny_dataset: Path,
@@ -51,8 +59,8 @@ def test_all_without_solver_then_render(evaluated_runs: Path, tiny_checkpoint: P
     # `all` uses the scaling sweep's defaults, sized for the real measurement: shrink them for the test
     monkeypatch.setattr(hopper_scaling, "DEFAULT_QUERIES", (50,))
     monkeypatch.setattr(hopper_scaling, "DEFAULT_TOKENS", (4,))
-    argv = ["all", "--runs", str(evaluated_runs / "tiny"), "--ckpt", str(tiny_checkpoint), "--dataset",
-            str(hopper_tiny_dataset), "--no-solver", "--repeats", "1", "--out-dir", str(tmp_path)]
+    argv = ["all", f"runs=[{evaluated_runs / 'tiny'}]", f"ckpt={tiny_checkpoint}", f"dataset={hopper_tiny_dataset}",
+            "no_solver=true", "repeats=1", f"out_dir={tmp_path}"]
     assert bench_main(argv) == 0
     names = {"hopper_speed.json", "hopper_speed.md", "hopper_scaling.json", "hopper_scaling.png",
              "speed_accuracy.json", "speed_accuracy.png", "speed_accuracy.md", "right_sizing.json", "right_sizing.md",
@@ -60,20 +68,21 @@ def test_all_without_solver_then_render(evaluated_runs: Path, tiny_checkpoint: P
     assert names <= {p.name for p in tmp_path.iterdir()}
     for name in ("hopper_scaling.png", "speed_accuracy.png", "right_sizing.md", "hopper_stability.png"):
         (tmp_path / name).unlink()
-    assert bench_main(["render", "--out-dir", str(tmp_path)]) == 0
+    assert bench_main(["render", f"out_dir={tmp_path}"]) == 0
     assert (tmp_path / "hopper_scaling.png").is_file() and (tmp_path / "right_sizing.md").is_file()
     assert (tmp_path / "hopper_stability.png").is_file()
 
 
 def test_render_from_a_results_file(tmp_path: Path):
     write_results("hopper_scaling", HAND_MADE, command="test", path=tmp_path / "hopper_scaling.json", machine={})
-    assert bench_main(["render", "--out-dir", str(tmp_path)]) == 0
+    assert bench_main(["render", f"out_dir={tmp_path}"]) == 0
     assert (tmp_path / "hopper_scaling.png").is_file()
 
 
 def test_render_with_nothing_to_render(tmp_path: Path, capsys: pytest.CaptureFixture):
-    assert bench_main(["render", "--out-dir", str(tmp_path)]) == 2
-    assert "no benchmark results in" in capsys.readouterr().err
+    assert bench_main(["render", f"out_dir={tmp_path}"]) == 2
+    err = capsys.readouterr().err
+    assert "no benchmark results in" in err and "run `neuraldem bench all ...` first" in err
 
 
 def test_plan_with_fluidized_bed_checkpoints(tmp_path: Path):
@@ -81,22 +90,22 @@ def test_plan_with_fluidized_bed_checkpoints(tmp_path: Path):
     steps = dict(plan([Path("/runs")], Path("/c.ckpt"), None, tmp_path, no_solver=False, repeats=4, threads=1,
                       fb_ckpts=fb, fb_dataset=Path("/fbd"), fb_labels=["model", "no noise"]))
     assert list(steps)[-2:] == ["fb_speed", "fb_stability"] and "hopper_speed" in steps
-    speed, stability = steps["fb_speed"], steps["fb_stability"]
-    assert speed[:2] == ["--ckpt", "/fb/a.ckpt"] and "--reuse-dataset" not in speed  # the first is timed
-    assert speed[speed.index("--repeats") + 1] == "4" and "--threads" not in speed  # 1 and all threads itself
-    assert stability[:3] == ["--ckpt", "/fb/a.ckpt", "/fb/b.ckpt"]  # all go into the map
-    assert stability[stability.index("--labels") + 1:][:2] == ["model", "no noise"]
-    assert "/fbd" in speed and "/fbd" in stability
-    assert stability[-2:] == ["--out", str(tmp_path / "fb_stability.json")]
+    speed, stability = opts(steps["fb_speed"]), opts(steps["fb_stability"])
+    assert speed["ckpt"] == "/fb/a.ckpt" and "reuse_dataset" not in speed  # the first is timed
+    assert speed["repeats"] == "4" and "threads" not in speed  # 1 and all threads itself
+    assert stability["ckpt"] == "[/fb/a.ckpt,/fb/b.ckpt]"  # all go into the map
+    assert stability["labels"] == "[model,no noise]"
+    assert speed["dataset"] == "/fbd" and stability["dataset"] == "/fbd"
+    assert stability["out"] == str(tmp_path / "fb_stability.json")
     only_fb = dict(plan(None, None, None, tmp_path, no_solver=True, repeats=3, threads=1, fb_ckpts=fb[:1]))
-    assert list(only_fb) == ["fb_speed", "fb_stability"] and "--reuse-dataset" in only_fb["fb_speed"]
+    assert list(only_fb) == ["fb_speed", "fb_stability"] and opts(only_fb["fb_speed"])["reuse_dataset"] == "true"
 
 
 @pytest.mark.parametrize(("kwargs", "message"), [
-    ({"runs": [Path("/runs")], "ckpt": None}, "--runs and --ckpt go together"),
-    ({"runs": None, "ckpt": None}, "nothing to run: give --runs DIR --ckpt CKPT"),
+    ({"runs": [Path("/runs")], "ckpt": None}, "runs= and ckpt= go together"),
+    ({"runs": None, "ckpt": None}, "nothing to run: give runs=DIR ckpt=CKPT"),
     ({"runs": None, "ckpt": None, "fb_ckpts": [Path("/a")], "fb_labels": ["x", "y"]},
-     "--fb-labels: 2 label(s) for 1 --fb-ckpt"),
+     "fb_labels=: 2 label(s) for 1 fb_ckpt="),
 ])
 def test_plan_refuses_incomplete_options(tmp_path: Path, kwargs, message):
     with pytest.raises(ConfigError, match=re.escape(message)):
@@ -111,17 +120,18 @@ def test_all_with_only_a_fluidized_bed_checkpoint(tmp_path: Path, monkeypatch: p
     write_results("fb_stability", FB_STABILITY, command="test", path=tmp_path / "fb_stability.json", machine={})
     write_results("gns_stability", {**FB_STABILITY, "steps": 50}, command="test", path=tmp_path / "gns_stability.json",
                   machine={})
-    assert suite.run_all(["--fb-ckpt", "/fb/a.ckpt", "--no-solver", "--out-dir", str(tmp_path)]) == 0
+    assert suite.run_all(["fb_ckpt=[/fb/a.ckpt]", "no_solver=true", f"out_dir={tmp_path}"]) == 0
     assert [name for name, _ in called] == ["fb_speed", "fb_stability"]
+    assert opts(called[0][1])["ckpt"] == "/fb/a.ckpt"  # each benchmark is run with key=value options
     assert not (tmp_path / "stability_map.png").exists()
     with pytest.raises(ConfigError, match="nothing to run"):
-        suite.run_all(["--out-dir", str(tmp_path)])
+        suite.run_all([f"out_dir={tmp_path}"])
 
 
 def test_render_fluidized_bed_results(tmp_path: Path):
     write_results("fb_speed", FB_SPEED, command="test", path=tmp_path / "fb_speed.json", machine={"cpu_model": "X"})
     write_results("fb_stability", FB_STABILITY, command="test", path=tmp_path / "fb_stability.json", machine={})
-    assert bench_main(["render", "--out-dir", str(tmp_path)]) == 0
+    assert bench_main(["render", f"out_dir={tmp_path}"]) == 0
     assert (tmp_path / "fb_speed.png").is_file() and (tmp_path / "fb_stability.png").is_file()
     md = (tmp_path / "fb_speed.md").read_text()
     assert "| DPMFoam, measured | 1 | 170.0 | 160.0 | 1.000 | 0.800 | 170x | 200x |" in md
@@ -155,26 +165,26 @@ def test_plan_with_fluidized_bed_runs(tmp_path: Path):
     steps = dict(plan(None, None, None, tmp_path, no_solver=False, repeats=2, threads=1, fb_runs=[Path("/fbruns")],
                       fb_dataset=Path("/fbd")))
     assert list(steps) == ["fb_speed_accuracy"]
-    chart = steps["fb_speed_accuracy"]
-    assert chart[:2] == ["--runs", "/fbruns"] and "/fbd" in chart and "--skip-solver" not in chart
-    assert chart[-2:] == ["--out", str(tmp_path / "fb_speed_accuracy.json")]
+    chart = opts(steps["fb_speed_accuracy"])
+    assert chart["runs"] == "[/fbruns]" and chart["dataset"] == "/fbd" and "skip_solver" not in chart
+    assert chart["out"] == str(tmp_path / "fb_speed_accuracy.json")
     # without the solver: the cheaper-DPMFoam points of an earlier chart if there is one, else none
-    assert "--skip-solver" in dict(plan(None, None, None, tmp_path, no_solver=True, repeats=2, threads=1,
-                                        fb_runs=[Path("/r")]))["fb_speed_accuracy"]
+    assert opts(dict(plan(None, None, None, tmp_path, no_solver=True, repeats=2, threads=1,
+                          fb_runs=[Path("/r")]))["fb_speed_accuracy"])["skip_solver"] == "true"
     (tmp_path / "fb_speed_accuracy.json").write_text("{}")
-    chart = dict(plan(None, None, None, tmp_path, no_solver=True, repeats=2, threads=1,
-                      fb_runs=[Path("/r")]))["fb_speed_accuracy"]
-    assert chart[chart.index("--reuse-solver") + 1] == str(tmp_path / "fb_speed_accuracy.json")
+    chart = opts(dict(plan(None, None, None, tmp_path, no_solver=True, repeats=2, threads=1,
+                           fb_runs=[Path("/r")]))["fb_speed_accuracy"])
+    assert chart["reuse_solver"] == str(tmp_path / "fb_speed_accuracy.json")
 
 
 def test_plan_with_a_gns_of_the_bed(tmp_path: Path):
     steps = dict(plan(None, None, None, tmp_path, no_solver=True, repeats=1, threads=1, fb_ckpts=[Path("/fb.ckpt")],
                       gns_fb_ckpts=[Path("/gns.ckpt")], fb_dataset=Path("/fbd")))
     assert list(steps) == ["fb_speed", "fb_stability", "gns_stability"]  # the GNS map after the one it copies
-    gns = steps["gns_stability"]
-    assert gns[:2] == ["--ckpt", "/gns.ckpt"] and "/fbd" in gns
-    assert gns[gns.index("--like") + 1] == str(tmp_path / "fb_stability.json")
-    with pytest.raises(ConfigError, match="give --fb-ckpt too"):
+    gns = opts(steps["gns_stability"])
+    assert gns["ckpt"] == "[/gns.ckpt]" and gns["dataset"] == "/fbd"
+    assert gns["like"] == str(tmp_path / "fb_stability.json")
+    with pytest.raises(ConfigError, match="give fb_ckpt= too"):
         plan(None, None, None, tmp_path, no_solver=True, repeats=1, threads=1, fb_runs=[Path("/r")],
              gns_fb_ckpts=[Path("/gns.ckpt")])
 
@@ -183,24 +193,22 @@ def test_render_draws_field_surrogate_and_gns_in_one_map(tmp_path: Path):
     write_results("fb_stability", FB_STABILITY, command="test", path=tmp_path / "fb_stability.json", machine={})
     gns = {**FB_STABILITY, "series": [{**FB_STABILITY["series"][0], "label": "gns", "method": "gns"}]}
     write_results("gns_stability", gns, command="test", path=tmp_path / "gns_stability.json", machine={})
-    assert bench_main(["render", "--out-dir", str(tmp_path)]) == 0
+    assert bench_main(["render", f"out_dir={tmp_path}"]) == 0
     assert (tmp_path / "stability_map.png").is_file()
     # maps of other steps do not share a figure: render says why instead of drawing a misleading one
     write_results("gns_stability", {**gns, "steps": 50}, command="test", path=tmp_path / "gns_stability.json",
                   machine={})
     (tmp_path / "stability_map.png").unlink()
-    assert bench_main(["render", "--out-dir", str(tmp_path)]) == 2
+    assert bench_main(["render", f"out_dir={tmp_path}"]) == 2
     assert not (tmp_path / "stability_map.png").exists()
 
 
 def test_plan_with_a_gns_of_the_hopper(tmp_path: Path):
     steps = dict(plan([Path("/runs")], Path("/c.ckpt"), None, tmp_path, no_solver=False, repeats=3, threads=1,
                       gns_hopper_ckpts=[Path("/g1.ckpt"), Path("/g2.ckpt")]))
-    chart = steps["speed_accuracy"]
-    assert chart[chart.index("--gns-ckpt") + 1:chart.index("--gns-ckpt") + 3] == ["/g1.ckpt", "/g2.ckpt"]
-    assert "--gns-ckpt" not in steps["hopper_speed"]
-    stability = steps["hopper_stability"]
-    assert stability[stability.index("--gns-ckpt") + 1:] == ["/g1.ckpt", "/g2.ckpt"]
-    with pytest.raises(ConfigError, match="--runs and --ckpt"):
+    assert opts(steps["speed_accuracy"])["gns_ckpt"] == "[/g1.ckpt,/g2.ckpt]"
+    assert "gns_ckpt" not in opts(steps["hopper_speed"])
+    assert opts(steps["hopper_stability"])["gns_ckpt"] == "[/g1.ckpt,/g2.ckpt]"
+    with pytest.raises(ConfigError, match="runs= and ckpt="):
         plan(None, None, None, tmp_path, no_solver=False, repeats=3, threads=1, fb_ckpts=[Path("/f.ckpt")],
              gns_hopper_ckpts=[Path("/g.ckpt")])

@@ -47,9 +47,11 @@ def test_required_keys_name_themselves_and_an_example():
     from omegaconf import OmegaConf
 
     cfg = OmegaConf.create({"ckpt": "???", "velocity": 1.5})
-    with pytest.raises(ConfigError, match=r"ckpt is required: python -m neuraldem.evaluate ckpt=X"):
+    with pytest.raises(ConfigError, match=r"ckpt is required: neuraldem evaluate ckpt=X"):
         checks.required(cfg, "evaluate", {"ckpt": "ckpt=X", "velocity": "velocity=1.6"})
     checks.required(OmegaConf.create({"ckpt": "a.ckpt"}), "evaluate", {"ckpt": "ckpt=X"})  # present: no error
+    with pytest.raises(ConfigError, match=r"ckpt is required: neuraldem evaluate rollout ckpt=X"):
+        checks.required(cfg, "rollout", {"ckpt": "ckpt=X"})
 
 
 def test_is_multiple_tolerates_float_rounding_only():

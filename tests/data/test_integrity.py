@@ -63,7 +63,7 @@ def test_datagen_on_a_dataset_being_written_is_one_line(tmp_path: Path):
     proc = hold_lock(dataset)
     try:
         before = sorted(p.name for p in dataset.iterdir())
-        out = run_module("neuraldem.datagen", "data=hopper_tiny", "n_sims=1", "progress=false",
+        out = run_module("neuraldem", "datagen", "data=hopper_tiny", "n_sims=1", "progress=false",
                          env={"NEURALDEM_DATA": str(tmp_path)})
         assert out.returncode == 2, out.stderr
         lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
@@ -130,7 +130,7 @@ def test_files_outside_a_dataset_or_not_recorded_are_not_checked(copied_dataset:
 def test_training_on_a_damaged_file_ends_in_one_line_naming_it(copied_dataset: Path, tmp_path: Path):
     path = copied_dataset / str(Manifest.load(copied_dataset).usable()[0].file)
     flip_byte(path)
-    out = run_module("neuraldem.train", "experiment=hopper_quickstart", "logger=none",
+    out = run_module("neuraldem", "train", "experiment=hopper_quickstart", "logger=none",
                      f"data.dataset_dir={copied_dataset}", f"hydra.run.dir={tmp_path}/run",
                      env={"NEURALDEM_DATA": str(tmp_path)})
     assert out.returncode == 2 and "Traceback" not in out.stderr

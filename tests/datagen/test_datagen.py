@@ -1,4 +1,4 @@
-"""`python -m neuraldem.datagen` on the tiny hopper with the real solver: resume after a kill, failures
+"""`neuraldem datagen` on the tiny hopper with the real solver: resume after a kill, failures
 recorded and excluded, bad input refused in one line. (Characterization is switched off here to keep the
 tests fast; tests/datagen/test_characterized.py covers it.)"""
 
@@ -23,7 +23,7 @@ FAST = ["data=hopper_tiny", "data.characterization.enabled=false", "progress=fal
 
 
 def datagen(root: Path, *args: str, env: dict[str, str] | None = None):
-    return run_module("neuraldem.datagen", *FAST, *args, env={"NEURALDEM_DATA": str(root), **(env or {})})
+    return run_module("neuraldem", "datagen", *FAST, *args, env={"NEURALDEM_DATA": str(root), **(env or {})})
 
 
 def manifest(root: Path) -> Manifest:
@@ -32,7 +32,7 @@ def manifest(root: Path) -> Manifest:
 
 def test_kill_and_resume_keeps_finished_work(tmp_path: Path):
     env = dict(os.environ, NEURALDEM_DATA=str(tmp_path))
-    proc = subprocess.Popen([sys.executable, "-m", "neuraldem.datagen", *FAST, "n_sims=3"], cwd=REPO, env=env,
+    proc = subprocess.Popen([sys.executable, "-m", "neuraldem", "datagen", *FAST, "n_sims=3"], cwd=REPO, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     path = tmp_path / "datasets" / "hopper_tiny" / "manifest.json"
     deadline = time.time() + 300
@@ -160,7 +160,7 @@ def test_killed_at_random_points_equals_an_uninterrupted_run(tmp_path: Path):
     rng = np.random.default_rng(22)
     kills = 0
     for _ in range(8):
-        proc = subprocess.Popen([sys.executable, "-m", "neuraldem.datagen", *FAST, "n_sims=3"], cwd=REPO, env=env,
+        proc = subprocess.Popen([sys.executable, "-m", "neuraldem", "datagen", *FAST, "n_sims=3"], cwd=REPO, env=env,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         try:
             # kill moments as shares of the uninterrupted run (fixed seconds let a fast machine finish before

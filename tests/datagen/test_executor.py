@@ -22,13 +22,15 @@ from neuraldem.scenes.hopper.dataset.store import HopperFile
 from tests.helpers import REPO, run_module
 
 pytestmark = pytest.mark.solver
-FAST = ["data=hopper_tiny", "data.characterization.enabled=false", "progress=false", "n_sims=3"]
+FAST = ["data=hopper_tiny", "data.characterization.enabled=false", "progress=false"]
 SUBMITIT = ["executor=submitit_local", "executor.poll_s=0.2"]
 DATASET = Path("datasets/hopper_tiny")
 
 
 def datagen(root: Path, *args: str, env: dict[str, str] | None = None):
-    return run_module("neuraldem.datagen", *FAST, *args, env={"NEURALDEM_DATA": str(root), **(env or {})})
+    """`neuraldem datagen` of 3 tiny hopper runs (or args' n_sims=: each key is given once)."""
+    n_sims = [] if any(a.startswith("n_sims=") for a in args) else ["n_sims=3"]
+    return run_module("neuraldem", "datagen", *FAST, *n_sims, *args, env={"NEURALDEM_DATA": str(root), **(env or {})})
 
 
 def manifest(root: Path) -> Manifest:
@@ -85,7 +87,7 @@ def test_submitit_local_runs_a_tiny_datagen_like_a_local_run(tmp_path: Path):
 
 def test_killed_array_resumes_keeping_finished_simulations(tmp_path: Path):
     env = dict(os.environ, NEURALDEM_DATA=str(tmp_path))
-    cmd = [sys.executable, "-m", "neuraldem.datagen", *FAST, *SUBMITIT, "executor.array_parallelism=1"]
+    cmd = [sys.executable, "-m", "neuraldem", "datagen", *FAST, "n_sims=3", *SUBMITIT, "executor.array_parallelism=1"]
     proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
     path = tmp_path / DATASET / "manifest.json"
@@ -101,7 +103,7 @@ def test_killed_array_resumes_keeping_finished_simulations(tmp_path: Path):
     done = {r.sim_id: stamp(tmp_path, r) for r in first}
     left = len(list((tmp_path / DATASET).glob("records/*.json")))  # finished by a task, not yet merged
 
-    again = run_module("neuraldem.datagen", *cmd[3:], env={"NEURALDEM_DATA": str(tmp_path)})
+    again = run_module("neuraldem", "datagen", *cmd[4:], env={"NEURALDEM_DATA": str(tmp_path)})
     assert again.returncode == 0, again.stderr
     n = len(first) + left
     assert f"{n} finished, {3 - n} to run" in again.stdout + again.stderr
@@ -277,7 +279,7 @@ def test_a_task_that_dies_is_seen_on_a_cluster_without_sacct(tmp_path: Path):
     # the task's own process killed hard (as scancel, the OOM killer or a lost node do): it leaves no result
     fake.write_text('#!/bin/sh\ncase "$PWD" in *sim_0001*) kill -KILL $PPID; exit 1;; esac\nexec liggghts "$@"\n')
     fake.chmod(0o755)
-    proc = run_module("neuraldem.datagen", *FAST, "n_sims=2", "executor=slurm", "executor.partition=debug",
+    proc = run_module("neuraldem", "datagen", *FAST, "n_sims=2", "executor=slurm", "executor.partition=debug",
                       "executor.poll_s=0.2", env={"NEURALDEM_DATA": str(tmp_path), **env,
                                                   "NEURALDEM_LIGGGHTS": str(fake)}, timeout=240)
     assert proc.returncode == 2 and "1 of 2 simulation(s) ended without a result and stay pending (sim_0001: " \

@@ -14,7 +14,7 @@ pytestmark = pytest.mark.solver
 
 
 def test_report(hopper_tiny_dataset: Path, tmp_path: Path):
-    assert main([str(hopper_tiny_dataset), "--out", str(tmp_path)]) == 0
+    assert main([f"dataset={hopper_tiny_dataset}", f"out={tmp_path}"]) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
     m = Manifest.load(hopper_tiny_dataset)
     drain = [r.metrics["drainage_time"] for r in m.usable()]
@@ -26,7 +26,7 @@ def test_report(hopper_tiny_dataset: Path, tmp_path: Path):
 
 
 def test_refill_report_has_the_refill_metrics(hopper_refill_tiny_dataset: Path, tmp_path: Path):
-    assert main([str(hopper_refill_tiny_dataset), "--out", str(tmp_path)]) == 0
+    assert main([f"dataset={hopper_refill_tiny_dataset}", f"out={tmp_path}"]) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
     m = Manifest.load(hopper_refill_tiny_dataset)
     medians = [r.metrics["exit_residence_median"] for r in m.usable()]

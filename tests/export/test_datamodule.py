@@ -63,7 +63,7 @@ def test_bad_values_are_one_line(hopper_export: Path, tmp_path: Path):
 @pytest.mark.solver
 def test_the_gns_trains_from_the_export(hopper_export: Path, tmp_path: Path):
     run = tmp_path / "run"
-    proc = run_module("neuraldem.train", "experiment=gns_export_tiny", f"data.export_dir={hopper_export}",
+    proc = run_module("neuraldem", "train", "experiment=gns_export_tiny", f"data.export_dir={hopper_export}",
                       "trainer.max_steps=3", "trainer.val_check_interval=3", "trainer.log_every_n_steps=1",
                       f"hydra.run.dir={run}", env={"NEURALDEM_DATA": str(tmp_path)})
     assert proc.returncode == 0, proc.stdout + proc.stderr
@@ -80,6 +80,6 @@ def test_the_gns_trains_from_the_export(hopper_export: Path, tmp_path: Path):
 
 
 def test_a_missing_export_dir_is_one_line(tmp_path: Path):
-    proc = run_module("neuraldem.train", "experiment=gns_export_tiny", f"hydra.run.dir={tmp_path}/run",
+    proc = run_module("neuraldem", "train", "experiment=gns_export_tiny", f"hydra.run.dir={tmp_path}/run",
                       env={"NEURALDEM_DATA": str(tmp_path)})
     assert proc.returncode == 2 and "data.export_dir is required" in proc.stderr, proc.stderr

@@ -21,7 +21,7 @@ CASES = [("hopper_tiny", "gns"), ("hopper_tiny", "lagrangebench"), ("fb_tiny", "
 
 @pytest.fixture(scope="module")
 def exports(hopper_tiny_dataset: Path, fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory):
-    """One export per (dataset, format): the hopper with --exits hold (its particles drain), the bed as is."""
+    """One export per (dataset, format): the hopper with exits=hold (its particles drain), the bed as is."""
     root = tmp_path_factory.mktemp("exports")
     out = {}
     for name, fmt in CASES:
@@ -104,6 +104,11 @@ def test_the_public_readers_keys(exports):
     assert not (exports["fb_tiny", "lagrangebench"] / "valid.h5").exists()  # fb_tiny's split has no val runs
 
 
+def written(folder: Path) -> list[Path]:
+    """The files under `folder` (an `out=` folder is created when the command line is read: it stays empty)."""
+    return [p for p in folder.rglob("*") if not p.is_dir()]
+
+
 def error_of(argv: list[str], capsys) -> str:
     with pytest.raises(SystemExit) as exit_:
         main(argv)
@@ -114,42 +119,49 @@ def error_of(argv: list[str], capsys) -> str:
 
 @pytest.mark.parametrize("fmt", ["gns", "lagrangebench"])
 def test_a_growing_particle_set_is_refused_naming_the_kind(fmt, hopper_refill_tiny_dataset, tmp_path, capsys):
-    err = error_of([fmt, str(hopper_refill_tiny_dataset), str(tmp_path / "out")], capsys)
+    err = error_of([fmt, f"dataset={hopper_refill_tiny_dataset}", f"out={tmp_path / 'out'}"], capsys)
     tool = {"gns": "GNS", "lagrangebench": "LagrangeBench"}[fmt]
     assert f"kind 'hopper_refill', which the {tool} format cannot hold" in err and "grows" in err
-    assert not (tmp_path / "out").exists()
+    assert written(tmp_path) == []
 
 
 def test_leaving_particles_need_a_rule(hopper_tiny_dataset, tmp_path, capsys):
-    err = error_of(["gns", str(hopper_tiny_dataset), str(tmp_path / "out")], capsys)
-    assert "run sim_0000" in err and "particles leave" in err and "--exits" in err
-    err = error_of(["gns", str(hopper_tiny_dataset), str(tmp_path / "out"), "--exits", "truncate"], capsys)
-    assert "snapshots before its first particle leaves" in err and "--exits hold" in err
-    assert not (tmp_path / "out").exists() and not list(tmp_path.iterdir())  # nothing half-written
+    err = error_of(["gns", f"dataset={hopper_tiny_dataset}", f"out={tmp_path / 'out'}"], capsys)
+    assert "run sim_0000" in err and "particles leave" in err and "choose exits=truncate" in err
+    err = error_of(["gns", f"dataset={hopper_tiny_dataset}", f"out={tmp_path / 'out'}", "exits=truncate"], capsys)
+    assert "snapshots before its first particle leaves" in err and "use exits=hold" in err
+    assert written(tmp_path) == []  # nothing half-written
 
 
 def test_bad_input_is_one_line(hopper_tiny_dataset, fb_tiny_dataset, tmp_path, capsys):
-    err = error_of(["gns", str(tmp_path / "no_such_dataset"), str(tmp_path / "out")], capsys)
-    assert "no dataset at" in err and "no_such_dataset" in err
+    err = error_of(["gns", f"dataset={tmp_path / 'no_such_dataset'}", f"out={tmp_path / 'out'}"], capsys)
+    assert "no dataset at" in err and "no_such_dataset" in err and "neuraldem datagen data=no_such_dataset" in err
     (tmp_path / "busy").mkdir()
     (tmp_path / "busy" / "notes.txt").write_text("mine")
-    err = error_of(["gns", str(hopper_tiny_dataset), str(tmp_path / "busy"), "--exits", "hold"], capsys)
-    assert "exists and is not empty" in err and "--force" in err
-    err = error_of(["gns", str(hopper_tiny_dataset), str(tmp_path / "busy"), "--exits", "hold", "--force"], capsys)
+    busy = [f"dataset={hopper_tiny_dataset}", f"out={tmp_path / 'busy'}", "exits=hold"]
+    err = error_of(["gns", *busy], capsys)
+    assert "exists and is not empty" in err and "force=true" in err
+    err = error_of(["gns", *busy, "force=true"], capsys)
     assert "not an earlier export" in err and (tmp_path / "busy" / "notes.txt").exists()
-    err = error_of(["gns", str(hopper_tiny_dataset), str(tmp_path / "o"), "--split", "nope"], capsys)
-    assert "--split 'nope'" in err and "band" in err
-    err = error_of(["gns", str(fb_tiny_dataset), str(tmp_path / "o"), "--material-property", "mu_s"], capsys)
-    assert "--material-property 'mu_s'" in err and "inlet_velocity" in err
-    err = error_of(["lagrangebench", str(fb_tiny_dataset), str(tmp_path / "o"), "--material-property",
-                    "inlet_velocity"], capsys)
-    assert "has no place for one" in err and not (tmp_path / "o").exists()
+    err = error_of(["gns", f"dataset={hopper_tiny_dataset}", f"out={tmp_path / 'o'}", "split=nope"], capsys)
+    assert "split='nope'" in err and "band" in err
+    err = error_of(["gns", f"dataset={fb_tiny_dataset}", f"out={tmp_path / 'o'}", "material_property=mu_s"], capsys)
+    assert "material_property='mu_s'" in err and "inlet_velocity" in err
+    err = error_of(["lagrangebench", f"dataset={fb_tiny_dataset}", f"out={tmp_path / 'o'}",
+                    "material_property=inlet_velocity"], capsys)
+    assert "has no place for one" in err and not list((tmp_path / "o").iterdir())
 
 
 def test_force_replaces_an_earlier_export(fb_tiny_dataset, tmp_path, capsys):
     out = tmp_path / "fb"
-    assert main(["lagrangebench", str(fb_tiny_dataset), str(out)]) == 0
+    assert main(["lagrangebench", f"dataset={fb_tiny_dataset}", f"out={out}"]) == 0
     assert "train 2, valid 0, test 1" in capsys.readouterr().out
-    assert main(["gns", str(fb_tiny_dataset), str(out), "--force", "--material-property", "none"]) == 0
+    assert main(["gns", f"dataset={fb_tiny_dataset}", f"out={out}", "force=true", "material_property=none"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["metadata.json", "test.npz", "train.npz"]
     assert read_export(out).format == "gns" and not list(tmp_path.glob(".*partial"))
+
+
+def test_the_old_positional_spelling_still_exports_with_a_note(fb_tiny_dataset, tmp_path, capsys):
+    assert main(["lagrangebench", str(fb_tiny_dataset), str(tmp_path / "lb"), "--force"]) == 0
+    err = capsys.readouterr().err
+    assert "old spelling" in err and f"lagrangebench dataset={fb_tiny_dataset} out={tmp_path / 'lb'} force=true" in err

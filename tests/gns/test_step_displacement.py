@@ -24,10 +24,10 @@ def test_statistics_of_a_real_dataset(name, request, tmp_path):
     assert s["n_displacements"] > 0 and len(s["runs"]) == 2
     assert 0.0 <= s["median"] <= s["p90"] <= s["p99"] <= s["max"] < 50.0
     out = tmp_path / "steps.json"
-    assert main([str(dataset), "--runs", "1", "--out", str(out)]) == 0 and out.is_file()
+    assert main([f"dataset={dataset}", "runs=1", f"out={out}"]) == 0 and out.is_file()
 
 
 def test_bad_run_count_is_refused(hopper_tiny_dataset, capsys):
     with pytest.raises(SystemExit) as exc:
-        main([str(hopper_tiny_dataset), "--runs", "0"])
-    assert exc.value.code == 2 and "--runs" in capsys.readouterr().err
+        main([f"dataset={hopper_tiny_dataset}", "runs=0"])
+    assert exc.value.code == 2 and "config value runs=0 is invalid" in capsys.readouterr().err

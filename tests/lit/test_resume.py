@@ -95,7 +95,7 @@ def test_training_killed_at_random_points_equals_an_uninterrupted_run(hopper_tin
     One loader worker, so samples are prefetched by another process."""
     args = (*HOPPER, f"data.dataset_dir={hopper_tiny_dataset}", "data.datamodule.num_workers=1")
     env = {"NEURALDEM_DATA": str(tmp_path)}
-    ref = run_module("neuraldem.train", *args, f"hydra.run.dir={tmp_path}/ref", env=env)
+    ref = run_module("neuraldem", "train", *args, f"hydra.run.dir={tmp_path}/ref", env=env)
     assert ref.returncode == 0, ref.stdout + ref.stderr
 
     run, latest = tmp_path / "killed", tmp_path / "killed" / "checkpoints" / "latest.ckpt"
@@ -103,7 +103,7 @@ def test_training_killed_at_random_points_equals_an_uninterrupted_run(hopper_tin
     for _ in range(3):
         resume = [f"ckpt_path={latest}"] if latest.exists() else []
         before = latest.stat().st_mtime_ns if latest.exists() else None
-        proc = subprocess.Popen([sys.executable, "-m", "neuraldem.train", *args, f"hydra.run.dir={run}", *resume],
+        proc = subprocess.Popen([sys.executable, "-m", "neuraldem", "train", *args, f"hydra.run.dir={run}", *resume],
                                 cwd=REPO, env=dict(os.environ, **env), stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL, start_new_session=True)
         deadline = time.monotonic() + 300
@@ -118,7 +118,7 @@ def test_training_killed_at_random_points_equals_an_uninterrupted_run(hopper_tin
         proc.wait()
         kills += 1
         steps_at_kill.append(torch.load(latest, map_location="cpu", weights_only=False)["global_step"])
-    final = run_module("neuraldem.train", *args, f"hydra.run.dir={run}", f"ckpt_path={latest}", env=env)
+    final = run_module("neuraldem", "train", *args, f"hydra.run.dir={run}", f"ckpt_path={latest}", env=env)
     assert final.returncode == 0, final.stdout + final.stderr
     assert kills >= 2 and 0 < steps_at_kill[0] < 20, steps_at_kill  # resumed from the middle of training
     assert_same_training_state(final_state(tmp_path / "ref"), final_state(run))
@@ -132,14 +132,14 @@ def test_a_killed_bed_training_resumes_exactly(fb_tiny_dataset: Path, tmp_path: 
     args = ("experiment=fb_quick", "logger=none", "evaluate=false", "trainer.max_steps=8", "callbacks.progress=null",
             "+callbacks.latest.every_n_train_steps=2", f"data.dataset_dir={fb_tiny_dataset}")
     env = {"NEURALDEM_DATA": str(tmp_path)}
-    ref = run_module("neuraldem.train", *args, f"hydra.run.dir={tmp_path}/ref", env=env)
+    ref = run_module("neuraldem", "train", *args, f"hydra.run.dir={tmp_path}/ref", env=env)
     assert ref.returncode == 0, ref.stdout + ref.stderr
     run = tmp_path / "killed"
     kill = ("+callbacks.kill._target_=tests.helpers.KillAtStep", "+callbacks.kill.step=5")
-    killed = run_module("neuraldem.train", *args, f"hydra.run.dir={run}", *kill, env=env)
+    killed = run_module("neuraldem", "train", *args, f"hydra.run.dir={run}", *kill, env=env)
     assert killed.returncode == -signal.SIGKILL
     assert final_state(run)["global_step"] == 4
-    resumed = run_module("neuraldem.train", *args, f"hydra.run.dir={run}", f"ckpt_path={run}/checkpoints/latest.ckpt",
-                         env={**env, "NEURALDEM_TEST_NO_KILL": "1"})
+    resumed = run_module("neuraldem", "train", *args, f"hydra.run.dir={run}",
+                         f"ckpt_path={run}/checkpoints/latest.ckpt", env={**env, "NEURALDEM_TEST_NO_KILL": "1"})
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
     assert_same_training_state(final_state(tmp_path / "ref"), final_state(run))

@@ -25,7 +25,7 @@ def serve_error(capsys, *args: str) -> str:
     from neuraldem.serve.__main__ import main
 
     with pytest.raises(SystemExit) as stop:
-        main(["--port", "0", *args])
+        main(["port=0", *args])
     err = capsys.readouterr().err
     assert stop.value.code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     return err
@@ -35,7 +35,7 @@ def test_a_missing_model_file_is_one_line_with_the_rebuild_command(model_copy: P
     (model_copy / "field.pt").unlink()
     err = serve_error(capsys)
     assert f"shipped model file {model_copy / 'field.pt'} is missing: rebuild it:" in err
-    assert "python -m neuraldem.scenes.hopper.release" in err
+    assert "neuraldem train" in err and "&& neuraldem release ckpt=<that run>/checkpoints/" in err
 
 
 def test_a_damaged_model_file_is_one_line(model_copy: Path, capsys):
@@ -49,19 +49,31 @@ def test_without_a_shipped_model_no_page_is_served(tmp_path: Path, monkeypatch: 
     monkeypatch.setenv("NEURALDEM_PRETRAINED_DIR", str(tmp_path))
     err = serve_error(capsys)
     assert "no page can be served: hopper: page off: no pretrained hopper model is shipped" in err
+    assert "bed: page off: no pretrained fluidized_bed model is shipped" in err and err.endswith("model=NAME\n")
 
 
-def test_an_unknown_page_is_refused():
+def scene_pages() -> dict[str, tuple[str, str]]:
+    """The pages `neuraldem serve` hands the server: {route: (scene kind, page module)} of the scene registry."""
+    from neuraldem.scenes import registry
+
+    return {s.route: (s.kind, s.page) for s in registry().values() if s.page}
+
+
+def test_an_unknown_page_is_refused(capsys):
     from neuraldem.serve.app import prepare_pages
 
     with pytest.raises(ConfigError, match="unknown page 'silo': choose from hopper, bed"):
-        prepare_pages(None, None, 0.05, ["silo"])
+        prepare_pages(scene_pages(), None, None, 0.05, ["silo"])
+    err = serve_error(capsys, "page=silo")  # through the command: one line
+    assert "unknown page 'silo': choose from hopper, bed" in err
 
 
 def test_every_page_module_has_what_the_server_calls():
-    from neuraldem.serve.app import PAGES, page_module
+    import importlib
 
-    for route in PAGES:
-        module = page_module(route)
-        assert isinstance(module.SCENE_KIND, str) and isinstance(module.TITLE, str), route
+    pages = scene_pages()
+    assert set(pages) == {"hopper", "bed"}
+    for route, (kind, name) in pages.items():
+        module = importlib.import_module(name)
+        assert kind == module.SCENE_KIND and isinstance(module.TITLE, str), route
         assert callable(module.prepare) and callable(module.page), route

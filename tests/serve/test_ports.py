@@ -21,7 +21,7 @@ def busy_port():
 def test_a_port_in_use_names_a_free_one(busy_port: int):
     with pytest.raises(ConfigError, match=rf"port {busy_port} is in use on 127.0.0.1") as err:
         check_port("127.0.0.1", busy_port)
-    suggested = int(str(err.value).split("try --port ")[1])
+    suggested = int(str(err.value).split("try port=")[1])
     assert suggested != busy_port and port_is_free("127.0.0.1", suggested)
 
 
@@ -35,10 +35,10 @@ def test_serve_on_a_port_in_use_is_one_line_and_exit_2(busy_port: int, capsys):
     from neuraldem.serve.__main__ import main
 
     with pytest.raises(SystemExit) as stop:
-        main(["--port", str(busy_port)])
+        main([f"port={busy_port}"])
     err = capsys.readouterr().err
     assert stop.value.code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1
-    assert err.startswith(f"neuraldem: error: port {busy_port} is in use") and "try --port " in err
+    assert err.startswith(f"neuraldem: error: port {busy_port} is in use") and "try port=" in err
 
 
 @pytest.mark.parametrize("port", ["-1", "70000"])
@@ -46,5 +46,5 @@ def test_an_impossible_port_is_refused(port: str, capsys):
     from neuraldem.serve.__main__ import main
 
     with pytest.raises(SystemExit) as stop:
-        main(["--port", port])
-    assert stop.value.code == 2 and f"--port {port} is invalid" in capsys.readouterr().err
+        main([f"port={port}"])
+    assert stop.value.code == 2 and f"port={port} is invalid" in capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""`python -m neuraldem.bench NAME [args]`: run one benchmark by name; without a name, list them."""
+"""`neuraldem bench NAME key=value ...`: run one benchmark by name; without a name, list them."""
 
 from __future__ import annotations
 

@@ -1,14 +1,14 @@
 """What a paper-scale dataset costs on a cluster, from measured solver rates (docs/cluster.md).
 
-`python -m neuraldem.bench cluster_cost [--hopper-scaling results/hopper/speed/hopper_scaling.json]
-[--fb-speed results/fluidized_bed/speed/fb_speed.json] [--hopper-dataset DIR] [--particles 5000 50000 250000]
-[--hopper-runs 1000] [--bed-trajectories 100] [--out results/cluster/cluster_cost.json]`
+`neuraldem bench cluster_cost [hopper_scaling=results/hopper/speed/hopper_scaling.json]
+[fb_speed=results/fluidized_bed/speed/fb_speed.json] [hopper_dataset=DIR] [particles=[5000,50000,250000]]
+[hopper_runs=1000] [bed_trajectories=100] [out=results/cluster/cluster_cost.json]`
 
 Nothing is re-run here: the figures come from two benchmarks' result files, each measured on one core.
 - Hopper: `hopper_scaling` measured LIGGGHTS at 2k .. 50k particles (settle seconds, drain particle-steps per
   second, the dataset's stored window). A count it measured is read off; a count beyond it (250k) is a
   power-law fit of settle and drain seconds over the three largest measured counts, marked as extrapolated
-  with the fit's exponent. `--hopper-dataset` adds the material characterization (shear + heap) per
+  with the fit's exponent. `hopper_dataset=` adds the material characterization (shear + heap) per
   parameter set, the median its manifest recorded.
 - Bed: `fb_speed` holds DPMFoam's CPU seconds per simulated second, the median over the dataset manifest's
   runs; a trajectory costs (spin-up + stored duration) times that, for the 3-s training and 30-s long ones.
@@ -56,10 +56,10 @@ def hopper_points(scaling: dict[str, Any]) -> list[dict[str, float]]:
                 for p in points]
     except (KeyError, TypeError) as err:
         raise DataError(f"hopper_scaling results lack solver.points[...] field {err}: rerun "
-                        "`python -m neuraldem.bench hopper_scaling`") from None
+                        "`neuraldem bench hopper_scaling`") from None
     if len(rows) < FIT_POINTS:
         raise DataError(f"hopper_scaling results hold {len(rows)} particle counts; the cost model fits "
-                        f"{FIT_POINTS}: rerun it with --particles 2000 5000 10000 20000 50000")
+                        f"{FIT_POINTS}: rerun it with particles=[2000,5000,10000,20000,50000]")
     return sorted(rows, key=lambda r: r["n_particles"])
 
 
@@ -100,7 +100,7 @@ def dataset_costs(dataset_dir: Path) -> dict[str, Any]:
              and (dataset_dir / r.file).is_file()]
     if not n_char:
         raise DataError(f"{dataset_dir}/manifest.json records no characterization_cpu_s: generate the dataset "
-                        "with data.characterization.enabled=true, or leave --hopper-dataset out")
+                        "with data.characterization.enabled=true, or leave hopper_dataset= out")
     return {"median_cpu_s": char_s, "n": n_char, "run_median_cpu_s": run_s, "runs": n_run,
             "run_median_mb": float(np.median(sizes)) if sizes else math.nan,
             "n_particles": int(m.scene.get("hopper", {}).get("n_particles", 0)),
@@ -119,7 +119,7 @@ def bed_cost(fb_speed: dict[str, Any]) -> dict[str, Any]:
                "dt": float(fb_speed["dt"]), "dataset": manifest.get("dataset", "")}
     except (KeyError, TypeError) as err:
         raise DataError(f"fb_speed results lack the dataset-manifest solver timing (field {err}): rerun "
-                        "`python -m neuraldem.bench fb_speed --ckpt CKPT`") from None
+                        "`neuraldem bench fb_speed ckpt=CKPT`") from None
     return out
 
 
@@ -225,9 +225,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=None)
     args = p.parse_args(argv)
     for n in args.particles:
-        checks.positive_int("--particles", n)
-    checks.positive_int("--hopper-runs", args.hopper_runs)
-    checks.positive_int("--bed-trajectories", args.bed_trajectories)
+        checks.positive_int("particles", n)
+    checks.positive_int("hopper_runs", args.hopper_runs)
+    checks.positive_int("bed_trajectories", args.bed_trajectories)
     command = command_line(NAME, list(sys.argv[1:] if argv is None else argv))
     res = build(args.hopper_scaling, args.fb_speed, args.particles, args.hopper_runs, args.bed_trajectories,
                 args.hopper_dataset, command)

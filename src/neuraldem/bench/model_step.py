@@ -1,12 +1,11 @@
 """Milliseconds per training step (forward + backward) of model configs on this machine, per thread count.
 
-`python -m neuraldem.bench model_step [--configs ...] [--threads 1 2] [--repeats N]`
+`neuraldem bench model_step [configs=[...]] [threads=[1,2]] [repeats=N]`
 writes results/cluster/model_step.json.
 """
 
 from __future__ import annotations
 
-import shlex
 import statistics
 import time
 from dataclasses import asdict, dataclass
@@ -16,7 +15,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from neuraldem.bench.report import machine_info, write_results
+from neuraldem.bench.report import command_line, machine_info, write_results
 from neuraldem.cli import command_parser
 from neuraldem.config import checks
 from neuraldem.models.hopper_field import HopperFieldModel
@@ -115,7 +114,6 @@ def main(argv: list[str]) -> int:
     for r in records:
         print(f"{r['config']:<14} threads={r['threads']}  median {r['median_ms']:8.1f} ms/step  "
               f"(min {r['min_ms']:.1f}, {r['repeats']} repeats)")
-    path = write_results(NAME, records, command=shlex.join(["python", "-m", "neuraldem.bench", NAME, *argv]),
-                         path=args.out, machine=machine)
+    path = write_results(NAME, records, command=command_line(NAME, argv), path=args.out, machine=machine)
     print(f"wrote {path}")
     return 0

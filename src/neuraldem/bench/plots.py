@@ -1,5 +1,5 @@
 """Benchmark figures (matplotlib, PNG), drawn from the results dicts alone, so any figure can be redrawn
-from its JSON file without measuring again (`python -m neuraldem.bench render`)."""
+from its JSON file without measuring again (`neuraldem bench render`)."""
 
 from __future__ import annotations
 

@@ -62,7 +62,7 @@ def write_report(name: str, results: Any, markdown: str, *, command: str, path: 
 
 
 def resolve_out(out: Path | None, name: str) -> Path:
-    """Where benchmark `name` writes its JSON: `--out` as a .json file, or a folder (existing, or named without
+    """Where benchmark `name` writes its JSON: `out=` as a .json file, or a folder (existing, or named without
     a suffix) to hold NAME.json; default `default_path(name)`. Figures and tables go beside the JSON."""
     if out is None:
         return default_path(name)
@@ -70,14 +70,14 @@ def resolve_out(out: Path | None, name: str) -> Path:
     if out.is_dir() or not out.suffix:
         return out / f"{name}.json"
     if out.suffix != ".json":
-        raise ConfigError(f"--out={out} is invalid: pass a .json file or a folder (figures are written beside the "
-                          f"JSON), e.g. --out {portable(str(default_path(name)))}")
+        raise ConfigError(f"out={out} is invalid: pass a .json file or a folder (figures are written beside the "
+                          f"JSON), e.g. out={portable(str(default_path(name)))}")
     return out
 
 
 def command_line(name: str, argv: list[str]) -> str:
     """The command that reproduces a result, recorded with it."""
-    return portable(shlex.join(["python", "-m", "neuraldem.bench", name, *argv]))
+    return portable(shlex.join(["neuraldem", "bench", name, *argv]))
 
 
 def read_results(path: Path, name: str) -> dict[str, Any]:
@@ -86,12 +86,12 @@ def read_results(path: Path, name: str) -> dict[str, Any]:
     try:
         payload = json.loads(path.read_text())
     except FileNotFoundError:
-        raise DataError(f"no results at {path}: run `python -m neuraldem.bench {name}` first") from None
+        raise DataError(f"no results at {path}: run `neuraldem bench {name}` first") from None
     except json.JSONDecodeError as err:
-        raise DataError(f"{path} is not valid JSON ({err}): rerun `python -m neuraldem.bench {name}`") from None
+        raise DataError(f"{path} is not valid JSON ({err}): rerun `neuraldem bench {name}`") from None
     if payload.get("benchmark") != name:
         raise DataError(f"{path} holds results of benchmark {payload.get('benchmark')!r}, not {name!r}: pass the "
-                        f"file written by `python -m neuraldem.bench {name}`")
+                        f"file written by `neuraldem bench {name}`")
     return payload
 
 

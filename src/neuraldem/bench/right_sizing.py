@@ -1,9 +1,9 @@
 """Right-sizing: the smallest model within 10 % of the best accuracy, for each scene, with its speed.
 
-`python -m neuraldem.bench right_sizing (--runs DIR... | --from results/speed_accuracy/speed_accuracy.json)
-[--metric drainage_t95_pct_of_mean|drainage_mae_pct_of_mean|residual_mae_pp|outflow_rel_err_pct|all]
-[--tolerance 0.10]` writes results/speed_accuracy/right_sizing.json and .md. Candidates are the field models and, from a
-speed_accuracy.json made with `--cv`, the scalar baselines (constant, Gaussian process).
+`neuraldem bench right_sizing (runs=[DIR,...] | from_file=results/speed_accuracy/speed_accuracy.json)
+[metric=drainage_t95_pct_of_mean|drainage_mae_pct_of_mean|residual_mae_pp|outflow_rel_err_pct|all]
+[tolerance=0.10]` writes results/speed_accuracy/right_sizing.json and .md. Candidates are the field models and, from a
+speed_accuracy.json made with `cv=FILE`, the scalar baselines (constant, Gaussian process).
 
 Runs are compared only with runs that answer the same task: the same dataset, split and conditioning. Runs
 of one task and one size (e.g. seeds) are one candidate: their errors averaged, their range kept, so one lucky
@@ -161,7 +161,7 @@ def main(argv: list[str]) -> int:
                    help="the error to right-size by; all = one pick per quantity")
     p.add_argument("--tolerance", type=float, default=0.10, help="0.10 = within 10 %% of the best error")
     p.add_argument("--skip-unevaluated", action="store_true")
-    p.add_argument("--repeats", type=int, default=3, help="timed answers per run (median), with --runs")
+    p.add_argument("--repeats", type=int, default=3, help="timed answers per run (median), with runs=")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--out", type=Path, default=None, help=f"default results/speed_accuracy/{NAME}.json (+ .md)")
     a = p.parse_args(argv)

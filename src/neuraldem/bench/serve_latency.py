@@ -1,25 +1,25 @@
-"""`python -m neuraldem.bench serve_latency`: how fast the explorer answers a slider move, in a real browser.
+"""`neuraldem bench serve_latency`: how fast the explorer answers a slider move, in a real browser.
 
-    python -m neuraldem.bench serve_latency --moves 20 --time-steps 10
+    neuraldem bench serve_latency moves=20 time_steps=10
 
 Starts `neuraldem serve` on a free port of this machine, opens the hopper page in headless Chromium (Debian's
 chromium + chromium-driver, through Selenium) and moves the sliders with the keyboard as a person would:
---moves parameter moves, one slider step each, every one to a point not seen before (nothing cached), --pause
+moves= parameter moves, one slider step each, every one to a point not seen before (nothing cached), pause=
 seconds apart (the whole discharge then runs in the background between moves, as it does for a person), then
---time-steps moves of the time slider. For each move, milliseconds in the browser's own clock from the key
+time_steps= moves of the time slider. For each move, milliseconds in the browser's own clock from the key
 event to
 - numbers: the numbers table in the DOM showing the new point (a MutationObserver);
 - fields: the particle view redrawn by Plotly with the new point (`plotly_afterplot`);
 - painted: two animation frames after that (headless Chromium has no GPU: SwiftShader draws WebGL on the CPU).
-The first --warmup moves (Plotly's first WebGL draws) are not counted. The server's own time for each frame
+The first warmup= moves (Plotly's first WebGL draws) are not counted. The server's own time for each frame
 (the field model at one time) is read from the page. Writes results/explorer/serve_latency.json and .md, and the
 page as a new visitor sees it as serve_latency.png (the screenshot docs/explorer.md shows).
 
-    python -m neuraldem.bench serve_latency --page bed --moves 20
+    neuraldem bench serve_latency page=bed moves=20
 
-The bed page (`--page bed`): waits until the server's lattice of background rollouts is ready (it starts at
-server start; the time it took is recorded), then --moves steps of the inlet-velocity slider (0.01 m/s each, to
-velocities not seen before), --pause seconds apart, timed as above to the numbers table and to the fields
+The bed page (`page=bed`): waits until the server's lattice of background rollouts is ready (it starts at
+server start; the time it took is recorded), then moves= steps of the inlet-velocity slider (0.01 m/s each, to
+velocities not seen before), pause= seconds apart, timed as above to the numbers table and to the fields
 figure redrawn for the new velocity. A rollout takes seconds, so what that figure shows within the time
 measured is the nearest ready rollout (a lattice one), not the exact velocity's: each move records the
 velocity shown and its distance from the slider's. Last, the time from the slider resting to the exact
@@ -185,7 +185,7 @@ def bed_main(args: Any, argv: list[str]) -> int:
     out = resolve_out(args.out, "serve_latency_fb")
     machine = machine_info()
     warn_if_busy(machine)
-    with ServerProcess(["--page", "bed", *(["--model", args.model] if args.model else [])]) as server:
+    with ServerProcess(["page=bed", *([f"model={args.model}"] if args.model else [])]) as server:
         driver = start_chromium()
         try:
             t0 = time.monotonic()
@@ -221,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     from neuraldem.serve.browser import ServerProcess, chromium_paths, start_chromium
 
     argv = sys.argv[1:] if argv is None else argv
-    p = doc_parser("neuraldem.bench", __doc__)
+    p = doc_parser("neuraldem.bench serve_latency", __doc__)
     p.add_argument("--page", choices=["hopper", "bed"], default="hopper", help="the page measured")
     p.add_argument("--model", default=None, help="shipped model of the page (default: the shipped one)")
     p.add_argument("--moves", type=int, default=20, help="parameter slider moves counted")
@@ -229,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--warmup", type=int, default=3, help="moves before counting (first WebGL draws)")
     p.add_argument("--pause", type=float, default=1.0, help="seconds between moves")
     p.add_argument("--out", type=Path, default=None, help="results JSON (default results/explorer/serve_latency.json, "
-                                                                "serve_latency_fb.json for --page bed)")
+                                                                "serve_latency_fb.json for page=bed)")
     args = p.parse_args(argv)
     if chromium_paths() is None:
         raise ConfigError("the benchmark drives a real browser: chromium and chromedriver are not installed",
@@ -239,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
     out = resolve_out(args.out, "serve_latency")
     machine = machine_info()
     warn_if_busy(machine)
-    with ServerProcess(["--page", "hopper", *(["--model", args.model] if args.model else [])]) as server:
+    with ServerProcess(["page=hopper", *([f"model={args.model}"] if args.model else [])]) as server:
         driver = start_chromium()
         try:
             page = HopperBrowser(driver, server.url, timeout=120)

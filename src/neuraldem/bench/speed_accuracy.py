@@ -1,14 +1,14 @@
 """The speed-accuracy chart: time to answer one trajectory against the error of what a practitioner asks.
 
-`python -m neuraldem.bench speed_accuracy --runs DIR... [--solver-variants same:1 fewer:0.5 ...]
-[--solver-sims 3] [--reuse-solver FILE] [--skip-solver]` writes results/speed_accuracy/speed_accuracy.json, .png, .md.
+`neuraldem bench speed_accuracy runs=[DIR,...] [solver_variants=[same:1,fewer:0.5,...]]
+[solver_sims=3] [reuse_solver=FILE] [skip_solver=true]` writes results/speed_accuracy/speed_accuracy.json, .png, .md.
 
 Points: every evaluated surrogate run under the folders (errors from its evaluation/metrics.json, time to
 answer measured here), LIGGGHTS at cheaper settings scored against the dataset's reference runs of the
-same parameters (`scenes.hopper.bench.solver_variants`), and with `--gns-ckpt` the particle-based GNS baseline rolled
+same parameters (`scenes.hopper.bench.solver_variants`), and with `gns_ckpt=` the particle-based GNS baseline rolled
 out over whole test trajectories (`gns.bench.points`). One panel per quantity (drainage time, residual, outflow); the
-Pareto front of each panel is what users should choose from. With `--cv FILE.json` (the cross-validated table
-of `neuraldem.scenes.hopper.analysis.cv`) the chart also holds the constant and Gaussian-process baselines and the field
+Pareto front of each panel is what users should choose from. With `cv=FILE.json` (the cross-validated table
+of `neuraldem report hopper-cv`) the chart also holds the constant and Gaussian-process baselines and the field
 model at their cross-validated errors, and LIGGGHTS rerun with another packing seed, drawn as the floor line.
 """
 
@@ -40,15 +40,15 @@ NAME = "speed_accuracy"
 
 def read_cv(path: Path) -> dict[str, Any]:
     if not Path(path).is_file():
-        raise DataError(f"--cv {path} does not exist: make it with neuraldem report hopper-cv --dataset DIR "
-                        "[GRID...] --out FILE.md (pass FILE.json)")
+        raise DataError(f"cv={path} does not exist: make it with neuraldem report hopper-cv dataset=DIR "
+                        "[grids=[GRID,...]] out=FILE.md (pass FILE.json)")
     try:
         cv = json.loads(Path(path).read_text())
     except json.JSONDecodeError as err:
-        raise DataError(f"--cv {path} is not valid JSON ({err}): write it again with "
+        raise DataError(f"cv={path} is not valid JSON ({err}): write it again with "
                         "neuraldem report hopper-cv") from None
     if "summary" not in cv or "folds" not in cv:
-        raise DataError(f"--cv {path} is not a cross-validation result of neuraldem report hopper-cv (no summary)")
+        raise DataError(f"cv={path} is not a cross-validation result of neuraldem report hopper-cv (no summary)")
     return cv
 
 
@@ -58,10 +58,10 @@ def runs_of_one_scene(runs: list[EvaluatedRun], scene: str | None) -> list[Evalu
     if scene is not None:
         picked = [r for r in runs if r.data_name == scene]
         if not picked:
-            raise ConfigError(f"--scene {scene!r}: no evaluated run of that dataset; the runs are of {names}")
+            raise ConfigError(f"scene={scene!r}: no evaluated run of that dataset; the runs are of {names}")
         return picked
     if len(names) > 1:
-        raise ConfigError(f"the runs are of several datasets {names}: pick one with --scene NAME")
+        raise ConfigError(f"the runs are of several datasets {names}: pick one with scene=NAME")
     return runs
 
 
@@ -108,7 +108,7 @@ def cv_points(cv: dict[str, Any], split: str, row: str, scene: str) -> tuple[lis
     if not summary:
         raise DataError(f"the cross-validation file has no {split}/{row} rows (has "
                         f"{ {k: sorted(v) for k, v in cv.get('summary', {}).items()} }): "
-                        "pick them with --cv-split/--cv-row")
+                        "pick them with cv_split= / cv_row=")
     points = []
     for method, s in summary.items():
         kind = CV_METHODS.get(method) or (CV_METHODS["field model"] if method.startswith("field model") else method)
@@ -167,7 +167,7 @@ def main(argv: list[str]) -> int:
     p = command_parser(f"neuraldem.bench {NAME}", __doc__, summary=True)
     p.add_argument("--runs", type=Path, nargs="+", default=[], help="folders holding evaluated training runs")
     p.add_argument("--cv", type=Path, default=None,
-                   help="a cross-validated table (neuraldem report hopper-cv ... --out X.md: pass X.json): "
+                   help="a cross-validated table (neuraldem report hopper-cv ... out=X.md: pass X.json): "
                         "constant, Gaussian process and field model points, and the LIGGGHTS seed floor")
     p.add_argument("--cv-split", default="random", choices=["random", "band"])
     p.add_argument("--cv-row", default="micro", choices=["micro", "macro"])
@@ -192,7 +192,7 @@ def main(argv: list[str]) -> int:
     checks.positive_int("threads", a.threads)
     variants = [SolverVariant.parse(s) for s in a.solver_variants]
     if not a.runs and a.cv is None:
-        raise ConfigError("nothing to chart: pass --runs FOLDER... (evaluated training runs) and/or --cv FILE.json")
+        raise ConfigError("nothing to chart: pass runs=[FOLDER,...] (evaluated training runs) and/or cv=FILE.json")
     cv = read_cv(a.cv) if a.cv is not None else None
     runs, notes = collect_runs(a.runs, a.skip_unevaluated) if a.runs else ([], [])
     runs = runs_of_one_scene(runs, a.scene) if runs else []
@@ -207,7 +207,7 @@ def main(argv: list[str]) -> int:
     if a.reuse_solver is not None:
         old = read_results(a.reuse_solver, NAME)["results"]
         if old.get("scene") != scene:
-            raise DataError(f"--reuse-solver {a.reuse_solver} holds LIGGGHTS points of scene {old.get('scene')!r}, "
+            raise DataError(f"reuse_solver={a.reuse_solver} holds LIGGGHTS points of scene {old.get('scene')!r}, "
                             f"the runs are of {scene!r}: pass results of the same scene")
         solver = [p for p in old["points"] if p["method"] == "liggghts"]
         reference = old.get("reference") or {}
@@ -218,7 +218,7 @@ def main(argv: list[str]) -> int:
         for v in variants:
             v.apply(base)
         find_liggghts()
-    checks.positive_int("--gns-sims", a.gns_sims)
+    checks.positive_int("gns_sims", a.gns_sims)
     for ckpt in a.gns_ckpt:
         require_hopper_gns(ckpt)
     machine = machine_info()

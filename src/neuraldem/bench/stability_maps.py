@@ -1,17 +1,17 @@
 """Stability map of the hopper models across and beyond the trained friction range, over the cone angles of
 the stored runs.
 
-`python -m neuraldem.bench hopper_stability --ckpt FIELD_CKPT [...] [--gns-ckpt GNS_CKPT ...] [--labels ...]
-[--sims 4] [--mu-s 0.05 0.5 1.0 1.5 2.0] [--gns-steps N] [--limit-pct 5] [--dataset DIR] [--out PATH]`
+`neuraldem bench hopper_stability ckpt=[FIELD_CKPT,...] [gns_ckpt=[GNS_CKPT,...]] [labels=[...]]
+[sims=4] [mu_s=[0.05,0.5,1.0,1.5,2.0]] [gns_steps=N] [limit_pct=5] [dataset=DIR] [out=PATH]`
 writes results/hopper/stability/hopper_stability.json, .png and .md.
 
-Cells: `--sims` stored test runs spread over the cone angle alpha (their geometry, packing, mu_r and alpha),
-each asked at every `--mu-s` (the trained range is the dataset's; values outside it are extrapolation).
+Cells: `sims=` stored test runs spread over the cone angle alpha (their geometry, packing, mu_r and alpha),
+each asked at every `mu_s=` value (the trained range is the dataset's; values outside it are extrapolation).
 An angle outside the trained range would need a packing LIGGGHTS never made, so alpha stays in range.
 
 - Field surrogate (no rollout: every time is answered directly from the scalars) at the run's initial particle
   positions over its horizon. A time is unphysical when the occupied share of those points (occupancy > 0.5)
-  is off the initial fill by more than `--limit-pct` % at t = 0, when it has risen by more than that above its
+  is off the initial fill by more than `limit_pct=` % at t = 0, when it has risen by more than that above its
   running minimum (material appearing: a draining hopper only loses mass), or when more than that share of the
   points' transport (where the material came from) lies outside the hopper's box by over half a diameter.
   The stored run itself goes through the same checks at its own parameters (series "LIGGGHTS (stored run)"):
@@ -106,7 +106,7 @@ def field_series(ckpt: Path, label: str, sims: list[SimRecord], mu_s: list[float
                  limit_pct: float, trained: tuple[float, float]) -> dict[str, Any]:
     s = load_surrogate(ckpt)
     if "mu_s" not in s.metadata["conditioning"]:
-        raise ConfigError(f"--ckpt {ckpt} is conditioned on {s.metadata['conditioning']}, without mu_s: the friction "
+        raise ConfigError(f"ckpt={ckpt} is conditioned on {s.metadata['conditioning']}, without mu_s: the friction "
                           "axis of this map does not apply to it (use a micro or all-scalars model)")
     diameter = float(m.scene["hopper"]["material"]["diameter"])
     points = []
@@ -143,7 +143,7 @@ def gns_series(ckpt: Path, label: str, sims: list[SimRecord], mu_s: list[float],
     module = load_hopper_gns(ckpt)
     meta, norm = module.metadata, module.norm
     if "mu_s" not in meta["conditioning"]:
-        raise ConfigError(f"--gns-ckpt {ckpt} is conditioned on {meta['conditioning']}, without mu_s")
+        raise ConfigError(f"gns_ckpt={ckpt} is conditioned on {meta['conditioning']}, without mu_s")
     step_fn = accelerate or model_accelerator(module)
     points = []
     for rec in sims:
@@ -168,20 +168,20 @@ def run(ckpts: list[Path], gns_ckpts: list[Path] | None = None, labels: list[str
     """Every series of the map (`accelerate` replaces the GNS models, for tests)."""
     gns_ckpts = list(gns_ckpts or [])
     if not ckpts:
-        raise ConfigError("--ckpt is required: give one or more hopper field-surrogate checkpoints")
-    checks.positive_int("--sims", n_sims)
-    checks.number("--limit-pct", limit_pct, lo=0.0, lo_open=True)
+        raise ConfigError("ckpt= is required: give one or more hopper field-surrogate checkpoints")
+    checks.positive_int("sims", n_sims)
+    checks.number("limit_pct", limit_pct, lo=0.0, lo_open=True)
     if gns_steps is not None:
-        checks.positive_int("--gns-steps", gns_steps)
+        checks.positive_int("gns_steps", gns_steps)
     for c in gns_ckpts:  # before the field series spend minutes
         require_hopper_gns(c)
     mu_s = sorted(float(v) for v in (mu_s or DEFAULT_MU_S))
     for i, v in enumerate(mu_s):
-        checks.number(f"--mu-s[{i}]", v, lo=0.0)
+        checks.number(f"mu_s[{i}]", v, lo=0.0)
     names = list(labels) if labels else default_labels(ckpts + gns_ckpts)
     if len(names) != len(ckpts) + len(gns_ckpts):
-        raise ConfigError(f"--labels: {len(names)} label(s) for {len(ckpts) + len(gns_ckpts)} checkpoint(s) "
-                          "(--ckpt then --gns-ckpt): give one per checkpoint, or none")
+        raise ConfigError(f"labels=: {len(names)} label(s) for {len(ckpts) + len(gns_ckpts)} checkpoint(s) "
+                          "(ckpt= then gns_ckpt=): give one per checkpoint, or none")
     first = load_surrogate(ckpts[0])
     dataset_dir, m = surrogate_dataset(first, dataset_dir, data_dir() / "datasets")
     trained = tuple(float(x) for x in m.parameters["ranges"]["mu_s"])
@@ -227,7 +227,7 @@ def main(argv: list[str]) -> int:
     p = command_parser(f"neuraldem.bench {NAME}", __doc__, summary=True)
     p.add_argument("--ckpt", type=Path, nargs="+", required=True, help="hopper field-surrogate checkpoints")
     p.add_argument("--gns-ckpt", type=Path, nargs="+", default=[], help="GNS checkpoints (experiment=gns_hopper)")
-    p.add_argument("--labels", nargs="+", default=None, help="one per checkpoint, --ckpt first then --gns-ckpt")
+    p.add_argument("--labels", nargs="+", default=None, help="one per checkpoint, ckpt= first then gns_ckpt=")
     p.add_argument("--sims", type=int, default=DEFAULT_SIMS, help="stored test runs, spread over alpha")
     p.add_argument("--mu-s", type=float, nargs="+", default=list(DEFAULT_MU_S), help="sliding friction values")
     p.add_argument("--gns-steps", type=int, default=None, help="GNS steps per rollout (default: the whole run)")

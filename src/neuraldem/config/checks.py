@@ -10,6 +10,7 @@ import math
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+from neuraldem.commands import command_or_module
 from neuraldem.errors import ConfigError
 
 
@@ -105,4 +106,4 @@ def required(cfg: Any, command: str, examples: dict[str, str]) -> None:
 
     for key, example in examples.items():
         if OmegaConf.is_missing(cfg, key):
-            raise ConfigError(f"{key} is required: python -m neuraldem.{command} {example} ...")
+            raise ConfigError(f"{key} is required: {command_or_module(f'neuraldem.{command}')} {example} ...")

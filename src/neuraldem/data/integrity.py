@@ -143,7 +143,7 @@ class ValidatedH5File:
     def __init__(self, path: Path, validate: bool = True):
         self.path = Path(path)
         if not self.path.is_file():
-            raise DataError(f"dataset file {self.path} does not exist (regenerate with python -m neuraldem.datagen)")
+            raise DataError(f"dataset file {self.path} does not exist (regenerate with neuraldem datagen)")
         verify_recorded_checksum(self.path)
         try:
             self.f = h5py.File(self.path, "r")

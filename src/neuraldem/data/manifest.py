@@ -128,11 +128,11 @@ def require_dataset(dataset_dir: Path, data_name: str) -> Manifest:
     dataset_dir = Path(dataset_dir)
     if not (dataset_dir / MANIFEST_NAME).is_file():
         raise DataError(f"no dataset at {dataset_dir}: generate it with "
-                        f"`python -m neuraldem.datagen data={data_name}`")
+                        f"`neuraldem datagen data={data_name}`")
     m = Manifest.load(dataset_dir)
     if not m.usable():
         raise DataError(f"dataset {dataset_dir} has no finished simulation yet: run "
-                        f"`python -m neuraldem.datagen data={data_name}` (it resumes where it stopped)")
+                        f"`neuraldem datagen data={data_name}` (it resumes where it stopped)")
     return m
 
 

@@ -28,7 +28,7 @@ def check_version(found: Any, path: Path) -> None:
         found = found.item()
     if found != SCHEMA_VERSION:
         raise DataError(f"{path}: schema version {found!r}, this neuraldem reads version {SCHEMA_VERSION}",
-                        "regenerate the dataset with `python -m neuraldem.datagen` (finished runs are reused) or "
+                        "regenerate the dataset with `neuraldem datagen` (finished runs are reused) or "
                         "install the neuraldem version that wrote it")
 
 

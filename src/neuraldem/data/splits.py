@@ -95,7 +95,7 @@ def cv_split(records: Sequence[SimRecord], kind: str, fold: int, n_folds: int, s
     if too_small or n_rest_min < MIN_REST:
         raise DataError(f"{dataset} has {len(records)} usable runs: too few for {n_folds}-fold {kind} "
                         f"cross-validation (needs >= {MIN_TEST_PER_FOLD} test runs in every fold and >= "
-                        f"{MIN_REST} runs outside it); generate more with python -m neuraldem.datagen")
+                        f"{MIN_REST} runs outside it); generate more with neuraldem datagen")
     test = tests[fold]
     rest = [r.sim_id for r in records if r.sim_id not in set(test)]
     parts = random_split(rest, {"val": val_fraction, "test": 0.0}, seed + fold)

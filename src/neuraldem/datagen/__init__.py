@@ -1,1 +1,1 @@
-"""`python -m neuraldem.datagen data=NAME`: run the real solver for a dataset, resumable (see __main__)."""
+"""`neuraldem datagen data=NAME`: run the real solver for a dataset, resumable (see __main__)."""

@@ -1,4 +1,4 @@
-"""`python -m neuraldem.datagen data=hopper_small n_sims=200 workers=2`
+"""`neuraldem datagen data=hopper_small n_sims=200 workers=2`
 
 Runs the real solver for every simulation of a dataset that is not finished yet, side by side on
 `workers` cores (serial solver processes; MPI on few cores only burns CPU), and keeps the manifest up to

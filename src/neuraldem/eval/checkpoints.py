@@ -127,7 +127,7 @@ def checkpoint_metadata(path: Path) -> dict[str, Any]:
 def require_kind(meta: dict[str, Any], kind: str, path: Path, purpose: str) -> None:
     if meta.get("kind") != kind:
         raise DataError(f"{path} is a {meta.get('kind')!r} checkpoint (trained on {meta.get('data_name')!r}); "
-                        f"{purpose} needs a {kind} model: train one with python -m neuraldem.train "
+                        f"{purpose} needs a {kind} model: train one with neuraldem train "
                         f"{train_hint(kind)}")
 
 
@@ -164,13 +164,13 @@ def check_import_joins(m: Manifest, scene: dict[str, Any], dataset: Path, label:
     were recorded takes it (and records its scene)."""
     if not m.scene.get("imported"):
         raise ConfigError(f"{dataset} holds generated {m.kind} runs; import your runs into a dataset of their own",
-                          fix="pass another --dataset folder")
+                          fix="pass another dataset= folder")
     if not scene_recorded(m.kind, m.scene):
         return
     diff = imported_scene_differences(m.kind, m.scene, scene)
     if diff:
         raise ConfigError(f"{dataset} holds imported runs of another {label}: {'; '.join(diff)}",
-                          fix="import this run into a dataset of its own (--dataset)")
+                          fix="import this run into a dataset of its own (dataset=)")
 
 
 def check_scene(meta: dict[str, Any], m: Manifest, ckpt: Path, dataset_dir: Path) -> None:

@@ -2,11 +2,12 @@
 
 Why: with `+callbacks.ema._target_=lightning.pytorch.callbacks.EMAWeightAveraging` a checkpoint's `state_dict`
 holds the averaged (EMA) weights, and Lightning keeps the weights the optimizer reached at that step beside
-them (`current_model_state`). Every tool (evaluate, rollout, bench, pretrained build) reads `state_dict`; this
+them (`current_model_state`). Every tool (evaluate, evaluate rollout, bench, release) reads `state_dict`; this
 writes a copy whose `state_dict` is the current weights, so the same run scores both and the average is an
 ablation row with everything else equal.
 
-    python -m neuraldem.eval.current_weights RUN/checkpoints/step002000.ckpt RUN/checkpoints/step002000_current.ckpt
+    python -m neuraldem.eval.current_weights src=RUN/checkpoints/step002000.ckpt \\
+        dst=RUN/checkpoints/step002000_current.ckpt
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""`python -m neuraldem.eval.dataset_report DATASET_DIR --out results/hopper/dataset`: what a generated
+"""`neuraldem report dataset dataset=DATASET_DIR out=results/hopper/dataset`: what a generated
 dataset contains and what it cost: status counts, solver CPU seconds per simulation and per
 characterization, particle-steps per CPU-second, the range of the ground-truth metrics, and figures of the
 metrics over the parameter space (cf. the paper's dataset overview figure)."""

@@ -49,13 +49,13 @@ def find_results(folders: list[Path]) -> list[dict]:
     found = scan_results(folders)
     if not found:
         raise DataError(f"no evaluation/metrics.json under {[str(f) for f in folders]}: train with "
-                        "evaluate=true (the hopper and fb experiments do) or run python -m neuraldem.evaluate")
+                        "evaluate=true (the hopper and fb experiments do) or run neuraldem evaluate ckpt=...")
     return found
 
 
 def table_main(argv: list[str] | None, prog: str, doc: str | None, collect: Callable[[list[Path]], list[dict]],
                render: Callable[[list[dict]], str], summary: Callable[[dict], dict]) -> int:
-    """The command line of the collectors: `prog FOLDER... --out FILE.md` writes render(results) to FILE.md and
+    """The command line of the collectors: `prog folders=[FOLDER,...] out=FILE.md` writes render(results) to FILE.md and
     summary(result) of every result to FILE.json beside it, and prints the table."""
     p = doc_parser(prog, doc)
     p.add_argument("folders", type=Path, nargs="+")

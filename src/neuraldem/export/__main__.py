@@ -1,23 +1,23 @@
-"""`neuraldem export FORMAT DATASET OUT`: a dataset's particle trajectories for other learned simulators.
+"""`neuraldem export FORMAT dataset=DATASET out=OUT`: a dataset's particle trajectories for other learned simulators.
 
 FORMAT is `gns` (train/valid/test.npz + metadata.json: DeepMind's learning_to_simulate data as npz, read by the
 PyTorch `gns` package) or `lagrangebench` (train/valid/test.h5 + metadata.json, read by LagrangeBench's
 H5Dataset). DATASET is a dataset dir, or the name of one under <data dir>/datasets; OUT a new folder. The
-split parts come from the dataset's manifest (--split, default the scene's first: hopper `random`, fluidized
+split parts come from the dataset's manifest (split=, default the scene's first: hopper `random`, fluidized
 bed `velocity`); a part without runs writes no file. Velocity and acceleration statistics in metadata.json
 come from the training part only. docs/exports.md has the layouts and how to load them in those tools.
 
 Both formats hold one fixed particle set per trajectory. A run in which particles leave (the hopper's sink,
-particles DPMFoam lost) is refused unless --exits says what to do:
+particles DPMFoam lost) is refused unless exits= says what to do:
   truncate  keep each trajectory up to its first exit (needs 3 snapshots before it)
   hold      keep every snapshot; a particle that left stays at its last position, and exit_step_<split>.npz
             records when it left (neuraldem's reader, and the GNS baseline trained from the export, mask it)
 Datasets whose particle set grows (the refilling hopper) cannot be exported.
 
 Examples:
-  neuraldem export gns hopper_small ~/exports/hopper_gns --exits hold
-  neuraldem export lagrangebench fb_small ~/exports/fb_lb
-  python -m neuraldem.train experiment=gns_export_tiny data.export_dir=~/exports/hopper_gns
+  neuraldem export gns dataset=hopper_small out=~/exports/hopper_gns exits=hold
+  neuraldem export lagrangebench dataset=fb_small out=~/exports/fb_lb
+  neuraldem train experiment=gns_export_tiny data.export_dir=~/exports/hopper_gns
 """
 
 from __future__ import annotations
@@ -117,7 +117,7 @@ def material_property(choice: str, m: Manifest, records: list[SimRecord], fmt: s
     """The conditioning scalar the GNS npz carries per trajectory: `auto` is the scene's when it has one (the
     bed's inlet velocity), `none` none; LagrangeBench has no place for one."""
     if fmt != "gns" and choice not in ("auto", "none"):
-        raise ConfigError(f"--material-property {choice!r}: the LagrangeBench format has no place for one (the "
+        raise ConfigError(f"material_property={choice!r}: the LagrangeBench format has no place for one (the "
                           "conditioning scalars are in metadata.json either way)")
     if fmt != "gns" or choice == "none":
         return None
@@ -127,7 +127,7 @@ def material_property(choice: str, m: Manifest, records: list[SimRecord], fmt: s
     missing = [r.sim_id for r in records if choice not in r.conditioning()]
     if missing:
         known = sorted(set.intersection(*(set(r.conditioning()) for r in records)))
-        raise ConfigError(f"--material-property {choice!r}: runs {', '.join(missing[:3])} have no such scalar "
+        raise ConfigError(f"material_property={choice!r}: runs {', '.join(missing[:3])} have no such scalar "
                           f"(every run has: {', '.join(known)}; or none)")
     return choice
 
@@ -142,7 +142,7 @@ def survey(plan: ExportPlan) -> None:
             rec = m.record(sim_id)
             if not rec.usable:
                 raise DataError(f"simulation {sim_id} of {plan.dataset_dir} is in split {plan.split!r} but not "
-                                f"finished (status {rec.status})", "rerun datagen, or choose another --split")
+                                f"finished (status {rec.status})", "rerun datagen, or choose another split=")
             with ParticleRun(plan.dataset_dir / str(rec.file), m.kind, m.scene) as run:
                 x = run.positions()
                 es = exit_steps(x)
@@ -153,7 +153,7 @@ def survey(plan: ExportPlan) -> None:
             plan.runs[part].append(s)
     if not plan.runs["train"]:
         raise DataError(f"split {plan.split!r} of {plan.dataset_dir} has no training runs: the statistics come "
-                        "from them", "choose another --split, or generate more runs")
+                        "from them", "choose another split=, or generate more runs")
     dts = sorted({round(s.dt, 12) for s in plan.all_runs})
     if dts[-1] - dts[0] > 1e-9 * dts[-1]:
         raise DataError(f"runs of {plan.dataset_dir} have different snapshot intervals {dts}: both formats have "
@@ -169,11 +169,11 @@ def check_exits(plan: ExportPlan, s: RunSurvey, first: int) -> None:
     if plan.exits == "refuse" and s.n_exited:
         raise DataError(f"{name}: {s.n_exited} of {s.n_particles} particles leave (the first gone at snapshot "
                         f"{first} of {s.n_snapshots}), and {TOOL[plan.fmt]} stores one fixed particle set per "
-                        "trajectory", "choose --exits truncate (cut each trajectory before its first exit) or "
-                        "--exits hold (exited particles stay at their last position; docs/exports.md)")
+                        "trajectory", "choose exits=truncate (cut each trajectory before its first exit) or "
+                        "exits=hold (exited particles stay at their last position; docs/exports.md)")
     if plan.exits == "truncate" and s.kept < MIN_SNAPSHOTS:
-        raise DataError(f"{name}: only {s.kept} snapshots before its first particle leaves; --exits truncate "
-                        f"needs {MIN_SNAPSHOTS}", "use --exits hold (docs/exports.md)")
+        raise DataError(f"{name}: only {s.kept} snapshots before its first particle leaves; exits=truncate "
+                        f"needs {MIN_SNAPSHOTS}", "use exits=hold (docs/exports.md)")
 
 
 def check_out(out: Path, force: bool) -> None:
@@ -184,13 +184,13 @@ def check_out(out: Path, force: bool) -> None:
     if not any(out.iterdir()):
         return
     if not force:
-        raise DataError(f"{out} exists and is not empty: choose a new folder, or pass --force to replace an "
+        raise DataError(f"{out} exists and is not empty: choose a new folder, or pass force=true to replace an "
                         "earlier export there")
     try:
         read_metadata(out)
     except DataError:
         raise DataError(f"{out} is not empty and not an earlier export (no {METADATA} written by neuraldem "
-                        "export): --force replaces only those; choose a new folder") from None
+                        "export): force=true replaces only those; choose a new folder") from None
 
 
 def write(plan: ExportPlan, folder: Path) -> dict[str, Any]:
@@ -252,14 +252,14 @@ def export_dataset(fmt: str, dataset_dir: Path, out: Path, split: str | None = N
     """Write the export of `dataset_dir` into `out` (all or nothing: a refusal or a failure leaves no partial
     folder) and return its metadata."""
     checks.one_of("FORMAT", fmt, FORMATS)
-    checks.one_of("--exits", exits, EXIT_RULES)
-    checks.positive("--radius-d", radius_d)
+    checks.one_of("exits", exits, EXIT_RULES)
+    checks.positive("radius_d", radius_d)
     dataset_dir, out = Path(dataset_dir), Path(out).expanduser()
     m = require_dataset(dataset_dir, dataset_dir.name)
     check_kind(m, dataset_dir, fmt)
     split = split or SPLITS[m.kind][0]
     if split not in m.splits:
-        raise ConfigError(f"--split {split!r}: dataset {dataset_dir} has splits {', '.join(sorted(m.splits))}")
+        raise ConfigError(f"split={split!r}: dataset {dataset_dir} has splits {', '.join(sorted(m.splits))}")
     check_out(out, force)
     records = [m.record(i) for part in PARTS for i in m.split_ids(split, part)]
     plan = ExportPlan(fmt, dataset_dir, m, split, exits, radius_d, material_property(material, m, records, fmt))
@@ -295,7 +295,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = doc_parser("neuraldem.export", __doc__)
     p.add_argument("format", choices=FORMATS, help="gns (npz) or lagrangebench (HDF5)")
     p.add_argument("dataset", help="dataset dir, or a dataset name under <data dir>/datasets")
-    p.add_argument("out", type=Path, help="folder to write (new, empty, or an earlier export with --force)")
+    p.add_argument("out", type=Path, help="folder to write (new, empty, or an earlier export with force=true)")
     p.add_argument("--split", default=None, help="split of the manifest (default: the scene's first)")
     p.add_argument("--exits", choices=EXIT_RULES, default="refuse",
                    help="what to do with particles that leave (default: refuse runs that have any)")
@@ -320,7 +320,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     extra = scene_exports()
     if argv and argv[0] in extra:
-        sys.argv[0] = f"neuraldem export {argv[0]}"
+        sys.argv[0] = "neuraldem export"  # the scene's parser names its object (`pack`, `unpack`)
         return int(importlib.import_module(extra[argv[0]][0]).main(argv) or 0)
     a = parse_args(argv)
     meta = export_dataset(a.format, find_dataset(a.dataset), a.out, a.split, a.exits, a.radius_d,

@@ -100,7 +100,7 @@ class ExportGnsDataModule(GnsLoaders):
                                         allowed=CONDITIONING[e.kind])
             if not e.parts["train"]:
                 raise DataError(f"export {self.export_dir} has no training trajectories",
-                                "export a split with training runs (neuraldem export --split ...)")
+                                "export a split with training runs (neuraldem export ... split=...)")
             for traj in (t for part in e.parts.values() for t in part):
                 missing = [n for n in conditioning if n not in traj.conditioning]
                 if missing:

@@ -342,7 +342,7 @@ class GnsDataModule(GnsLoaders):
             checks.one_of("data.split", self.split, SPLITS[m.kind])
             if not m.splits.get(self.split, {}).get("train"):
                 raise DataError(f"dataset {self.dataset_dir}: split {self.split!r} has no training runs; generate "
-                                f"more with python -m neuraldem.datagen data={self.name} n_sims=N")
+                                f"more with neuraldem datagen data={self.name} n_sims=N")
         return self.manifest
 
     def setup(self, stage: str | None = None) -> None:

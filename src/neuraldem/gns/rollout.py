@@ -18,7 +18,7 @@ initial height layers), for the rollout and the stored run alike; fluidized bed,
 mixing fields of the predicted particles (`scenes.fluidized_bed.fields`, the stored files' own kernels) scored with
 `scenes.fluidized_bed.evaluation.compare` against the stored fields (the GNS has no air: fluid statistics are NaN).
 
-`python -m neuraldem.gns.rollout --ckpt CKPT [--sim SIM_ID] [--steps N] --out DIR` writes
+`neuraldem report gns-rollout ckpt=CKPT [sim=SIM_ID] [steps=N] out=DIR` writes
 gns_rollout.json (summary, metrics) and gns_rollout.h5 (times, positions).
 """
 
@@ -257,14 +257,14 @@ def run_gns_rollout(ckpt: Path, out_dir: Path | None = None, sim: str | None = N
     """Roll a GNS checkpoint out on run `sim` (default: the first test run of its split) for `steps` (default:
     the whole stored run), score it; write gns_rollout.json and .h5 into `out_dir` if given."""
     if steps is not None:
-        checks.positive_int("--steps", steps)
+        checks.positive_int("steps", steps)
     module = load_gns_checkpoint(Path(ckpt))
     meta, norm = module.metadata, module.norm
     dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), data_dir() / "datasets", dataset_dir)
     if sim is None:
         test = m.split_ids(meta["split"], "test") or m.split_ids(meta["split"], "val")
         if not test:
-            raise DataError(f"split {meta['split']!r} of {dataset_dir} has no test or validation run: pass --sim")
+            raise DataError(f"split {meta['split']!r} of {dataset_dir} has no test or validation run: pass sim=")
         sim = test[0]
     rec = m.record(sim)
     if not rec.usable:
@@ -315,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result = run_gns_rollout(a.ckpt, a.out, a.sim, a.steps, a.dataset)
     except NeuraldemError as err:
-        print(f"error: {err}", file=sys.stderr)
+        print(f"neuraldem: error: {err}", file=sys.stderr)
         return 2
     state = f"failed at step {result['steps_to_failure']}: {result['failure']}" if result["failed"] else "stable"
     print(f"{result['sim_id']}: {result['steps_done']} of {result['steps_requested']} steps, {state}; wrote {a.out}")

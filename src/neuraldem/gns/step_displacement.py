@@ -2,9 +2,9 @@
 learned simulator (the GNS baseline) has to predict. A per-particle error of a sizeable share of this, with
 neighbours one diameter apart, is an overlap at once.
 
-`python -m neuraldem.gns.step_displacement DATASET_DIR [--runs 5] [--out FILE.json]` prints and writes the
+`neuraldem report step-displacement dataset=DATASET_DIR [runs=5] [out=FILE.json]` prints and writes the
 distribution (median, 90th, 99th percentile, max) over every particle present in two consecutive snapshots
-of the first `--runs` usable runs, for either scene.
+of the first `runs=` usable runs, for either scene.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def displacements(positions: np.ndarray, diameters: np.ndarray) -> np.ndarray:
 
 def step_statistics(dataset_dir: Path, n_runs: int = 5) -> dict[str, Any]:
     """The distribution of per-snapshot displacements over the first `n_runs` usable runs of a dataset."""
-    checks.positive_int("--runs", n_runs)
+    checks.positive_int("runs", n_runs)
     m = Manifest.load(dataset_dir)
     runs = m.usable()[:n_runs]
     values, dt = [], None

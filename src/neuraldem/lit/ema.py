@@ -5,7 +5,8 @@ average over the last few hundred steps is the smoother map. Lightning's `EMAWei
 beside the training weights (training itself is unchanged: the raw weights of a run with and without it are
 bit-identical), swaps it in for every validation (so the rollout validation scores and selects the averaged
 model) and writes it as the checkpoint's `state_dict`, with the optimizer's weights kept as
-`current_model_state` (`python -m neuraldem.eval.current_weights` writes those as a checkpoint of their own).
+`current_model_state` (`python -m neuraldem.eval.current_weights src=... dst=...` writes those as a checkpoint of
+their own).
 """
 
 from __future__ import annotations

@@ -70,7 +70,7 @@ def build_record(ckpt: Path, name: str, kind: str, folder: Path, files: dict[str
         "config": {"net": hp.get("net"), "optimizer": hp.get("optimizer"), "scheduler": hp.get("scheduler"),
                    "global_step": int(checkpoint.get("global_step", -1)), "train_overrides": overrides},
         **extra,
-        "rebuild": [f"neuraldem train {' '.join(overrides)}",
+        "rebuild": [" ".join(["neuraldem train", *overrides]),
                     f"neuraldem release ckpt=<that run>/checkpoints/{Path(ckpt).name} "
                     f"name={name}{' ' + build_flags if build_flags else ''}"],
         "built_from": {"checkpoint": str(Path(ckpt).resolve()), "commit": commit(),

@@ -188,8 +188,8 @@ class ServerProcess:
         self.log = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 (kept open while the server runs)
         child_env = {**os.environ, "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"),
                      "OMP_WAIT_POLICY": "PASSIVE", **(env or {})}
-        self.proc = subprocess.Popen([sys.executable, "-m", "neuraldem", "serve", "--host", host,
-                                      "--port", str(self.port), *args], env=child_env, stdout=self.log,
+        self.proc = subprocess.Popen([sys.executable, "-m", "neuraldem", "serve", f"host={host}",
+                                      f"port={self.port}", *args], env=child_env, stdout=self.log,
                                      stderr=subprocess.STDOUT, text=True)
         self.timeout = timeout
 

@@ -23,7 +23,7 @@ def port_is_free(host: str, port: int) -> bool:
 
 
 def free_port(host: str = "127.0.0.1") -> int:
-    """A port the system says is free now (for tests and `--port 0`)."""
+    """A port the system says is free now (for tests and `port=0`)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind((host, 0))
         return int(s.getsockname()[1])
@@ -40,14 +40,14 @@ def suggest_port(host: str, taken: int) -> int:
 def check_port(host: str, port: int) -> int:
     """`port` when free (0: a free one picked now); a port in use is a ConfigError that names another."""
     if not 0 <= port <= 65535:
-        raise ConfigError(f"--port {port} is invalid", "give a port between 1024 and 65535, e.g. --port 5006")
+        raise ConfigError(f"port={port} is invalid", "give a port between 1024 and 65535, e.g. port=5006")
     if port == 0:
         return free_port(host)
     try:
         free = port_is_free(host, port)
     except OSError as err:
-        raise ConfigError(f"cannot listen on {host}:{port} ({err.strerror})", "check --host") from None
+        raise ConfigError(f"cannot listen on {host}:{port} ({err.strerror})", "check host=") from None
     if not free:
         raise ConfigError(f"port {port} is in use on {host} (another server is listening there)",
-                          f"try --port {suggest_port(host, port)}")
+                          f"try port={suggest_port(host, port)}")
     return port

@@ -52,7 +52,8 @@ def read_dump(path: Path, required: tuple[str, ...] = ("id", "x", "y", "z"),
                 break
             fix = err.fix
             if last and err.problem.startswith("truncated"):
-                fix = "a killed run? pass drop_truncated_tail (--drop-truncated-tail) to keep the complete frames"
+                fix = ("a killed run? pass drop_truncated_tail=true (neuraldem import liggghts) to keep the complete "
+                       "frames")
             raise DataError(f"{path}: frame {k}: {err.problem}", fix) from None
     steps = [f.step for f in frames]
     if any(b <= a for a, b in zip(steps, steps[1:], strict=False)):

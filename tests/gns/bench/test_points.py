@@ -83,8 +83,8 @@ def test_a_bed_gns_is_refused(fb_tiny_dataset, evaluated_runs, tiny_checkpoint, 
     with pytest.raises(ConfigError, match="gns_hopper"):
         hopper_stability.run([tiny_checkpoint], [ckpt])
     out = tmp_path / "sa.json"
-    assert bench_main(["speed_accuracy", "--runs", str(evaluated_runs / "tiny"), "--skip-solver", "--gns-ckpt",
-                       str(ckpt), "--out", str(out)]) == 2
+    assert bench_main(["speed_accuracy", f"runs=[{evaluated_runs / 'tiny'}]", "skip_solver=true", f"gns_ckpt=[{ckpt}]",
+                       f"out={out}"]) == 2
     assert "gns_hopper" in capsys.readouterr().err and not out.exists()
 
 

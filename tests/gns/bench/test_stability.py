@@ -33,8 +33,8 @@ def test_series_in_the_shape_of_fb_stability(fb_gns, fb_tiny_dataset):
 
 @pytest.mark.solver
 def test_command_writes_json_and_figure(fb_gns, fb_tiny_dataset, tmp_path):
-    assert main(["gns_stability", "--ckpt", str(fb_gns), "--velocities", "1.3", "--steps", "2",
-                 "--dataset", str(fb_tiny_dataset), "--out", str(tmp_path)]) == 0
+    assert main(["gns_stability", f"ckpt=[{fb_gns}]", "velocities=[1.3]", "steps=2", f"dataset={fb_tiny_dataset}",
+                 f"out={tmp_path}"]) == 0
     payload = json.loads((tmp_path / "gns_stability.json").read_text())
     assert payload["results"]["steps"] == 2 and (tmp_path / "gns_stability.png").is_file()
 

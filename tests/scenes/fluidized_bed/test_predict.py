@@ -60,8 +60,7 @@ def test_bed_what_if_bad_input(fb_tiny_pretrained: Path, tmp_path: Path):
     env = {"NEURALDEM_PRETRAINED_DIR": str(fb_tiny_pretrained)}
     far = predict("fb", "inlet_velocity=3.5", "--no-fields", "--out", str(tmp_path), env=env)
     assert far.returncode == 0 and "inlet_velocity=3.5 is outside the trained range" in far.stderr, far.stderr
-    for args, expected in ((("fb", "velocity=1.5"), "unknown fb parameter 'velocity': the parameters are "
-                                                    "inlet_velocity"),
+    for args, expected in ((("fb", "velocity=1.5"), "unknown option velocity=: the options are inlet_velocity="),
                            (("fb", "inlet_velocity=-1"), "outside what the solver can run")):
         proc = predict(*args, "--out", str(tmp_path), env=env)
         out = proc.stdout + proc.stderr
@@ -121,8 +120,8 @@ def test_refresh_field_reruns_the_field_answers_and_keeps_the_rest(fb_tiny_pretr
     stale["test_errors"]["runs"][0]["field model"] = {k: v + 1.0 for k, v in fresh.items()}
     next(p for p in stale["probes"] if "field_summary" in p)["field_summary"]["lacey"] = 9.0
     (folder / "meta.json").write_text(json.dumps(stale))
-    proc = run_module("neuraldem.scenes.hopper.release", "--name", "fb_tiny_test", "--out", str(tmp_path),
-                      "--refresh-field")
+    proc = run_module("neuraldem.release", "fluidized_bed", "name=fb_tiny_test", f"out={tmp_path}",
+                      "refresh_field=true")
     assert proc.returncode == 0, proc.stderr
     new = json.loads((folder / "meta.json").read_text())
     assert new["test_errors"]["runs"][0]["field model"] == pytest.approx(fresh, rel=1e-4, abs=1e-6)
@@ -135,10 +134,10 @@ def test_refresh_field_reruns_the_field_answers_and_keeps_the_rest(fb_tiny_pretr
     assert new["refreshed"][-1]["field_model_errors_before"] == stale["test_errors"]["field model"]
 
 
-@pytest.mark.parametrize("flags,message", [(["--refresh-field"], "meta.json is missing"),
-                                           ([], "--ckpt is required")])
+@pytest.mark.parametrize("flags,message", [(["refresh_field=true"], "meta.json is missing"),
+                                           ([], "ckpt= is required")])
 def test_refresh_bad_input_ends_in_one_line(tmp_path: Path, flags: list[str], message: str):
-    proc = run_module("neuraldem.scenes.hopper.release", "--name", "nothing_here", "--out", str(tmp_path), *flags)
+    proc = run_module("neuraldem.release", "fluidized_bed", "name=nothing_here", f"out={tmp_path}", *flags)
     assert proc.returncode != 0 and message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
 
 

@@ -36,13 +36,13 @@ def test_the_hopper_model_is_shipped_small_and_documented():
     assert len(meta["training_data"]["manifest_sha256"]) == 64 and meta["training_data"]["run_ids"]["train"]
     errors = meta["test_errors"]
     assert errors["n_test_runs"] >= 10 and {"field model", "gp", "constant"} <= set(errors)
-    assert meta["rebuild"][0].startswith("neuraldem train") and "pretrained.build" in meta["rebuild"][1]
+    assert meta["rebuild"][0].startswith("neuraldem train") and meta["rebuild"][1].startswith("neuraldem release ")
 
 
 def test_shipped_files_reproduce_their_stored_probe_answers():
     from neuraldem.models.scalar_baselines import ArrayGaussianProcess, gp_answers
-    from neuraldem.predict import hopper_module
     from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings
+    from neuraldem.scenes.hopper.predict import hopper_module
     from neuraldem.scenes.hopper.whatif import field_answer
 
     model = pretrained.load("hopper_small")
@@ -77,7 +77,7 @@ def test_a_missing_or_damaged_file_names_itself_and_the_rebuild(own_copy: Path, 
         pretrained.load("hopper_small").file("gp")
     text = str(err.value)
     assert str(path) in text and ("missing" if damage == "missing" else "damaged") in text
-    assert "neuraldem train" in text and "pretrained.build" in text
+    assert "neuraldem train" in text and "&& neuraldem release ckpt=" in text
 
 
 def test_an_unreadable_meta_is_one_error(own_copy: Path):

@@ -22,7 +22,7 @@ def items(args: list[str]) -> dict[str, str]:
 
 def test_a_small_scan_writes_maps_the_boundary_and_json(tmp_path: Path):
     proc = run_module("neuraldem", "scan", "hopper", "alpha=0:60:7", "mu_s=0.1:0.9:4", "mu_r=0.1",
-                      "--out", str(tmp_path))
+                      f"out={tmp_path}")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     scan = json.loads((tmp_path / "scan.json").read_text())
     assert scan["n_points"] == 28 and len(scan["grids"]["drainage_t95.mean"]) == 7
@@ -62,8 +62,8 @@ def test_checked_points_are_spread_over_the_first_axis():
 @pytest.mark.solver
 def test_verify_marks_liggghts_points_and_reuses_them(tiny_pretrained: Path, tmp_path: Path):
     env = {"NEURALDEM_PRETRAINED_DIR": str(tiny_pretrained)}
-    args = ("scan", "hopper", "alpha=20:50:3", "mu_s=0.2:0.6:2", "mu_r=0.1", "--model", "hopper_tiny_test",
-            "--verify", "1", "--out", str(tmp_path))
+    args = ("scan", "hopper", "alpha=20:50:3", "mu_s=0.2:0.6:2", "mu_r=0.1", "model=hopper_tiny_test", "verify=1",
+            f"out={tmp_path}")
     proc = run_module("neuraldem", *args, env=env)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     scan = json.loads((tmp_path / "scan.json").read_text())

@@ -79,7 +79,7 @@ def test_ids_and_insertion_times_are_consistent(hopper_refill_tiny_dataset: Path
 def test_bad_refill_values_end_in_one_line(tmp_path: Path, override: str, message: str):
     from tests.helpers import run_module
 
-    proc = run_module("neuraldem.datagen", "data=hopper_refill_tiny", "n_sims=1", "progress=false", override,
+    proc = run_module("neuraldem", "datagen", "data=hopper_refill_tiny", "n_sims=1", "progress=false", override,
                       env={"NEURALDEM_DATA": str(tmp_path)})
     assert proc.returncode == 2, proc.stderr
     assert message in proc.stderr and "Traceback" not in proc.stderr

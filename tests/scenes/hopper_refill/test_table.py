@@ -28,7 +28,7 @@ def test_rows_give_rms_values_model_beside_persistence(tmp_path: Path):
     (tmp_path / "hopper_tiny" / "other").mkdir()
     (tmp_path / "hopper_tiny" / "other" / "metrics.json").write_text(json.dumps({"aggregate": {}}))
     out = tmp_path / "table.md"
-    proc = run_module("neuraldem.scenes.hopper_refill.table", str(tmp_path), "--out", str(out))
+    proc = run_module("neuraldem", "report", "refill-table", f"folders=[{tmp_path}]", f"out={out}")
     assert proc.returncode == 0, proc.stderr
     text = out.read_text()
     # transport: sqrt(0.0004) = 2 % of the box (persistence sqrt(0.01) = 10 %); residence 5 s x sqrt(0.01) = 0.5 s
@@ -40,7 +40,7 @@ def test_rows_give_rms_values_model_beside_persistence(tmp_path: Path):
 
 
 def test_nothing_found_is_one_clear_line(tmp_path: Path):
-    proc = run_module("neuraldem.scenes.hopper_refill.table", str(tmp_path), "--out", str(tmp_path / "t.md"))
+    proc = run_module("neuraldem", "report", "refill-table", f"folders=[{tmp_path}]", f"out={tmp_path / 't.md'}")
     assert proc.returncode == 2 and "no refill evaluation" in proc.stderr
 
 
@@ -48,8 +48,8 @@ def test_runs_of_one_name_in_two_folders_are_told_apart(tmp_path: Path):
     _write(tmp_path / "study" / "hopper_tiny" / "evaluation", [15.0], 5.0)
     _write(tmp_path / "study_seed1" / "hopper_tiny" / "evaluation", [15.0], 5.0)
     out = tmp_path / "table.md"
-    proc = run_module("neuraldem.scenes.hopper_refill.table", str(tmp_path / "study"), str(tmp_path / "study_seed1"),
-                      "--out", str(out))
+    folders = f"folders=[{tmp_path / 'study'},{tmp_path / 'study_seed1'}]"
+    proc = run_module("neuraldem", "report", "refill-table", folders, f"out={out}")
     assert proc.returncode == 0, proc.stderr
     text = out.read_text()
     assert "| study/hopper_tiny | test |" in text and "| study_seed1/hopper_tiny | test |" in text

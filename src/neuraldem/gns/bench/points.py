@@ -73,9 +73,9 @@ def require_hopper_gns(ckpt: Path, meta: dict[str, Any] | None = None) -> None:
     """Refuse a checkpoint that is not a GNS of the hopper, with a message (from its metadata alone, so a
     benchmark can check before it measures anything)."""
     meta = checkpoint_metadata(Path(ckpt)) if meta is None else meta
-    require_kind(meta, "gns", Path(ckpt), "--gns-ckpt")
+    require_kind(meta, "gns", Path(ckpt), "gns_ckpt=")
     if meta["scene_kind"] != "hopper":
-        raise ConfigError(f"--gns-ckpt {ckpt} is a GNS of the {meta['scene_kind']} scene: the hopper benchmarks need "
+        raise ConfigError(f"gns_ckpt={ckpt} is a GNS of the {meta['scene_kind']} scene: the hopper benchmarks need "
                           "one trained with experiment=gns_hopper")
 
 
@@ -92,7 +92,7 @@ def first_overlap_step(r: GnsRollout) -> int | None:
 def gns_point(ckpt: Path, n_sims: int = 3, dataset_dir: Path | None = None, threads: int = 1,
               label: str | None = None, accelerate: Accelerator | None = None) -> dict[str, Any]:
     """One chart point for a GNS checkpoint (module docstring); `accelerate` replaces the model (tests)."""
-    checks.positive_int("--gns-sims", n_sims)
+    checks.positive_int("gns_sims", n_sims)
     module = load_hopper_gns(Path(ckpt))
     meta, norm = module.metadata, module.norm
     dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), data_dir() / "datasets", dataset_dir)

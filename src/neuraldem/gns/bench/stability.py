@@ -1,19 +1,19 @@
 """Stability map of the GNS baseline on the fluidized bed, in the shape of `fb_stability` (same JSON keys,
 same figure), so its series sit beside the field surrogate's.
 
-`python -m neuraldem.bench gns_stability --ckpt GNS_CKPT [GNS_CKPT ...] [--labels NAME ...]
-[--velocities V ...] [--n-velocities 9] [--steps N] [--drift-limit-pct 5] [--like FB_JSON] [--dataset DIR]
-[--out PATH]`
+`neuraldem bench gns_stability ckpt=[GNS_CKPT,...] [labels=[NAME,...]]
+[velocities=[V,...]] [n_velocities=9] [steps=N] [drift_limit_pct=5] [like=FB_JSON] [dataset=DIR]
+[out=PATH]`
 writes results/fluidized_bed/stability/gns_stability.json and .png.
 
-For every GNS checkpoint (trained with experiment=gns_fb) and inlet velocity: one rollout of `--steps` steps
+For every GNS checkpoint (trained with experiment=gns_fb) and inlet velocity: one rollout of `steps=` steps
 (default 10x the training horizon) from the first snapshots of the dataset trajectory closest in velocity
 (`gns.rollout`). A rollout fails at the first state the GNS checks refuse (NaN/inf, a particle outside
 the box, overlapping particles, a changed particle count) or when the solid volume of the kernel
-solid-fraction field of its particles drifts beyond `--drift-limit-pct` (`fb_stability.assess`, the same
-rule as for the field surrogate). `--like results/fluidized_bed/stability/fb_stability.json` rolls out at that
-map's velocities and steps, and `bench render` (or `bench all --gns-fb-ckpt`) then draws both in one figure,
-stability_map.png.
+solid-fraction field of its particles drifts beyond `drift_limit_pct=` (`fb_stability.assess`, the same
+rule as for the field surrogate). `like=results/fluidized_bed/stability/fb_stability.json` rolls out at that
+map's velocities and steps, and `neuraldem bench render` (or `neuraldem bench all gns_fb_ckpt=...`) then draws
+both in one figure, stability_map.png.
 """
 
 from __future__ import annotations
@@ -57,13 +57,13 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
     """The stability map of every GNS checkpoint over the same velocities and step count (fb_stability's
     JSON shape; `accelerate` replaces the models, for tests)."""
     labels = check_options(ckpts, labels, velocities, steps, drift_limit_pct, 0)
-    checks.positive_int("--n-velocities", n_velocities)
+    checks.positive_int("n_velocities", n_velocities)
     limits = limits or StabilityLimits()
     modules = [load_gns_checkpoint(Path(c)) for c in ckpts]  # refuses other kinds before any rollout
     for c, m in zip(ckpts, modules, strict=False):
         if m.metadata["scene_kind"] != "fluidized_bed":
             raise DataError(f"{c} is a GNS of the {m.metadata['scene_kind']} scene; the stability map needs a "
-                            "fluidized-bed GNS: train one with python -m neuraldem.train experiment=gns_fb")
+                            "fluidized-bed GNS: train one with neuraldem train experiment=gns_fb")
     ranges = [(min(m.metadata["train_velocities"]), max(m.metadata["train_velocities"])) for m in modules]
     grid = sorted({round(float(v), 6) for v in velocities}) if velocities else \
         velocity_grid(min(r[0] for r in ranges), max(r[1] for r in ranges), n_velocities)
@@ -98,7 +98,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
 def main(argv: list[str]) -> int:
     p = command_parser(f"neuraldem.bench {NAME}", __doc__, summary=True)
     p.add_argument("--ckpt", type=Path, nargs="+", required=True, help="GNS checkpoints (experiment=gns_fb)")
-    p.add_argument("--labels", nargs="+", default=None, help="series names, one per --ckpt (default: run folders)")
+    p.add_argument("--labels", nargs="+", default=None, help="series names, one per ckpt= (default: run folders)")
     p.add_argument("--velocities", type=float, nargs="+", default=None, help="inlet velocities [m/s]")
     p.add_argument("--n-velocities", type=int, default=DEFAULT_N_VELOCITIES, help="size of the default grid")
     p.add_argument("--steps", type=int, default=None,
@@ -116,11 +116,11 @@ def main(argv: list[str]) -> int:
     out = resolve_out(a.out, NAME)
     if a.like is not None:
         if a.velocities is not None or a.steps is not None:
-            raise ConfigError("--like takes the velocities and steps of its map: drop --velocities / --steps")
+            raise ConfigError("like= takes the velocities and steps of its map: drop velocities= / steps=")
         like = read_results(a.like, "fb_stability")["results"]
         a.velocities, a.steps, a.drift_limit_pct = like["velocities"], like["steps"], like["drift_limit_pct"]
     check_options(a.ckpt, a.labels, a.velocities, a.steps, a.drift_limit_pct, 0)
-    checks.positive_int("--n-velocities", a.n_velocities)
+    checks.positive_int("n_velocities", a.n_velocities)
     machine = machine_info()
     results = run(a.ckpt, a.labels, a.velocities, a.n_velocities, a.steps, a.dataset, a.drift_limit_pct)
     write_map(NAME, results, argv, out, machine)

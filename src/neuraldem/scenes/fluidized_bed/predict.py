@@ -1,10 +1,10 @@
 """The fluidized bed's what-if: `neuraldem predict fluidized_bed inlet_velocity=1.8 [verify=true]` (the
-`neuraldem.predict` command parses and dispatches; this module answers and prints).
+`neuraldem predict` command (`neuraldem.predict`) parses and dispatches; this module answers and prints).
 
 Three answers (`scenes/fluidized_bed/whatif.py`: mean bed height, mean bubble fraction, Lacey index after 1 s,
 over the training trajectories' 3 s): from the scalar GP with its 95 % interval, in milliseconds; from a
 rollout of the field model (a few seconds), which also gives the curves, an animation of the solid fraction and
-mixing, and ParaView files; with `--verify` from DPMFoam at the same velocity (minutes). Each model's errors on
+mixing, and ParaView files; with `verify=true` from DPMFoam at the same velocity (minutes). Each model's errors on
 its held-out CFD-DEM runs are printed beside CFD-DEM's own spread from another packing, so the user sees which
 answer to trust (results/fluidized_bed/README.md, "Whatif": on fb_small the GP is about as close as that spread,
 the field model 1.2 - 2.3x further).

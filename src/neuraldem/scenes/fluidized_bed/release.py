@@ -89,7 +89,7 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
     test = parts.get("test", [])
     duration = float(m.parameters["duration"])
     if not 0 < lacey_time <= duration:
-        raise DataError(f"--lacey-time {lacey_time:g} must lie in (0, {duration:g}] s, the trajectories' duration")
+        raise DataError(f"lacey_time={lacey_time:g} must lie in (0, {duration:g}] s, the trajectories' duration")
     folder = out_root / name
     folder.mkdir(parents=True, exist_ok=True)
     strip_checkpoint(ckpt, folder / "field.pt")
@@ -146,7 +146,7 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
                "answer_window": window.as_dict(), "scene": m.scene, "test_errors": test_errors, "probes": probes,
                "initial_states": [f"{i} ({v:.4g} m/s)" for i, v in zip(states.sim_ids, states.velocities,
                                                                          strict=True)]},
-        build_flags=f"--lacey-time {lacey_time:g}")
+        build_flags=f"lacey_time={lacey_time:g}")
     atomic_write_json(folder / "meta.json", info)
     return folder
 
@@ -205,10 +205,10 @@ def refresh_field_answers(folder: Path, progress: bool = True,
 
     path = folder / "meta.json"
     if not path.is_file():
-        raise DataError(f"{path} is missing: {folder} is not a shipped model (build it with --ckpt)")
+        raise DataError(f"{path} is missing: {folder} is not a shipped model (build it with ckpt=)")
     meta = json.loads(path.read_text())
     if meta.get("kind") != "fluidized_bed":
-        raise DataError(f"{path}: kind {meta.get('kind')!r}; --refresh-field is for fluidized-bed models")
+        raise DataError(f"{path}: kind {meta.get('kind')!r}; refresh_field= is for fluidized-bed models")
     field = folder / meta["files"]["field"]["file"]
     if rollout_options:
         from neuraldem.data.integrity import digest
@@ -216,7 +216,7 @@ def refresh_field_answers(folder: Path, progress: bool = True,
         meta["rollout_options"] = set_rollout_options(field, rollout_options)
         meta["files"]["field"].update(sha256=digest(field), bytes=field.stat().st_size)
         keys = " ".join(RolloutOptions(**meta["rollout_options"]).overrides())
-        kept = [c for c in meta.get("rebuild", []) if "--refresh-field" not in c and "refresh_field=" not in c]
+        kept = [c for c in meta.get("rebuild", []) if "refresh_field=" not in c and "--refresh-field" not in c]
         meta["rebuild"] = [*kept, f"neuraldem release fluidized_bed name={meta['name']} refresh_field=true {keys}"]
     module = read_checkpoint(field).module("fluidized_bed", "cpu", "refresh")
     states = InitialStates.load_npz(folder / meta["files"]["states"]["file"])

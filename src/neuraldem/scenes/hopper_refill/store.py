@@ -76,7 +76,7 @@ class RefillFile(ValidatedH5File, TrajectorySize):
         self.ids = self._field("particles/ids")[()]
         if "particles/insert_time" not in self.f:
             raise DataError(f"{self.path}: field /particles/insert_time is missing: a refill trajectory needs the "
-                            "insertion time of every particle; regenerate it with `python -m neuraldem.datagen "
+                            "insertion time of every particle; regenerate it with `neuraldem datagen "
                             "data=hopper_refill` (or write the field from the dump's f_tins column)")
         self.insert_times = self.f["particles/insert_time"][()].astype(np.float64)
         self.exit_times = self._field("particles/exit_time")[()].astype(np.float64)

@@ -1,4 +1,4 @@
-"""`python -m neuraldem.scenes.hopper_refill.table STUDY_DIR... --out FILE.md`: the refilling hopper's errors
+"""`neuraldem report refill-table folders=[STUDY_DIR,...] out=FILE.md`: the refilling hopper's errors
 against LIGGGHTS, model beside the persistence answer, one row per (run, evaluation).
 
 Finds every `evaluation*/metrics.json` of a refill checkpoint under the folders (`scripts/refill_study.sh`
@@ -37,7 +37,7 @@ def find_refill_results(folders: list[Path]) -> list[dict]:
     found = scan_results(folders, "evaluation*/metrics.json", keep=is_refill)
     if not found:
         raise DataError(f"no refill evaluation*/metrics.json under {[str(f) for f in folders]}: run "
-                        "scripts/refill_study.sh, or python -m neuraldem.evaluate on a refill checkpoint")
+                        "scripts/refill_study.sh, or neuraldem evaluate ckpt=... on a refill checkpoint")
     return found
 
 

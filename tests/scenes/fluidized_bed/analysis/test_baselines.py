@@ -62,15 +62,15 @@ def test_bad_input_names_the_fix(fb_tiny_dataset: Path, tmp_path: Path):
         evaluate_baselines(fb_tiny_dataset, tmp_path, baselines=("gp",))
     with pytest.raises(DataError, match="no finished val trajectories"):
         evaluate_baselines(fb_tiny_dataset, tmp_path, part="val")
-    with pytest.raises(DataError, match="--exclude sim_0002: not training trajectories"):
+    with pytest.raises(DataError, match=r"exclude=\[sim_0002\]: not training trajectories"):
         evaluate_baselines(fb_tiny_dataset, tmp_path, exclude=("sim_0002",))
-    with pytest.raises(DataError, match="--only sim_0000: not test trajectories"):
+    with pytest.raises(DataError, match=r"only=\[sim_0000\]: not test trajectories"):
         evaluate_baselines(fb_tiny_dataset, tmp_path, only=("sim_0000",))
 
 
 @pytest.mark.solver
 def test_only_scores_the_named_held_out_trajectories(fb_tiny_dataset: Path, tmp_path: Path):
-    """By default one trajectory per velocity (the first by id); --only sim_0001 scores the second packing."""
+    """By default one trajectory per velocity (the first by id); only=[sim_0001] scores the second packing."""
     docs = evaluate_baselines(fb_tiny_dataset, tmp_path, part="train", baselines=("constant",), only=("sim_0001",))
     assert [t["sim_id"] for t in docs["constant"]["trajectories"]] == ["sim_0001"]
 

@@ -124,9 +124,8 @@ def test_ground_truth_metrics_in_the_manifest(fb_tiny_dataset: Path):
 
 @pytest.mark.solver
 def test_report_command_writes_plots_and_json(fb_tiny_dataset: Path, tmp_path: Path):
-    proc = run_module("neuraldem.scenes.fluidized_bed.dataset.report", str(fb_tiny_dataset),
-                      "--out", str(tmp_path / "rep"),
-                      "--note", "test run")
+    proc = run_module("neuraldem", "report", "fb-dataset", f"dataset={fb_tiny_dataset}", f"out={tmp_path / 'rep'}",
+                      "note=test run")
     assert proc.returncode == 0, proc.stderr
     for name in ("curves.png", "time_averages.png", "solid_volume.png", "report.json"):
         assert (tmp_path / "rep" / name).stat().st_size > 0
@@ -137,8 +136,7 @@ def test_report_command_writes_plots_and_json(fb_tiny_dataset: Path, tmp_path: P
     s = rep["simulations"][0]["series"]
     assert len(s["time"]) == len(s["lacey_field"]) == len(s["bed_height"]) == 21
     assert rep["cost"]["cpu_s_per_simulated_s"]["median"] > 0
-    bad = run_module("neuraldem.scenes.fluidized_bed.dataset.report", str(tmp_path / "none"),
-                     "--out", str(tmp_path / "x"))
+    bad = run_module("neuraldem", "report", "fb-dataset", f"dataset={tmp_path / 'none'}", f"out={tmp_path / 'x'}")
     assert bad.returncode == 2 and "no fluidized-bed dataset" in bad.stderr and "Traceback" not in bad.stderr
 
 

@@ -57,20 +57,20 @@ def test_windows_drop_a_short_rest(fb_tiny_dataset: Path):
 
 def test_cli_writes_markdown_and_json_and_refuses_bad_input(fb_tiny_dataset: Path, tmp_path: Path, capsys):
     out = tmp_path / "floor.md"
-    assert main([str(fb_tiny_dataset), "--out", str(out), "--window", "5", "--sims", "sim_0000", "sim_0002"]) == 0
+    assert main([f"dataset={fb_tiny_dataset}", f"out={out}", "window=5", "sims=[sim_0000,sim_0002]"]) == 0
     saved = json.loads(out.with_suffix(".json").read_text())
     assert [r["sim_id"] for r in saved["trajectories"]] == ["sim_0000", "sim_0002"]
     assert "3 windows pooled" in out.read_text()
     with pytest.raises(DataError, match="no long trajectories"):  # fb_tiny has none
         measure(fb_tiny_dataset, window=5)
-    with pytest.raises(DataError, match="--sims sim_0099: not finished"):
+    with pytest.raises(DataError, match=r"sims=\[sim_0099\]: not finished"):
         measure(fb_tiny_dataset, window=5, sims=("sim_0099",))
-    with pytest.raises(DataError, match="fewer than --pool 9"):
+    with pytest.raises(DataError, match="fewer than pool=9"):
         measure(fb_tiny_dataset, window=5, pool=9, sims=("sim_0000",))
     with pytest.raises(SystemExit) as stop:
-        main([str(fb_tiny_dataset), "--out", str(out), "--window", "1", "--sims", "sim_0000"])
+        main([f"dataset={fb_tiny_dataset}", f"out={out}", "window=1", "sims=[sim_0000]"])
     err = capsys.readouterr().err
-    assert stop.value.code == 2 and "--window 1" in err and len(err.strip().splitlines()) == 1
+    assert stop.value.code == 2 and "window=1 / pool=3: need a window" in err and len(err.strip().splitlines()) == 1
 
 
 def test_a_long_validation_set_is_measured_with_its_tables_window(fb_tiny_dataset: Path, tmp_path: Path):
@@ -90,7 +90,7 @@ def test_a_long_validation_set_is_measured_with_its_tables_window(fb_tiny_datase
     m.save(ds)
     doc = measure(ds)
     assert doc["window"] == 5 and [r["sim_id"] for r in doc["trajectories"]] == ["sim_0002"]
-    m.parameters["n_velocities"] = 3  # a regular table without finished training runs still needs --window
+    m.parameters["n_velocities"] = 3  # a regular table without finished training runs still needs window=
     m.save(ds)
-    with pytest.raises(DataError, match="--window"):
+    with pytest.raises(DataError, match="give window=SNAPSHOTS"):
         measure(ds)

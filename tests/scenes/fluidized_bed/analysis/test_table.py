@@ -26,7 +26,7 @@ def test_one_row_per_run_and_per_velocity_with_stability(fb_tiny_checkpoint: Pat
             evaluate_checkpoint(fb_tiny_checkpoint, tmp_path / "runs" / name / "evaluation", fb_tiny_dataset.parent,
                                 horizons=[1, 3], vtk=False, progress=False, make_stepper=make)
     out = tmp_path / "table.md"
-    proc = run_module("neuraldem.scenes.fluidized_bed.analysis.table", str(tmp_path / "runs"), "--out", str(out))
+    proc = run_module("neuraldem", "report", "fb-table", f"folders=[{tmp_path / 'runs'}]", f"out={out}")
     assert proc.returncode == 0, proc.stderr
     rows = {line.split(" | ")[0].lstrip("| "): line for line in out.read_text().splitlines()
             if line.startswith("| steady | 2.042 (extrapolated)")}  # the per-velocity row
@@ -51,8 +51,9 @@ def test_folder_without_fluidized_bed_results_is_one_clear_line(tmp_path: Path):
     ev = tmp_path / "hopper_run" / "evaluation"
     ev.mkdir(parents=True)
     (ev / "metrics.json").write_text(json.dumps({"split": "random", "aggregate": {}}))
-    proc = run_module("neuraldem.scenes.fluidized_bed.analysis.table", str(tmp_path), "--out", str(tmp_path / "t.md"))
+    proc = run_module("neuraldem", "report", "fb-table", f"folders=[{tmp_path}]", f"out={tmp_path / 't.md'}")
     assert proc.returncode == 2 and "no fluidized-bed evaluation" in proc.stderr
+    assert "run neuraldem evaluate ckpt=..." in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
 
 
@@ -78,7 +79,7 @@ def test_long_trajectories_get_their_own_table_and_stay_out_of_the_summary(fb_ti
     result["stability"]["mirror_alternate"] = True
     (folder / "metrics.json").write_text(json.dumps(result))
     out = tmp_path / "table.md"
-    assert table_main([str(tmp_path / "runs"), "--out", str(out)]) == 0
+    assert table_main([f"folders=[{tmp_path / 'runs'}]", f"out={out}"]) == 0
     lines = out.read_text().splitlines()
     summary = next(line for line in lines if line.startswith("| ema_mirror | "))
     cells = [c.strip() for c in summary.strip("|").split("|")]

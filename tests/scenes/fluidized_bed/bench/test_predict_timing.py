@@ -18,11 +18,11 @@ def test_times_are_written_and_an_unverified_folder_is_refused(fb_tiny_pretraine
 
     monkeypatch.setenv("NEURALDEM_PRETRAINED_DIR", str(fb_tiny_pretrained))
     out = tmp_path / "whatif_fb.json"
-    assert main(["--model", "fb_tiny_test", "--repeats", "1", "--out", str(out)]) == 0
+    assert main(["model=fb_tiny_test", "repeats=1", f"out={out}"]) == 0
     result = json.loads(out.read_text())
     times = result["results"]["answer_times"]
     assert times["rollout_steps"] == 19 and times["field_in_process"]["median_wall_s"] > 0
-    assert "whatif_fb --model fb_tiny_test" in out.with_suffix(".md").read_text()
+    assert "neuraldem bench whatif_fb model=fb_tiny_test" in out.with_suffix(".md").read_text()
     folder = tmp_path / "unverified"
     predict_fb({"inlet_velocity": 1.5}, "fb_tiny_test", folder, fields=False, verify=False)
     with pytest.raises(DataError, match="has no finished DPMFoam check"):

@@ -67,12 +67,12 @@ def _check_rows(r: dict) -> None:
 
 
 def test_with_the_manifest_costs(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tmp_path: Path):
-    argv = ["fb-speed", "--ckpt", str(fb_tiny_checkpoint), "--dataset", str(fb_tiny_dataset), "--reuse-dataset",
-            "--repeats", "2", "--rollout-steps", "3", "--threads", "1", "2", "--out", str(tmp_path)]
+    argv = ["fb-speed", f"ckpt={fb_tiny_checkpoint}", f"dataset={fb_tiny_dataset}", "reuse_dataset=true",
+            "repeats=2", "rollout_steps=3", "threads=[1,2]", f"out={tmp_path}"]
     assert bench_main(argv) == 0
     data = json.loads((tmp_path / "fb_speed.json").read_text())  # --out as a folder
     assert data["benchmark"] == "fb_speed" and data["machine"]["cpu_count"] >= 1
-    assert data["command"].startswith("python -m neuraldem.bench fb_speed --ckpt")  # canonical name
+    assert data["command"].startswith("neuraldem bench fb_speed ckpt=")  # canonical name
     r = data["results"]
     assert r["sim_id"] == "sim_0002" and r["inlet_velocity"] == pytest.approx(2.041831)  # the test velocity
     assert r["extrapolation"] and r["n_particles"] == 300 and r["cells"] == [6, 1, 15]
@@ -160,15 +160,15 @@ def test_without_keep_runs_the_run_folders_go(fb_tiny_checkpoint: Path, fb_tiny_
 
 
 @pytest.mark.parametrize(("args", "message"), [
-    (["sim_seconds=0.015"], ("--sim-seconds=0.015 is invalid: must be a positive multiple of the "
+    (["sim_seconds=0.015"], ("sim_seconds=0.015 is invalid: must be a positive multiple of the "
                              "scene's snapshot interval 0.01 s")),
-    (["threads=0"], "config value --threads[0]=0 is invalid: must be a positive integer"),
-    (["repeats=0"], "config value --repeats=0 is invalid"),
-    (["rollout_steps=-2"], "config value --rollout-steps=-2 is invalid"),
+    (["threads=0"], "config value threads[0]=0 is invalid: must be a positive integer"),
+    (["repeats=0"], "config value repeats=0 is invalid"),
+    (["rollout_steps=-2"], "config value rollout_steps=-2 is invalid"),
     (["rollout.rollout_noise=-1"], "rollout.rollout_noise=-1 is invalid: must be a number in [0, 10]"),
     (["rollout.advection_correction=1"], "fb_speed: unknown option rollout.advection_correction=: the options are"),
     (["sim=sim_9999"], "simulation 'sim_9999' is not in the manifest of dataset 'fb_tiny'"),
-    (["out=speed.txt"], "--out=speed.txt is invalid: pass a .json file or a folder"),
+    (["out=speed.txt"], "out=speed.txt is invalid: pass a .json file or a folder"),
 ])
 def test_bad_values_fail_with_one_line(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tmp_path: Path,
                                        capsys: pytest.CaptureFixture, args, message):

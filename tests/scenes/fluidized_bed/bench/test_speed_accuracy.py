@@ -115,7 +115,7 @@ def test_solver_variants_parse_and_apply():
     assert fsa.SolverVariant.parse("dt:2").apply(scene).dt == pytest.approx(2e-4)
     assert fsa.SolverVariant.parse("substeps:0.5").apply(scene).collision_resolution_steps == 3
     for bad in ("dt", "dt:-1", "dt:x", "speed:2"):
-        with pytest.raises(ConfigError, match="--solver-variants"):
+        with pytest.raises(ConfigError, match="solver_variants="):
             fsa.SolverVariant.parse(bad)
     with pytest.raises(ConfigError, match="does not divide the snapshot interval"):
         fsa.SolverVariant.parse("dt:3").apply(scene)  # 3e-4 s does not divide 0.01 s
@@ -134,8 +134,8 @@ def test_chart_on_real_data(fb_tiny_checkpoint: Path, packings_as_test: Path, tm
     evaluation = evaluate_checkpoint(fb_tiny_checkpoint, run / "evaluation", packings_as_test.parent,
                                      dataset_dir=packings_as_test, horizons=[1], vtk=False, progress=False)
     out = tmp_path / "chart.json"
-    assert fsa.main(["--runs", str(tmp_path / "runs"), "--dataset", str(packings_as_test), "--skip-solver",
-                     "--steps", "3", "--repeats", "1", "--out", str(out)]) == 0
+    assert fsa.main([f"runs=[{tmp_path / 'runs'}]", f"dataset={packings_as_test}", "skip_solver=true", "steps=3",
+                     "repeats=1", f"out={out}"]) == 0
     results = json.loads(out.read_text())["results"]
     assert results["reference_sims"] == ["sim_0000"]  # one per test velocity: the first by id
     surrogate, packing = results["points"]
@@ -178,9 +178,9 @@ def test_dpmfoam_at_the_reference_settings_reproduces_the_reference(packings_as_
 def test_bad_inputs_say_what_to_do(tmp_path: Path, capsys: pytest.CaptureFixture):
     from neuraldem.bench.__main__ import main
 
-    assert main(["fb_speed_accuracy", "--runs", str(tmp_path)]) == 2
+    assert main(["fb_speed_accuracy", f"runs=[{tmp_path}]"]) == 2
     assert "no evaluation/metrics.json" in capsys.readouterr().err
-    assert main(["fb_speed_accuracy", "--runs", str(tmp_path), "--solver-variants", "dt:0"]) == 2
-    assert "--solver-variants" in capsys.readouterr().err
-    assert main(["fb_speed_accuracy", "--runs", str(tmp_path), "--steps", "0"]) == 2
-    assert "--steps" in capsys.readouterr().err
+    assert main(["fb_speed_accuracy", f"runs=[{tmp_path}]", "solver_variants=[dt:0]"]) == 2
+    assert "solver_variants=" in capsys.readouterr().err
+    assert main(["fb_speed_accuracy", f"runs=[{tmp_path}]", "steps=0"]) == 2
+    assert "steps=0" in capsys.readouterr().err

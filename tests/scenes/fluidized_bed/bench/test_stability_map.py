@@ -33,11 +33,11 @@ def test_a_velocity_step_scans_the_trained_range_only():
 def test_map_of_two_checkpoints(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path, tmp_path: Path):
     """The same checkpoint twice stands in for a model and its ablation: two series, same velocities."""
     out = tmp_path / "map.json"
-    argv = ["fb-stability", "--ckpt", str(fb_tiny_checkpoint), str(fb_tiny_checkpoint), "--labels", "model",
-            "no noise", "--n-velocities", "3", "--steps", "3", "--dataset", str(fb_tiny_dataset), "--out", str(out)]
+    argv = ["fb-stability", f"ckpt=[{fb_tiny_checkpoint},{fb_tiny_checkpoint}]", "labels=[model,no noise]",
+            "n_velocities=3", "steps=3", f"dataset={fb_tiny_dataset}", f"out={out}"]
     assert bench_main(argv) == 0
     data = json.loads(out.read_text())
-    assert data["benchmark"] == "fb_stability" and data["command"].startswith("python -m neuraldem.bench fb_stability")
+    assert data["benchmark"] == "fb_stability" and data["command"].startswith("neuraldem bench fb_stability")
     r = data["results"]
     v = TRAINED_VELOCITY
     assert r["velocities"] == [round(0.8 * v, 6), v, round(1.2 * v, 6)] and r["steps"] == 3
@@ -178,19 +178,19 @@ def test_a_bed_off_cfd_dem_fails_inside_the_trained_range_only(fb_tiny_checkpoin
 
 
 @pytest.mark.parametrize(("args", "message"), [
-    (["steps=0"], "config value --steps=0 is invalid: must be a positive integer"),
-    (["labels=[a,b]"], "--labels: 2 label(s) for 1 checkpoint(s)"),
-    (["velocities=[1.2,0]"], "config value --velocities[1]=0.0 is invalid: must be > 0.0"),
-    (["drift_limit_pct=0"], "config value --drift-limit-pct=0.0 is invalid: must be > 0.0"),
-    (["n_velocities=0"], "config value --n-velocities=0 is invalid"),
-    (["bed_limit_pct=-5"], "config value --bed-limit-pct=-5.0 is invalid: must be > 0.0"),
-    (["settle_steps=-1"], "config value --settle-steps=-1 is invalid"),
-    (["velocity_step=0"], "config value --velocity-step=0.0 is invalid: must be > 0.0"),
-    (["velocity_step=0.01", "velocities=[1.2]"], "--velocity-step and --velocities both given"),
+    (["steps=0"], "config value steps=0 is invalid: must be a positive integer"),
+    (["labels=[a,b]"], "labels=: 2 label(s) for 1 checkpoint(s)"),
+    (["velocities=[1.2,0]"], "config value velocities[1]=0.0 is invalid: must be > 0.0"),
+    (["drift_limit_pct=0"], "config value drift_limit_pct=0.0 is invalid: must be > 0.0"),
+    (["n_velocities=0"], "config value n_velocities=0 is invalid"),
+    (["bed_limit_pct=-5"], "config value bed_limit_pct=-5.0 is invalid: must be > 0.0"),
+    (["settle_steps=-1"], "config value settle_steps=-1 is invalid"),
+    (["velocity_step=0"], "config value velocity_step=0.0 is invalid: must be > 0.0"),
+    (["velocity_step=0.01", "velocities=[1.2]"], "velocity_step= and velocities= both given"),
     (["rollout.rollout_noise=-1"], "rollout.rollout_noise=-1 is invalid: must be a number in [0, 10]"),
     (["rollout.advection_correction=2"], "rollout.advection_correction=2 is invalid: must be a number in [0, 1]"),
     (["rollout.mixing=stir"], "rollout.mixing=stir is invalid: must be one of absolute, advect"),
-    (["out=map.csv"], "--out=map.csv is invalid: pass a .json file or a folder"),
+    (["out=map.csv"], "out=map.csv is invalid: pass a .json file or a folder"),
 ])
 def test_bad_values_fail_with_one_line(fb_tiny_checkpoint: Path, tmp_path: Path, capsys: pytest.CaptureFixture,
                                        args, message):

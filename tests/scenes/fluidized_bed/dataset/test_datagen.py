@@ -1,4 +1,4 @@
-"""`python -m neuraldem.datagen data=fb_tiny` with the real DPMFoam: resume after a kill (mid-trajectory),
+"""`neuraldem datagen data=fb_tiny` with the real DPMFoam: resume after a kill (mid-trajectory),
 a crashed case recorded and excluded while the job goes on, OpenFOAM missing, bad values in one line, the
 parameter table and the by-velocity split."""
 
@@ -25,7 +25,7 @@ FAST = ["data=fb_tiny", "progress=false"]
 
 
 def datagen(root: Path, *args: str, env: dict[str, str] | None = None):
-    return run_module("neuraldem.datagen", *FAST, *args, env={"NEURALDEM_DATA": str(root), **(env or {})})
+    return run_module("neuraldem", "datagen", *FAST, *args, env={"NEURALDEM_DATA": str(root), **(env or {})})
 
 
 def manifest(root: Path) -> Manifest:
@@ -117,7 +117,7 @@ def test_openfoam_missing_or_environment_broken(tmp_path: Path):
 @pytest.mark.solver
 def test_kill_mid_trajectory_and_resume(tmp_path: Path):
     env = dict(os.environ, NEURALDEM_DATA=str(tmp_path))
-    proc = subprocess.Popen([sys.executable, "-m", "neuraldem.datagen", *FAST, "n_sims=1"], cwd=REPO, env=env,
+    proc = subprocess.Popen([sys.executable, "-m", "neuraldem", "datagen", *FAST, "n_sims=1"], cwd=REPO, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     ds = tmp_path / "datasets" / "fb_tiny"
     deadline = time.time() + 300

@@ -24,9 +24,8 @@ def _finite(metrics: dict[str, float]) -> dict[str, float]:
 
 
 def _import(case: Path, dataset: Path, *extra: str):
-    return run_module("neuraldem.scenes.fluidized_bed.dataset.importer",
-                      "--case", str(case), "--dataset", str(dataset), "--sim-id", "mine",
-                      "--inlet-velocity", "1.5", "--t0", "0.05", "--lacey-block", "1", "1", "2", *extra)
+    return run_module("neuraldem", "import", "foam", f"case={case}", f"dataset={dataset}", "sim_id=mine",
+                      "inlet_velocity=1.5", "t0=0.05", "lacey_block=[1,1,2]", *extra)
 
 
 def test_import_matches_datagen_conversion(fb_tiny_dataset: Path, fb_tiny_case: Path, tmp_path: Path):
@@ -40,7 +39,7 @@ def test_import_matches_datagen_conversion(fb_tiny_dataset: Path, fb_tiny_case: 
         for name in ("position", "displacement", "solid_fraction", "mixing", "fluid_velocity", "pressure"):
             np.testing.assert_array_equal(a._ds[name][()], b._ds[name][()])
         assert a.inlet_velocity == 1.5 and a.density == 2526.0
-    again = _import(fb_tiny_case, tmp_path / "ds", "--param", "packing=1")  # same id: replaced, not added
+    again = _import(fb_tiny_case, tmp_path / "ds", "param=[packing=1]")  # same id: replaced, not added
     assert again.returncode == 0, again.stderr
     m = Manifest.load(tmp_path / "ds")
     assert len(m.simulations) == 1 and m.record("mine").params["packing"] == 1.0
@@ -67,11 +66,9 @@ def test_cfdem_style_case_with_liggghts_dump(fb_tiny_case: Path, tmp_path: Path)
                       "ITEM: BOX BOUNDS ff ff ff\n0 0.024\n0 0.006\n0 0.06\n"
                       f"ITEM: ATOMS id x y z vx vy vz radius\n{rows}")
     (tmp_path / "dump.liggghts").write_text("".join(frames))
-    proc = run_module("neuraldem.scenes.fluidized_bed.dataset.importer",
-                      "--case", str(case), "--dataset", str(tmp_path / "ds"), "--sim-id",
-                      "cfdem", "--inlet-velocity", "1.5", "--t0", "0.05", "--fluid-fraction", "voidfraction",
-                      "--fluid-velocity", "U", "--liggghts-dump", str(tmp_path / "dump.liggghts"), "--dem-dt",
-                      str(dem_dt), "--lacey-block", "1", "1", "2")
+    proc = run_module("neuraldem", "import", "foam", f"case={case}", f"dataset={tmp_path / 'ds'}", "sim_id=cfdem",
+                      "inlet_velocity=1.5", "t0=0.05", "fluid_fraction=voidfraction", "fluid_velocity=U",
+                      f"liggghts_dump={tmp_path / 'dump.liggghts'}", f"dem_dt={dem_dt}", "lacey_block=[1,1,2]")
     assert proc.returncode == 0, proc.stderr
     direct = _import(fb_tiny_case, tmp_path / "ref")
     assert direct.returncode == 0, direct.stderr
@@ -87,7 +84,7 @@ def test_missing_cell_centres_are_written(fb_tiny_case: Path, tmp_path: Path):
     shutil.copytree(fb_tiny_case, case)
     for name in ("C", "Cx", "Cy", "Cz"):
         (case / "0" / name).unlink(missing_ok=True)
-    proc = _import(case, tmp_path / "ds", "--snapshots", "3")
+    proc = _import(case, tmp_path / "ds", "snapshots=3")
     assert proc.returncode == 0, proc.stderr
     assert (case / "0" / "C").is_file() and "3 snapshots" in proc.stdout
 
@@ -100,10 +97,10 @@ def test_damaged_or_wrong_cases_end_in_one_line(fb_tiny_case: Path, tmp_path: Pa
     proc = _import(case, tmp_path / "ds")
     assert proc.returncode == 2 and str(alpha) in proc.stderr and "truncated" in proc.stderr
     assert "Traceback" not in proc.stderr
-    wrong_cloud = _import(fb_tiny_case, tmp_path / "ds", "--cloud", "sprayCloud")
-    assert wrong_cloud.returncode == 2 and "is --cloud right?" in wrong_cloud.stderr
-    bad = _import(fb_tiny_case, tmp_path / "ds", "--dt-ml", "-1")
-    assert bad.returncode == 2 and "--dt-ml must be positive" in bad.stderr
+    wrong_cloud = _import(fb_tiny_case, tmp_path / "ds", "cloud=sprayCloud")
+    assert wrong_cloud.returncode == 2 and "is cloud= right?" in wrong_cloud.stderr
+    bad = _import(fb_tiny_case, tmp_path / "ds", "dt_ml=-1")
+    assert bad.returncode == 2 and "dt_ml= must be positive" in bad.stderr
     assert not (tmp_path / "ds" / "manifest.json").exists()
 
 
@@ -118,9 +115,9 @@ def test_a_bed_checkpoint_rolls_out_on_imported_cases_of_its_scene(fb_tiny_case:
     result = json.loads((tmp_path / "eval" / "metrics.json").read_text())
     assert result["split"] == "imported (every run)" and [t["sim_id"] for t in result["trajectories"]] == ["mine"]
     # particles of another density: another bed, refused naming the key (and a second case cannot join)
-    assert _import(fb_tiny_case, tmp_path / "other", "--density", "3000").returncode == 0
+    assert _import(fb_tiny_case, tmp_path / "other", "density=3000").returncode == 0
     proc = run_module("neuraldem", "evaluate", f"ckpt={fb_tiny_checkpoint}", f"dataset_dir={tmp_path / 'other'}",
                       "vtk=false", f"hydra.run.dir={tmp_path / 'eval2'}")
     assert proc.returncode == 2 and "fluidized_bed.density: trained 2526.0, imported 3000.0" in proc.stderr
-    proc = _import(fb_tiny_case, tmp_path / "ds", "--density", "3000")
+    proc = _import(fb_tiny_case, tmp_path / "ds", "density=3000")
     assert proc.returncode == 2 and "holds imported runs of another bed" in proc.stderr

@@ -25,11 +25,11 @@ def bed_engine(fb_tiny_pretrained: Path):
         return BedEngine(pretrained.load(FB_TINY, "fluidized_bed"), lattice=3)
 
 
-def predict_fb_json(capsys, tmp_path: Path, velocity: float, *flags: str) -> dict:
+def predict_fb_json(capsys, tmp_path: Path, velocity: float, *options: str) -> dict:
     from neuraldem import predict
 
-    assert predict.main(["fb", f"inlet_velocity={velocity:g}", "--model", FB_TINY, "--json", "--out",
-                         str(tmp_path), *flags]) == 0
+    assert predict.main(["fluidized_bed", f"inlet_velocity={velocity:g}", f"model={FB_TINY}", "json=true",
+                         f"out={tmp_path}", *options]) == 0
     return json.loads(capsys.readouterr().out)
 
 

@@ -1,7 +1,7 @@
-"""The bed page end to end: `neuraldem serve --page bed` on a free localhost port with the tiny bed model, in a
-real headless Chromium driven with the keyboard. A slider move changes the numbers to `neuraldem predict fb`'s
-for the new velocity (GP at once, the field model's when the exact rollout is done), the fields show the
-nearest ready rollout at once and then the exact one; typed values beyond the solver's limits are clamped with
+"""The bed page end to end: `neuraldem serve page=bed` on a free localhost port with the tiny bed model, in a
+real headless Chromium driven with the keyboard. A slider move changes the numbers to `neuraldem predict
+fluidized_bed`'s for the new velocity (GP at once, the field model's when the exact rollout is done), the fields
+show the nearest ready rollout at once and then the exact one; typed values beyond the solver's limits are clamped with
 a visible note; the time slider moves the fields. Screenshots go to each test's tmp_path."""
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ def bed(fb_tiny_pretrained: Path):
     from neuraldem.serve.browser import ServerProcess, start_chromium
 
     env = {"NEURALDEM_PRETRAINED_DIR": str(fb_tiny_pretrained)}
-    with ServerProcess(["--model", FB_TINY, "--page", "bed"], env=env) as server:
+    with ServerProcess([f"model={FB_TINY}", "page=bed"], env=env) as server:
         driver = start_chromium()
         try:
             yield BedBrowser(driver, page_url(server.url), timeout=90)

@@ -135,7 +135,7 @@ def test_refusals_name_the_fix(tmp_path: Path, capsys):
     assert exit_.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "rollout.rollout_noise=-1 is invalid: must be a number in [0, 10]" in err[0], err
-    with pytest.raises(ConfigError, match="--seeds"):
+    with pytest.raises(ConfigError, match="seeds="):
         select(run, seeds=())
     with pytest.raises(SystemExit) as exit_:  # the CLI reports it in one line instead of a traceback
         main([f"run_dir={run}"])

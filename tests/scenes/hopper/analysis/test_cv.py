@@ -15,8 +15,7 @@ pytestmark = pytest.mark.solver
 
 def test_baselines_on_every_fold(hopper_tiny_dataset: Path, tmp_path: Path):
     out = tmp_path / "table.md"
-    assert hopper_cv.main(["--dataset", str(hopper_tiny_dataset), "--n-folds", "2", "--splits", "random",
-                           "--out", str(out)]) == 0
+    assert hopper_cv.main([f"dataset={hopper_tiny_dataset}", "n_folds=2", "splits=[random]", f"out={out}"]) == 0
     result = json.loads(out.with_suffix(".json").read_text())
     folds = [f for f in result["folds"] if f["row"] == "micro"]
     assert len(folds) == 2
@@ -41,8 +40,8 @@ def test_field_model_fold_is_scored_beside_baselines_fitted_on_its_runs(hopper_t
     evaluate_checkpoint(ckpt, run / "evaluation", tmp_path, dataset_dir=hopper_tiny_dataset, vtk=False,
                         progress=False)
     out = tmp_path / "table.md"
-    hopper_cv.main([str(tmp_path / "grid"), "--dataset", str(hopper_tiny_dataset), "--n-folds", "2",
-                    "--splits", "random", "--out", str(out)])
+    hopper_cv.main([f"grids=[{tmp_path / 'grid'}]", f"dataset={hopper_tiny_dataset}", "n_folds=2", "splits=[random]",
+                    f"out={out}"])
     result = json.loads(out.with_suffix(".json").read_text())
     fold = next(f for f in result["folds"] if f["row"] == "micro" and f["fold"] == 1)
     assert fold["test_ids"] == dm.split_ids["test"]
@@ -56,7 +55,7 @@ def test_field_model_fold_is_scored_beside_baselines_fitted_on_its_runs(hopper_t
 def test_too_few_runs_for_five_folds_is_one_line(hopper_tiny_dataset: Path, tmp_path: Path,
                                                  capsys: pytest.CaptureFixture[str]):
     with pytest.raises(SystemExit) as exit_info:
-        hopper_cv.main(["--dataset", str(hopper_tiny_dataset), "--out", str(tmp_path / "t.md")])
+        hopper_cv.main([f"dataset={hopper_tiny_dataset}", f"out={tmp_path / 't.md'}"])
     assert exit_info.value.code == 2
     err = capsys.readouterr().err.strip()
-    assert "too few for 5-fold" in err and "datagen" in err and "\n" not in err
+    assert "too few for 5-fold" in err and "generate more with neuraldem datagen" in err and "\n" not in err

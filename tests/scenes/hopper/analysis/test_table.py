@@ -24,7 +24,7 @@ def test_rows_ordered_like_the_paper_and_split_by_split(tmp_path: Path):
     _write(tmp_path / "1", "random", ["t", "alpha", "mu_s", "mu_r"], 0.2)
     _write(tmp_path / "2", "band", ["t", "alpha", "mu_s", "mu_r"], 0.9)
     out = tmp_path / "table.md"
-    proc = run_module("neuraldem.scenes.hopper.analysis.table", str(tmp_path), "--out", str(out))
+    proc = run_module("neuraldem", "report", "hopper-table", f"folders=[{tmp_path}]", f"out={out}")
     assert proc.returncode == 0, proc.stderr
     text = out.read_text()
     assert text.index("split: band") < text.index("split: random")
@@ -34,5 +34,6 @@ def test_rows_ordered_like_the_paper_and_split_by_split(tmp_path: Path):
 
 
 def test_nothing_found_is_one_clear_line(tmp_path: Path):
-    proc = run_module("neuraldem.scenes.hopper.analysis.table", str(tmp_path), "--out", str(tmp_path / "t.md"))
+    proc = run_module("neuraldem", "report", "hopper-table", f"folders=[{tmp_path}]", f"out={tmp_path / 't.md'}")
     assert proc.returncode == 2 and "no evaluation/metrics.json" in proc.stderr
+    assert proc.stderr.startswith("neuraldem: error: ") and proc.stderr.count("\n") == 1, proc.stderr

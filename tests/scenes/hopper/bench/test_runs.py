@@ -44,7 +44,7 @@ def test_run_folder_without_metrics(evaluated_runs: Path, tmp_path: Path):
     (root / "training" / "checkpoints").mkdir(parents=True)
     assert run_folders([root]) == ([root / "done"], [root / "training"])
     with pytest.raises(DataError, match=r"1 run folder\(s\) without evaluation/metrics.json .*training.*"
-                                        r"neuraldem.evaluate ckpt=.*--skip-unevaluated"):
+                                        r"neuraldem evaluate ckpt=.*skip_unevaluated=true"):
         collect_runs([root])
     runs, notes = collect_runs([root], skip_unevaluated=True)
     assert [r.label for r in runs] == ["done"] and "not evaluated" in notes[0]

@@ -46,10 +46,9 @@ def test_surrogate_sweep_on_a_fake_clock(monkeypatch: pytest.MonkeyPatch):
 @pytest.mark.solver
 def test_tiny_real_sweep(hopper_tiny_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture):
     out = tmp_path / "scaling.json"
-    argv = ["hopper_scaling", "--dataset", str(hopper_tiny_dataset), "--particles", "150", "300", "--steps", "100",
-            "--full-up-to", "150", "--model", "hopper_tiny", "--queries", "50", "100", "--tokens", "4", "8",
-            "--token-queries", "50", "--n-times", "3", "--repeats", "1", "--workdir", str(tmp_path / "w"),
-            "--out", str(out)]
+    argv = ["hopper_scaling", f"dataset={hopper_tiny_dataset}", "particles=[150,300]", "steps=100", "full_up_to=150",
+            "model=hopper_tiny", "queries=[50,100]", "tokens=[4,8]", "token_queries=50", "n_times=3", "repeats=1",
+            f"workdir={tmp_path / 'w'}", f"out={out}"]
     assert bench_main(argv) == 0
     r = json.loads(out.read_text())["results"]
     small, large = r["solver"]["points"]
@@ -65,12 +64,12 @@ def test_tiny_real_sweep(hopper_tiny_dataset: Path, tmp_path: Path, capsys: pyte
 
 
 def test_bad_options_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture):
-    base = ["hopper_scaling", "--skip-solver", "--model", "hopper_tiny", "--out", str(tmp_path / "x.json")]
-    assert bench_main([*base, "--drain-time", "3"]) == 2
-    assert "--remaining-fraction" in capsys.readouterr().err
-    assert bench_main([*base, "--param", "gamma=1"]) == 2
-    assert "gamma" in capsys.readouterr().err
-    assert bench_main([*base, "--queries", "0"]) == 2
-    assert "queries" in capsys.readouterr().err
-    assert bench_main([*base, "--reuse-solver", str(tmp_path / "missing.json")]) == 2
+    base = ["hopper_scaling", "skip_solver=true", "model=hopper_tiny", f"out={tmp_path / 'x.json'}"]
+    assert bench_main([*base, "drain_time=3"]) == 2
+    assert "drain_time= and remaining_fraction= go together" in capsys.readouterr().err
+    assert bench_main([*base, "param=[gamma=1]"]) == 2
+    assert "config value param='gamma' is invalid" in capsys.readouterr().err
+    assert bench_main([*base, "queries=[0]"]) == 2
+    assert "config value queries=0 is invalid" in capsys.readouterr().err
+    assert bench_main([*base, f"reuse_solver={tmp_path / 'missing.json'}"]) == 2
     assert "no results at" in capsys.readouterr().err

@@ -51,27 +51,26 @@ def test_rerun_seeds_differ_from_stored_runs():
     assert not stored & reruns and max(reruns) < 2**31 - 1
 
 
-@pytest.mark.parametrize("args, message", [(["--seeds", "0"], "--seeds=0 is invalid"),
-                                           (["--n-sets", "0"], "--n-sets=0 is invalid"),
-                                           (["--n-sets", "99"], "fewer than --n-sets 99: pass --n-sets")])
+@pytest.mark.parametrize("args, message", [(["seeds=0"], "config value seeds=0 is invalid"),
+                                           (["n_sets=0"], "config value n_sets=0 is invalid"),
+                                           (["n_sets=99"], "fewer than n_sets=99: pass n_sets=8 or less")])
 def test_bad_options_are_one_line_errors(hopper_tiny_dataset: Path, tmp_path: Path, capsys, args, message):
-    argv = ["seed_floor", "--dataset", str(hopper_tiny_dataset), "--workdir", str(tmp_path), *args]
+    argv = ["seed_floor", f"dataset={hopper_tiny_dataset}", f"workdir={tmp_path}", *args]
     assert bench_main(argv) == 2
-    errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
-    assert len(errors) == 1 and message in errors[0]
+    err = capsys.readouterr().err
+    assert err.startswith("neuraldem: error: ") and err.count("\n") == 1 and message in err, err
 
 
 def test_a_cache_of_other_runs_is_refused(hopper_tiny_dataset: Path, tmp_path: Path, capsys):
     (tmp_path / "reruns.json").write_text(json.dumps({"header": {"version": 1, "seed_offset": 7}, "runs": {}}))
-    argv = ["seed_floor", "--dataset", str(hopper_tiny_dataset), "--n-sets", "1", "--workdir", str(tmp_path)]
+    argv = ["seed_floor", f"dataset={hopper_tiny_dataset}", "n_sets=1", f"workdir={tmp_path}"]
     assert bench_main(argv) == 2
     assert "reruns.json holds reruns made with another scene, seed_offset: delete it" in capsys.readouterr().err
 
 
 def test_reruns_scored_and_cached(hopper_tiny_dataset: Path, tmp_path: Path, monkeypatch, capsys):
     out, work = tmp_path / "seed_floor.json", tmp_path / "work"
-    argv = ["seed_floor", "--dataset", str(hopper_tiny_dataset), "--n-sets", "2", "--seeds", "1",
-            "--workdir", str(work), "--out", str(out)]
+    argv = ["seed_floor", f"dataset={hopper_tiny_dataset}", "n_sets=2", "seeds=1", f"workdir={work}", f"out={out}"]
     assert bench_main(argv) == 0
     payload = json.loads(out.read_text())
     r = payload["results"]
@@ -93,7 +92,7 @@ def test_reruns_scored_and_cached(hopper_tiny_dataset: Path, tmp_path: Path, mon
 
     monkeypatch.setattr(seed_floor, "run_scene", no_solver)
     out2 = tmp_path / "again.json"
-    assert bench_main(argv[:-1] + [str(out2)]) == 0
+    assert bench_main([*argv[:-1], f"out={out2}"]) == 0
     assert json.loads(out2.read_text())["results"]["seed_spread"] == r["seed_spread"]
 
     # new metric settings: the stored reruns are rescored from their files, still without the solver
@@ -101,7 +100,7 @@ def test_reruns_scored_and_cached(hopper_tiny_dataset: Path, tmp_path: Path, mon
     cache["header"]["metric_settings"]["tail_time"] = 0.5
     (work / "reruns.json").write_text(json.dumps(cache))
     assert all((work / row["file"]).is_file() for row in cache["runs"].values())
-    assert bench_main(argv[:-1] + [str(tmp_path / "third.json")]) == 0
+    assert bench_main([*argv[:-1], f"out={tmp_path / 'third.json'}"]) == 0
     header = json.loads((work / "reruns.json").read_text())["header"]
     assert header["metric_settings"]["tail_time"] == 1.0  # rescored with the dataset's settings
 

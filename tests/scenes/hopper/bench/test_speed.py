@@ -41,11 +41,11 @@ def test_ratios_from_known_timings(monkeypatch: pytest.MonkeyPatch):
 
 def test_reuse_dataset_takes_the_recorded_cost(tiny_checkpoint: Path, hopper_tiny_dataset: Path, tmp_path: Path):
     out = tmp_path / "speed.json"
-    argv = ["hopper_speed", "--ckpt", str(tiny_checkpoint), "--dataset", str(hopper_tiny_dataset), "--reuse-dataset",
-            "--repeats", "1", "--reduced-queries", "25", "--time-grid", "solver", "--out", str(out)]
+    argv = ["hopper_speed", f"ckpt={tiny_checkpoint}", f"dataset={hopper_tiny_dataset}", "reuse_dataset=true",
+            "repeats=1", "reduced_queries=25", "time_grid=solver", f"out={out}"]
     assert bench_main(argv) == 0
     data = json.loads(out.read_text())
-    assert data["command"].startswith("python -m neuraldem.bench hopper_speed --ckpt")
+    assert data["command"].startswith("neuraldem bench hopper_speed ckpt=")
     r = data["results"]
     sim = r["solver_simulation"]
     assert sim["source"].startswith("dataset manifest") and "not re-run" in sim["source"]
@@ -58,7 +58,7 @@ def test_reuse_dataset_takes_the_recorded_cost(tiny_checkpoint: Path, hopper_tin
         assert row["speedup_cpu"] == pytest.approx(row["solver_cpu_s"] / row["surrogate_cpu_s"])
         assert row["solver_cpu_s"] > sim["median_cpu_s"]  # simulation + post-processing
     assert r["details"]["25 query points"]["question"]["n_points"] == 25
-    # --time-grid solver: the surrogate answers at exactly the stored run's snapshot times
+    # time_grid=solver: the surrogate answers at exactly the stored run's snapshot times
     assert r["details"]["25 query points"]["question"]["n_times"] == r["solver_trajectory"]["n_snapshots"]
     assert "LIGGGHTS serial" in out.with_suffix(".md").read_text()
 
@@ -66,25 +66,24 @@ def test_reuse_dataset_takes_the_recorded_cost(tiny_checkpoint: Path, hopper_tin
 @pytest.mark.solver
 def test_measured_solver_run(tiny_checkpoint: Path, hopper_tiny_dataset: Path, tmp_path: Path):
     out = tmp_path / "speed.json"
-    argv = ["hopper_speed", "--ckpt", str(tiny_checkpoint), "--dataset", str(hopper_tiny_dataset),
-            "--solver-repeats", "1", "--repeats", "1", "--reduced-queries", "25", "--workdir", str(tmp_path / "w"),
-            "--out", str(out)]
+    argv = ["hopper_speed", f"ckpt={tiny_checkpoint}", f"dataset={hopper_tiny_dataset}", "solver_repeats=1",
+            "repeats=1", "reduced_queries=25", f"workdir={tmp_path / 'w'}", f"out={out}"]
     assert bench_main(argv) == 0
     r = json.loads(out.read_text())["results"]
     assert r["solver_simulation"]["source"] == "measured" and r["solver_simulation"]["repeats"] == 1
     assert r["solver_simulation"]["median_cpu_s"] > 0
     assert r["solver_trajectory"]["n_particles"] == 500
-    assert not any((tmp_path / "w").iterdir())  # run folders removed unless --keep-runs
+    assert not any((tmp_path / "w").iterdir())  # run folders removed unless keep_runs=true
 
 
 def test_bad_inputs_are_one_line(tiny_checkpoint: Path, tmp_path: Path, capsys: pytest.CaptureFixture):
     fb = tmp_path / "fb.ckpt"
     torch.save({"hyper_parameters": {"metadata": {"kind": "fluidized_bed", "data_name": "fb_tiny"}}}, fb)
-    assert bench_main(["hopper_speed", "--ckpt", str(fb), "--out", str(tmp_path / "x.json")]) == 2
+    assert bench_main(["hopper_speed", f"ckpt={fb}", f"out={tmp_path / 'x.json'}"]) == 2
     assert "needs a hopper model" in capsys.readouterr().err
-    assert bench_main(["hopper_speed", "--ckpt", str(tiny_checkpoint), "--dataset", str(tmp_path / "none"),
-                       "--reuse-dataset", "--out", str(tmp_path / "x.json")]) == 2
+    assert bench_main(["hopper_speed", f"ckpt={tiny_checkpoint}", f"dataset={tmp_path / 'none'}",
+                       "reuse_dataset=true", f"out={tmp_path / 'x.json'}"]) == 2
     assert "no dataset at" in capsys.readouterr().err
-    assert bench_main(["hopper_speed", "--ckpt", str(tiny_checkpoint), "--threads", "0"]) == 2
-    assert "threads" in capsys.readouterr().err
+    assert bench_main(["hopper_speed", f"ckpt={tiny_checkpoint}", "threads=0"]) == 2
+    assert "config value threads=0 is invalid" in capsys.readouterr().err
     assert not (tmp_path / "x.json").exists()

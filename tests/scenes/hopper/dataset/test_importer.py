@@ -33,14 +33,14 @@ def liggghts_run(tmp_path_factory):
     return workdir, res, open_step
 
 
-def _import(workdir: Path, dataset: Path, res, open_step: int, *extra: str):
+def _import(workdir: Path, dataset: Path, res, open_step: int, **changed: str):
+    """`neuraldem import liggghts` of the run; `changed` replaces or adds options (each key is given once)."""
     g = res.trajectory.geometry
-    return run_module("neuraldem.scenes.hopper.dataset.importer", "--dump", str(workdir / "dump.txt"), "--exits",
-                      str(workdir / "exits.txt"), "--dataset", str(dataset), "--sim-id", "mine", "--dt", "1e-4",
-                      "--open-step", str(open_step), "--diameter", "0.01", "--radius", str(g.radius),
-                      "--outlet-radius", str(g.outlet_radius), "--cone-height", str(g.cone_height),
-                      "--sink-z", str(g.sink_z), "--param", "alpha=40", "--param", "mu_s=0.4",
-                      "--param", "mu_r=0.1", *extra)
+    options = {"dump": workdir / "dump.txt", "exits": workdir / "exits.txt", "dataset": dataset, "sim_id": "mine",
+               "dt": "1e-4", "open_step": open_step, "diameter": "0.01", "radius": g.radius,
+               "outlet_radius": g.outlet_radius, "cone_height": g.cone_height, "sink_z": g.sink_z,
+               "param": "[alpha=40,mu_s=0.4,mu_r=0.1]", **changed}
+    return run_module("neuraldem", "import", "liggghts", *(f"{k}={v}" for k, v in options.items()))
 
 
 def test_import_matches_datagen_conversion(liggghts_run, tmp_path: Path):
@@ -65,7 +65,7 @@ def test_truncated_user_dump(liggghts_run, tmp_path: Path):
     proc = _import(cut, tmp_path / "ds", res, open_step)
     assert proc.returncode == 2 and "truncated" in proc.stderr and "dump.txt: frame" in proc.stderr
     assert "Traceback" not in proc.stderr
-    proc = _import(cut, tmp_path / "ds", res, open_step, "--drop-truncated-tail")
+    proc = _import(cut, tmp_path / "ds", res, open_step, drop_truncated_tail="true")
     assert proc.returncode == 0, proc.stderr
 
 
@@ -76,7 +76,7 @@ def test_import_records_the_scene_and_keeps_one_scene_per_dataset(liggghts_run, 
     g = res.trajectory.geometry
     assert scene["imported"] and scene["hopper"]["material"] == {"diameter": 0.01, "dt": 1e-4}
     assert scene["hopper"]["hopper_diameter"] == pytest.approx(2 * g.radius)
-    proc = _import(workdir, tmp_path / "ds", res, open_step, "--diameter", "0.02")
+    proc = _import(workdir, tmp_path / "ds", res, open_step, diameter="0.02")
     assert proc.returncode == 2 and "holds imported runs of another scene" in proc.stderr
     assert "hopper.material.diameter: trained 0.01, imported 0.02" in proc.stderr
 
@@ -91,7 +91,7 @@ def test_a_checkpoint_scores_imported_runs_of_its_scene(liggghts_run, tiny_check
     assert result["split"] == "imported (every run)" and result["aggregate"]["n_sims"] == 1
     assert "aggregate" in result["baselines"]["constant"]  # fitted on the checkpoint's own training runs
     # another particle size: refused, naming the key and both values
-    assert _import(workdir, tmp_path / "other", res, open_step, "--diameter", "0.012").returncode == 0
+    assert _import(workdir, tmp_path / "other", res, open_step, diameter="0.012").returncode == 0
     proc = run_module("neuraldem", "evaluate", f"ckpt={tiny_checkpoint}", f"dataset_dir={tmp_path / 'other'}",
                       "vtk=false", f"hydra.run.dir={tmp_path / 'eval2'}")
     assert proc.returncode == 2 and "trained on another scene" in proc.stderr
@@ -102,7 +102,7 @@ def test_a_checkpoint_scores_imported_runs_of_its_scene(liggghts_run, tiny_check
     m.save(tmp_path / "ds")
     proc = run_module("neuraldem", "evaluate", f"ckpt={tiny_checkpoint}", f"dataset_dir={tmp_path / 'ds'}",
                       "vtk=false", f"hydra.run.dir={tmp_path / 'eval3'}")
-    assert proc.returncode == 2 and "lacks mu_r" in proc.stderr and "--param mu_r=VALUE" in proc.stderr
+    assert proc.returncode == 2 and "lacks mu_r" in proc.stderr and "param=[mu_r=VALUE]" in proc.stderr
 
 
 def test_scene_differences_within_the_stated_tolerance():

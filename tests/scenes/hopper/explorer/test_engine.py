@@ -1,4 +1,4 @@
-"""The explorer's answers, without a browser: the numbers are `neuraldem predict --no-fields`'s, the whole
+"""The explorer's answers, without a browser: the numbers are `neuraldem predict hopper fields=false`'s, the whole
 discharge is `neuraldem predict`'s field answer, frames are drawable and cached, the GP sketch is a curve."""
 
 from __future__ import annotations
@@ -14,16 +14,16 @@ from tests.conftest import TINY
 POINT = {"alpha": 30.0, "mu_s": 0.4, "mu_r": 0.2}
 
 
-def predict_json(capsys, tmp_path: Path, point: dict[str, float], *flags: str) -> dict:
+def predict_json(capsys, tmp_path: Path, point: dict[str, float], *options: str) -> dict:
     from neuraldem import predict
 
-    assert predict.main(["hopper", *(f"{k}={v:g}" for k, v in point.items()), "--model", TINY, "--json",
-                         "--out", str(tmp_path), *flags]) == 0
+    assert predict.main(["hopper", *(f"{k}={v:g}" for k, v in point.items()), f"model={TINY}", "json=true",
+                         f"out={tmp_path}", *options]) == 0
     return json.loads(capsys.readouterr().out)
 
 
 def test_the_numbers_are_predicts_gp_answer(tiny_engine, use_tiny_model, capsys, tmp_path: Path):
-    printed = predict_json(capsys, tmp_path, POINT, "--no-fields")["gp"]
+    printed = predict_json(capsys, tmp_path, POINT, "fields=false")["gp"]
     shown = tiny_engine.numbers(tiny_engine.point(POINT))
     for part in ("mean", "low", "high"):
         assert shown[part] == printed[part], part
@@ -31,7 +31,7 @@ def test_the_numbers_are_predicts_gp_answer(tiny_engine, use_tiny_model, capsys,
 
 
 def test_the_whole_discharge_is_predicts_field_answer(tiny_engine, use_tiny_model, capsys, tmp_path: Path):
-    printed = predict_json(capsys, tmp_path, POINT, "--time-stride", "2")["field"]
+    printed = predict_json(capsys, tmp_path, POINT, "time_stride=2")["field"]
     done = tiny_engine.compute_discharge(tiny_engine.point(POINT))
     assert done.answer["n_points"] == printed["n_points"] and done.answer["regime"] == printed["regime"]
     for key, value in printed["summary"].items():  # the same calls: the same numbers, to the last bit

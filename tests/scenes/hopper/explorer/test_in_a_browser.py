@@ -25,7 +25,7 @@ def page(tiny_pretrained: Path, data_root: Path, hopper_tiny_dataset: Path):
     from neuraldem.serve.browser import ServerProcess, start_chromium
 
     env = {"NEURALDEM_PRETRAINED_DIR": str(tiny_pretrained), "NEURALDEM_DATA": str(data_root)}
-    with ServerProcess(["--model", TINY], env=env) as server:
+    with ServerProcess([f"model={TINY}"], env=env) as server:
         driver = start_chromium()
         try:
             yield HopperBrowser(driver, server.url, timeout=90)
@@ -37,15 +37,15 @@ def parse(point: str) -> dict[str, float]:
     return {k: float(v) for k, v in (item.split("=") for item in point.split())}
 
 
-def predict_json(capsys, tmp_path: Path, point: str, *flags: str) -> dict:
+def predict_json(capsys, tmp_path: Path, point: str, *options: str) -> dict:
     from neuraldem import predict
 
-    assert predict.main(["hopper", *point.split(), "--model", TINY, "--json", "--out", str(tmp_path), *flags]) == 0
+    assert predict.main(["hopper", *point.split(), f"model={TINY}", "json=true", f"out={tmp_path}", *options]) == 0
     return json.loads(capsys.readouterr().out)
 
 
 def test_a_slider_move_shows_predicts_numbers_for_the_new_point(page, use_tiny_model, capsys, tmp_path: Path):
-    from neuraldem.predict import format_value
+    from neuraldem.scenes.hopper.predict import format_value
 
     before = page.numbers()
     page.press("alpha", "right")
@@ -53,7 +53,7 @@ def test_a_slider_move_shows_predicts_numbers_for_the_new_point(page, use_tiny_m
     moved = parse(after["point"])
     assert moved == {**parse(before["point"]), "alpha": parse(before["point"])["alpha"] + 0.5}
     assert after["gp"] != before["gp"]  # the numbers changed with the point
-    gp = predict_json(capsys, tmp_path, after["point"], "--no-fields")["gp"]
+    gp = predict_json(capsys, tmp_path, after["point"], "fields=false")["gp"]
     for key, (mean, low, high) in after["gp"].items():
         assert [mean, low, high] == pytest.approx([gp["mean"][key], gp["low"][key], gp["high"][key]], rel=0,
                                                   abs=0, nan_ok=True), key
@@ -67,7 +67,7 @@ def test_a_slider_move_shows_predicts_numbers_for_the_new_point(page, use_tiny_m
 
 def test_the_field_numbers_are_predicts_field_answer(page, use_tiny_model, capsys, tmp_path: Path):
     shown = page.wait_field_numbers(timeout=90)
-    field = predict_json(capsys, tmp_path, shown["point"], "--time-stride", "2")["field"]
+    field = predict_json(capsys, tmp_path, shown["point"], "time_stride=2")["field"]
     for key, value in shown["field"].items():
         assert value == pytest.approx(field["summary"][key], rel=1e-12, nan_ok=True), key
     assert shown["regime"][1] == field["regime"]

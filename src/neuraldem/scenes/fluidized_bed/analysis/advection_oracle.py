@@ -1,10 +1,9 @@
 """How well can advection alone mix the bed? The mixing concentration carried by CFD-DEM's own solid fraction and
 solids flux (an oracle: no model in the loop), scored like a rollout against CFD-DEM's mixing field.
 
-    python -m neuraldem.scenes.fluidized_bed.analysis.advection_oracle DATASET_DIR [--sims sim_0003 ...] [--out DIR]
-    python -m neuraldem.scenes.fluidized_bed.analysis.advection_oracle DATASET_DIR --ckpt CKPT --part train+val
-    [--steps 300]
-    ... [--flux consistent]   # the flux corrected to carry the solid to the next solid fraction
+    neuraldem report advection-oracle dataset=DATASET_DIR [sims=[sim_0003,...]] [out=DIR]
+    neuraldem report advection-oracle dataset=DATASET_DIR ckpt=CKPT part=train+val [steps=300]
+    ... [flux=consistent]   # the flux corrected to carry the solid to the next solid fraction
 
 For each trajectory and flux-correction weight (1 = flux-corrected transport, 0 = upwind) the concentration
 starts from the stored one at snapshot 0 and is advected step by step with the stored solid fraction at t and
@@ -14,8 +13,8 @@ definition) and the largest swing of the tagged solid volume (0 when nothing is 
 step), JSON + a markdown table. It bounds what `rollout.mixing=advect` can reach: a model's flux
 is at best this one.
 
-With `--ckpt` the fields come from the model instead: one rollout per trajectory and correction weight
-(`--steps` long, from snapshot 1, the model's own solid fraction and flux), scored the same way. Use it on the
+With `ckpt=` the fields come from the model instead: one rollout per trajectory and correction weight
+(`steps=` long, from snapshot 1, the model's own solid fraction and flux), scored the same way. Use it on the
 training and validation parts only, to choose `rollout.advection_correction` for a trained model
 without looking at the test velocities.
 """
@@ -123,7 +122,7 @@ def model_rows(ckpt: Path, paths: list[Path], settings: dict[str, Any], correcti
 
 def markdown(rows: list[dict[str, Any]], corrections: list[float], command: str) -> str:
     head = " | ".join(f"correction {c:g}: 1 s / end | MAE | tagged swing [%]" for c in corrections)
-    lines = ["# Mixing by advection (CFD-DEM's own solid fraction and solids flux, or with --ckpt a model's)", "",
+    lines = ["# Mixing by advection (CFD-DEM's own solid fraction and solids flux, or with ckpt= a model's)", "",
              f"`{command}`", "", "correction 1 = flux-corrected transport, 0 = first-order upwind.", "",
              f"| trajectory | U0 [m/s] | Lacey CFD-DEM at 1 s / end | {head} |",
              "|---|---|---|" + "---|---|---|" * len(corrections)]
@@ -150,33 +149,33 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("dataset", type=Path, help="a fluidized-bed dataset folder (with manifest.json)")
     p.add_argument("--sims", nargs="*", help="trajectories (default: the test part of the velocity split)")
     p.add_argument("--part", default="test", choices=["train", "val", "test", "train+val"],
-                   help="the part of the velocity split scored when --sims is not given (calibrate on train+val)")
+                   help="the part of the velocity split scored when sims= is not given (calibrate on train+val)")
     p.add_argument("--corrections", nargs="*", type=float, default=[0.0, 1.0],
                    help="flux-correction weights to compare (1 = flux-corrected, 0 = upwind)")
     p.add_argument("--ckpt", type=Path, default=None,
                    help="score a model's rollouts (its own solid fraction and flux) instead of the oracle")
-    p.add_argument("--steps", type=int, default=300, help="rollout steps with --ckpt")
+    p.add_argument("--steps", type=int, default=300, help="rollout steps with ckpt=")
     p.add_argument("--flux", choices=list(ADVECTION_FLUXES), default=None,
                    help="predicted: the stored (or the model's) flux as it is; consistent: corrected to carry the "
                         "solid to the next solid fraction (default: predicted for the oracle, the checkpoint's "
-                        "option with --ckpt)")
+                        "option with ckpt=)")
     p.add_argument("--out", type=Path, default=None, help="folder for oracle.json and oracle.md")
     a = p.parse_args(argv)
     m = Manifest.load(a.dataset)
     sims = a.sims or [i for part in a.part.split("+") for i in m.split_ids("velocity", part)]
     bad = [c for c in a.corrections if not 0.0 <= c <= 1.0]
     if bad:
-        p.error(f"--corrections {bad}: each must be in [0, 1]")
+        p.error(f"corrections={bad}: each must be in [0, 1]")
     if not sims:
-        p.error(f"{a.dataset} has no test trajectories; name some with --sims")
+        p.error(f"{a.dataset} has no test trajectories; name some with sims=")
     unknown = [s for s in sims if s not in {r.sim_id for r in m.usable()}]
     if unknown:
-        p.error(f"--sims {unknown} are not finished trajectories of {a.dataset}")
+        p.error(f"sims={unknown} are not finished trajectories of {a.dataset}")
     settings = metric_settings(m)
     paths = [a.dataset / str(m.record(s).file) for s in sims]
     if a.ckpt is not None:
         if a.steps < 1:
-            p.error(f"--steps {a.steps}: must be >= 1")
+            p.error(f"steps={a.steps}: must be >= 1")
         rows = model_rows(a.ckpt, paths, settings, a.corrections, a.steps, a.flux)
     else:
         rows = [oracle(path, settings, a.corrections, a.flux or "predicted") for path in paths]

@@ -1,10 +1,8 @@
-"""`python -m neuraldem.scenes.fluidized_bed.analysis.baselines DATASET --out DIR`: the cheapest honest answers for a
-held-out
-bed.
+"""`neuraldem report fb-baselines dataset=DATASET out=DIR`: the cheapest honest answers for a held-out bed.
 
 What a surrogate of the bed must beat, built from the training trajectories alone (CFD-DEM fields, no model)
 and scored with the same functions, the same held-out trajectories and the same start snapshot as
-`neuraldem.evaluate` scores a checkpoint (`scenes.fluidized_bed.evaluation.compare`):
+`neuraldem evaluate` scores a checkpoint (`scenes.fluidized_bed.evaluation.compare`):
 
 - `nearest`: the CFD-DEM trajectory at the nearest training inlet velocity, replayed as the answer (a lookup
   table of solver runs; its fluctuations are real ones, at a slightly different velocity);
@@ -17,18 +15,18 @@ and scored with the same functions, the same held-out trajectories and the same 
 
 A replayed trajectory is as long as the training runs (e.g. 300 steps), so against a long (30-s) test trajectory
 the statistics cover that many steps only; the column "steps compared" says so. The solver's own seed spread
-(`other_packing`) needs two packings per velocity; `python -m neuraldem.bench fb_speed_accuracy` charts it against cost.
+(`other_packing`) needs two packings per velocity; `neuraldem bench fb_speed_accuracy` charts it against cost.
 
 Every result also holds `pooled` (`evaluation.compare_pooled`): the replayed series against all CFD-DEM runs at
 the held-out velocity together, leaving out the one replayed (`other_packing`: 3 s of one packing against the
-other two). `--only SIM_ID...` scores just the named held-out trajectories (those a paired model was scored on).
+other two). `only=[SIM_ID,...]` scores just the named held-out trajectories (those a paired model was scored on).
 
-`--train-dataset fb_small` takes the training trajectories (and other packings at the held-out velocity, of the same
+`train_dataset=fb_small` takes the training trajectories (and other packings at the held-out velocity, of the same
 part) from another dataset of the same scene: the baselines of a long validation set (`data=fb_small_longval`,
-`--part val`), scored as a model trained on fb_small is scored there.
+`part=val`), scored as a model trained on fb_small is scored there.
 
-Each baseline is written as DIR/<baseline>/evaluation/metrics.json in the layout `neuraldem.evaluate` writes,
-so `python -m neuraldem.scenes.fluidized_bed.analysis.table` puts them in one table with the models.
+Each baseline is written as DIR/<baseline>/evaluation/metrics.json in the layout `neuraldem evaluate` writes,
+so `neuraldem report fb-table` puts them in one table with the models.
 """
 
 from __future__ import annotations
@@ -119,12 +117,12 @@ def training_series(m: Manifest, dataset_dir: Path, split: str,
     ids = m.split_ids(split, "train")
     unknown = sorted(set(exclude) - set(ids))
     if unknown:
-        raise DataError(f"--exclude {' '.join(unknown)}: not training trajectories of split {split!r} of "
+        raise DataError(f"exclude=[{','.join(unknown)}]: not training trajectories of split {split!r} of "
                         f"{dataset_dir}", fix=f"choose from {', '.join(ids)}")
     records = [r for r in (m.record(i) for i in ids if i not in exclude) if r.usable]
     if not records:
         raise DataError(f"no finished training trajectories in split {split!r} of {dataset_dir}",
-                        fix="generate them: python -m neuraldem.datagen data=fb_small")
+                        fix="generate them: neuraldem datagen data=fb_small")
     return sorted(((velocity(r), load_series(dataset_dir / str(r.file))) for r in records), key=lambda t: t[0])
 
 
@@ -133,24 +131,24 @@ def held_out_ids(m: Manifest, split: str, part: str, only: tuple[str, ...], data
     allowed = {r.sim_id for r in held_out(m, split, part, None)} | set(m.split_ids(split, part))
     wrong = sorted(set(only) - allowed)
     if wrong:
-        raise DataError(f"--only {' '.join(wrong)}: not {part} trajectories of split {split!r} of {dataset_dir}",
+        raise DataError(f"only=[{','.join(wrong)}]: not {part} trajectories of split {split!r} of {dataset_dir}",
                         fix=f"choose from {', '.join(sorted(allowed))}")
     records = [m.record(i) for i in sorted(set(only))]
     unfinished = [r.sim_id for r in records if not r.usable]
     if unfinished:
-        raise DataError(f"--only {' '.join(unfinished)}: not finished in {dataset_dir}",
-                        fix="generate them first: python -m neuraldem.datagen data=<dataset>")
+        raise DataError(f"only=[{','.join(unfinished)}]: not finished in {dataset_dir}",
+                        fix="generate them first: neuraldem datagen data=<dataset>")
     return sorted(records, key=lambda r: (r.params.get("duration", 0.0), r.params["inlet_velocity"], r.sim_id))
 
 
 def training_manifest(train_dir: Path, m: Manifest) -> Manifest:
-    """The manifest of --train-dataset, refused when its scene differs from the scored dataset's."""
+    """The manifest of train_dataset=, refused when its scene differs from the scored dataset's."""
     if not (Path(train_dir) / MANIFEST_NAME).is_file():
-        raise DataError(f"--train-dataset {train_dir}: no dataset there",
-                        fix="give a dataset folder or name, e.g. --train-dataset fb_small")
+        raise DataError(f"train_dataset={train_dir}: no dataset there",
+                        fix="give a dataset folder or name, e.g. train_dataset=fb_small")
     tm = Manifest.load(train_dir)
     if tm.scene != m.scene:
-        raise DataError(f"--train-dataset {train_dir}: its scene differs from {m.name!r}'s",
+        raise DataError(f"train_dataset={train_dir}: its scene differs from {m.name!r}'s",
                         fix="take the training runs from a dataset of the same scene "
                             "(e.g. fb_small for fb_small_longval)")
     return tm
@@ -247,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--exclude", nargs="+", default=[], metavar="SIM_ID",
                    help="training trajectories to leave out (e.g. those a compared model was not trained on)")
     p.add_argument("--only", nargs="+", default=[], metavar="SIM_ID",
-                   help="score just these held-out trajectories of --part (e.g. those a paired model was scored on; "
+                   help="score just these held-out trajectories of part= (e.g. those a paired model was scored on; "
                         "default: the first of every held-out velocity)")
     p.add_argument("--train-dataset", default=None,
                    help="take the training runs (and other packings) from this dataset of the same scene (e.g. "

@@ -1,13 +1,12 @@
-"""`python -m neuraldem.scenes.fluidized_bed.analysis.reference_floor DATASET --out FILE.md`: how well short CFD-DEM
-series
-estimate a bed's long-time statistics.
+"""`neuraldem report fb-reference-floor dataset=DATASET out=FILE.md`: how well short CFD-DEM series estimate a
+bed's long-time statistics.
 
 A 3000-step rollout is scored against references of different lengths: one 3-s run (`rel_l2_full`), all
 packings at its velocity together (`pooled`, 3 x 3 s in fb_small) or one 30-s run (the long test
 trajectories). Each reference has its own sampling error, a floor under which no model can be told apart from
 CFD-DEM by it. This measures that floor on the long CFD-DEM trajectories themselves: each is cut into
-consecutive windows of `--window` snapshots (default: as long as a training trajectory) from
-`--init-snapshot` on, and the per-cell time mean and std of one window, and of `--pool` windows spread over the
+consecutive windows of `window=` snapshots (default: as long as a training trajectory) from
+`init_snapshot=` on, and the per-cell time mean and std of one window, and of `pool=` windows spread over the
 run (as far apart as it allows, like independent packings), are compared with those of the whole trajectory
 (relative L2, the functions `neuraldem evaluate` uses). Windows after the first start from a bed that has
 been bubbling for seconds, unlike a fresh 3-s run, so the pooled floor is a slight underestimate for the
@@ -66,7 +65,7 @@ def trajectory_floor(s: FieldSeries, window: int, pool: int) -> dict[str, Any]:
     parts = windows(s, window)
     if len(parts) < pool:
         raise DataError(f"a trajectory of {len(s.times)} snapshots holds {len(parts)} windows of {window}, fewer "
-                        f"than --pool {pool}", fix="use a longer trajectory or a smaller --window / --pool")
+                        f"than pool={pool}", fix="use a longer trajectory or a smaller window= / pool=")
     whole = time_statistics(s)
     single = [{k: relative_l2(v, whole[k]) for k, v in time_statistics(w).items() if k in FIELDS} for w in parts]
     chosen = spread(len(parts), pool)
@@ -88,7 +87,7 @@ def long_records(m: Manifest, sims: tuple[str, ...]) -> list[SimRecord]:
     if sims:
         unknown = sorted(set(sims) - {r.sim_id for r in m.usable()})
         if unknown:
-            raise DataError(f"--sims {' '.join(unknown)}: not finished trajectories of this dataset",
+            raise DataError(f"sims=[{','.join(unknown)}]: not finished trajectories of this dataset",
                             fix="choose from the manifest's finished runs, e.g. its long test trajectories")
         return [m.record(i) for i in sims]
     long_ids = {i for part in m.splits.get("long", {}).values() for i in part}
@@ -105,7 +104,7 @@ def training_steps(m: Manifest, dataset_dir: Path) -> int:
         steps = [round(float(m.parameters["duration"]) / dt)]
     if not steps:
         raise DataError(f"no finished training trajectories in {dataset_dir} to take the window length from",
-                        fix="give --window SNAPSHOTS")
+                        fix="give window=SNAPSHOTS")
     return min(steps)
 
 
@@ -114,12 +113,12 @@ def measure(dataset_dir: Path, window: int | None = None, pool: int = 3, sims: t
     m = Manifest.load(dataset_dir)
     window = training_steps(m, dataset_dir) if window is None else window
     if window < 2 or pool < 1:
-        raise DataError(f"--window {window} / --pool {pool}: need a window of >= 2 snapshots and >= 1 window",
-                        fix="e.g. --window 300 --pool 3")
+        raise DataError(f"window={window} / pool={pool}: need a window of >= 2 snapshots and >= 1 window",
+                        fix="e.g. window=300 pool=3")
     records = long_records(m, sims)
     if not records:
         raise DataError(f"no long trajectories in {dataset_dir}", fix="generate them (fb_small's sim_0090 - "
-                        "sim_0092: python -m neuraldem.datagen data=fb_small first=[sim_0090]) or name --sims")
+                        "sim_0092: neuraldem datagen data=fb_small first=[sim_0090]) or name sims=")
     rows = []
     for rec in records:
         with FbFile(dataset_dir / str(rec.file)) as f:

@@ -1,4 +1,4 @@
-"""`python -m neuraldem.scenes.fluidized_bed.analysis.table RUNS_DIR... --out FILE.md`: fluidized-bed runs side by side.
+"""`neuraldem report fb-table folders=[RUNS_DIR,...] out=FILE.md`: fluidized-bed runs side by side.
 
 Finds every `evaluation/metrics.json` of a fluidized-bed model under the given folders (e.g. the runs of
 `scripts/fb_ablation.sh`) and writes one summary row per run (its stability options, size, accuracy, mass
@@ -198,7 +198,7 @@ def fb_results(folders: list[Path]) -> list[dict]:
     results = [r for r in find_results(folders) if "trained_velocity_range" in r]
     if not results:
         raise DataError(f"no fluidized-bed evaluation under {[str(f) for f in folders]} (only other kinds): "
-                        "train with experiment=fb (evaluate=true) or run python -m neuraldem.evaluate ckpt=...")
+                        "train with experiment=fb (evaluate=true) or run neuraldem evaluate ckpt=...")
     return results
 
 

@@ -1,13 +1,13 @@
-"""The bed's what-if: how fast `neuraldem predict fb` answers, and how close, where DPMFoam checked it.
+"""The bed's what-if: how fast `neuraldem predict fluidized_bed` answers, and how close, where DPMFoam checked it.
 
-    python -m neuraldem.bench whatif_fb --repeats 5 [--verified DIR ...]
+    neuraldem bench whatif_fb repeats=5 [verified=[DIR,...]]
 
-- answer times (median of --repeats): the GP's answer in the process, the field model's rollout over the
-  answer window (3 s of bed time for fb_small) in the process, and the whole `neuraldem predict fb ...
-  --no-fields` command (Python start and imports included);
-- --verified: output folders of `neuraldem predict fb inlet_velocity=V --verify` (each holds answer.json with
-  the GP, field model and DPMFoam answers and times): tabled side by side with the time ratios. The solver
-  runs are not repeated here (each costs minutes).
+- answer times (median of repeats=): the GP's answer in the process, the field model's rollout over the
+  answer window (3 s of bed time for fb_small) in the process, and the whole `neuraldem predict fluidized_bed
+  ... fields=false` command (Python start and imports included);
+- verified=: output folders of `neuraldem predict fluidized_bed inlet_velocity=V verify=true` (each holds
+  answer.json with the GP, field model and DPMFoam answers and times): tabled side by side with the time
+  ratios. The solver runs are not repeated here (each costs minutes).
 Writes results/fluidized_bed/whatif/whatif_fb.json and whatif_fb.md.
 """
 
@@ -27,7 +27,7 @@ from neuraldem.errors import DataError
 from neuraldem.machine import machine_info
 from neuraldem.paths import data_dir
 
-DEFAULT_VELOCITY = 1.8  # [m/s] `neuraldem predict fb`'s example
+DEFAULT_VELOCITY = 1.8  # [m/s] `neuraldem predict fluidized_bed`'s example
 
 
 def answer_times(model: pretrained.Pretrained, repeats: int) -> dict[str, Any]:
@@ -42,8 +42,8 @@ def answer_times(model: pretrained.Pretrained, repeats: int) -> dict[str, Any]:
     states, settings, window = InitialStates.load_npz(model.file("states")), fb_settings(model), fb_window(model)
     gp_t, _ = time_call(lambda: gp_answers(gp, [point]), repeats)
     field_t, _ = time_call(lambda: field_answer(module, states, DEFAULT_VELOCITY, settings, window), repeats)
-    cmd = [sys.executable, "-m", "neuraldem", "predict", "fb", f"inlet_velocity={DEFAULT_VELOCITY:g}",
-           "--no-fields", "--out", str(data_dir() / "bench" / "whatif_fb" / "command")]
+    cmd = [sys.executable, "-m", "neuraldem", "predict", "fluidized_bed", f"inlet_velocity={DEFAULT_VELOCITY:g}",
+           "fields=false", f"out={data_dir() / 'bench' / 'whatif_fb' / 'command'}"]
     cmd_t, _ = time_call(lambda: subprocess.run(cmd, check=True, capture_output=True), repeats)
     return {"point": point, "rollout_steps": window.steps, "gp_in_process": gp_t.as_dict(),
             "field_in_process": field_t.as_dict(),
@@ -55,11 +55,12 @@ def verified_rows(folders: list[Path]) -> list[dict[str, Any]]:
     for folder in folders:
         path = folder / "answer.json"
         if not path.is_file():
-            raise DataError(f"{path} does not exist", "run neuraldem predict fb inlet_velocity=V --verify --out DIR")
+            raise DataError(f"{path} does not exist",
+                            "run neuraldem predict fluidized_bed inlet_velocity=V verify=true out=DIR")
         a = json.loads(path.read_text())
         if "dpmfoam" not in a or "field" not in a or a["dpmfoam"].get("status") != "ok":
             raise DataError(f"{path} has no finished DPMFoam check and field answer",
-                            "rerun neuraldem predict fb ... --verify without --no-fields")
+                            "rerun neuraldem predict fluidized_bed ... verify=true without fields=false")
         rows.append({"inlet_velocity": a["parameters"]["inlet_velocity"], "gp": a["gp"]["mean"],
                      "gp_interval": [a["gp"]["low"], a["gp"]["high"]], "field": a["field"]["summary"],
                      "dpmfoam": a["dpmfoam"]["answers"], "seconds": {"gp": a["gp"]["seconds"],
@@ -75,10 +76,10 @@ def markdown(result: dict[str, Any]) -> str:
              f"| GP, in the process | {t['gp_in_process']['median_wall_s']:.2g} |",
              f"| field model ({t['rollout_steps']}-step rollout), in the process | "
              f"{t['field_in_process']['median_wall_s']:.3g} |",
-             f"| `neuraldem predict fb ... --no-fields`, whole command | "
+             f"| `neuraldem predict fluidized_bed ... fields=false`, whole command | "
              f"{t['predict_command_no_fields']['median_wall_s']:.3g} |"]
     if result["verified"]:
-        lines += ["", "Checked with DPMFoam (`neuraldem predict fb inlet_velocity=V --verify`):", "",
+        lines += ["", "Checked with DPMFoam (`neuraldem predict fluidized_bed inlet_velocity=V verify=true`):", "",
                   "| U0 [m/s] | bed height DPMFoam / GP / field [mm] | bubble fraction DPMFoam / GP / field [%] | "
                   "Lacey DPMFoam / GP / field | DPMFoam [s] | GP [s] | field [s] | DPMFoam / GP | DPMFoam / field |",
                   "|---|---|---|---|---|---|---|---|---|"]
@@ -96,10 +97,11 @@ def markdown(result: dict[str, Any]) -> str:
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    p = doc_parser("neuraldem.bench", __doc__)
+    p = doc_parser("neuraldem.bench whatif_fb", __doc__)
     p.add_argument("--model", default=None, help="shipped bed model (default: the shipped one)")
     p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--verified", type=Path, nargs="*", default=[], help="predict fb --verify output folders")
+    p.add_argument("--verified", type=Path, nargs="*", default=[],
+                   help="output folders of predict fluidized_bed verify=true")
     p.add_argument("--out", type=Path, default=None,
                    help="results JSON (default results/fluidized_bed/whatif/whatif_fb.json)")
     args = p.parse_args(argv)

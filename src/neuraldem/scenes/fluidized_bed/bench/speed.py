@@ -1,20 +1,20 @@
 """DPMFoam against the fluidized-bed rollout on the same scene and machine, side by side in one run.
 
-`python -m neuraldem.bench fb_speed --ckpt CKPT [--dataset DIR] [--sim SIM_ID] [--repeats 3]
-[--solver-repeats 3] [--sim-seconds 0.1] [--rollout-steps N] [--threads 1 N] [--reuse-dataset]
-[rollout.rollout_noise=X] [rollout.mirror_alternate=true|false] [--out PATH]` writes
+`neuraldem bench fb_speed ckpt=CKPT [dataset=DIR] [sim=SIM_ID] [repeats=3]
+[solver_repeats=3] [sim_seconds=0.1] [rollout_steps=N] [threads=[1,N]] [reuse_dataset=true]
+[rollout.rollout_noise=X] [rollout.mirror_alternate=true|false] [out=PATH]` writes
 results/fluidized_bed/speed/fb_speed.json, .md and .png. Of the rollout options it takes those that change a step's
 cost (`STEP_COST_OPTIONS`).
 
 The unit both are compared in is the cost of one simulated second of the bed. The solver: fresh DPMFoam runs
 of one trajectory of the checkpoint's dataset (its scene, inlet velocity and start-packing seed, through
 `scenes.fluidized_bed.solver.runner.run_fluidized_bed`, the path datagen used): the dataset's spin-up plus
-`--sim-seconds` stored seconds, wall and CPU time of the DPMFoam process divided by the seconds it simulated
+`sim_seconds=` stored seconds, wall and CPU time of the DPMFoam process divided by the seconds it simulated
 (spin-up included, as the manifest's `cpu_s_per_simulated_s`); next to it the per-simulation costs the manifest
 recorded at datagen.
-The surrogate: `--rollout-steps` autoregressive steps (`scenes.fluidized_bed.rollout.rollout`, divergence check and
+The surrogate: `rollout_steps=` autoregressive steps (`scenes.fluidized_bed.rollout.rollout`, divergence check and
 particle re-sampling included) from snapshot 1 of the same trajectory, divided by the seconds they span, at
-each `--threads` setting. Ratios are solver / surrogate of the medians over repeats.
+each `threads=` setting. Ratios are solver / surrogate of the medians over repeats.
 """
 
 from __future__ import annotations
@@ -94,22 +94,22 @@ def bench_case(module: FluidizedBedModule, ckpt: Path, dataset_dir: Path | None,
     dataset_dir, m = checkpoint_dataset(meta, Path(ckpt), data_dir() / "datasets", dataset_dir)
     if m.kind != "fluidized_bed" or "fluidized_bed" not in m.scene:
         raise DataError(f"{dataset_dir}/manifest.json: kind={m.kind!r}, not a fluidized-bed dataset: pass the "
-                        "dataset the checkpoint was trained on (--dataset)")
+                        "dataset the checkpoint was trained on (dataset=)")
     scene = FluidizedBedScene.from_config(m.scene["fluidized_bed"], f"{dataset_dir}/manifest.json scene.fluidized_bed")
     rec = pick_record(m, meta["split"], sim_id)
     if not rec.usable:
         raise DataError(f"simulation {rec.sim_id} of {dataset_dir} is not finished (status {rec.status}): pick "
-                        "another with --sim")
+                        "another with sim=")
     return FbCase(dataset_dir, m, scene, rec)
 
 
 def check_sim_seconds(scene: FluidizedBedScene, sim_seconds: float) -> float:
     """Stored seconds of the timed run: a positive multiple of the scene's snapshot interval."""
-    checks.positive("--sim-seconds", sim_seconds)
+    checks.positive("sim_seconds", sim_seconds)
     steps = sim_seconds / scene.snapshot_interval
     if steps < 1 - 1e-9 or abs(steps - round(steps)) > 1e-6:
-        raise ConfigError(f"--sim-seconds={sim_seconds} is invalid: must be a positive multiple of the scene's "
-                          f"snapshot interval {scene.snapshot_interval} s (e.g. --sim-seconds "
+        raise ConfigError(f"sim_seconds={sim_seconds} is invalid: must be a positive multiple of the scene's "
+                          f"snapshot interval {scene.snapshot_interval} s (e.g. sim_seconds="
                           f"{10 * scene.snapshot_interval:g})")
     return float(sim_seconds)
 
@@ -124,7 +124,7 @@ def solver_measured(case: FbCase, sim_seconds: float, repeats: int, workdir: Pat
     scene = case.scene
     simulated = scene.spinup_time + sim_seconds
     samples, substeps = [], []
-    for r in range(checks.positive_int("--solver-repeats", repeats)):
+    for r in range(checks.positive_int("solver_repeats", repeats)):
         folder = Path(workdir) / f"repeat_{r}"
         if folder.exists():  # never resume an earlier run: each repeat is timed from scratch
             shutil.rmtree(folder)
@@ -153,7 +153,7 @@ def solver_recorded(m: Manifest, dataset_dir: Path) -> Timing:
             and r.cost["simulated_s"] > 0]
     if not recs:
         raise DataError(f"{dataset_dir}/manifest.json records no solver_cpu_s/simulated_s cost for any simulation: "
-                        "drop --reuse-dataset to time DPMFoam here")
+                        "drop reuse_dataset= to time DPMFoam here")
     wall = [r.cost.get("solver_wall_s", r.cost["wall_s"]) for r in recs]
     per_run = Timing([Sample(w, r.cost["solver_cpu_s"]) for w, r in zip(wall, recs, strict=False)], source=RECORDED)
     samples = [Sample(w / r.cost["simulated_s"], r.cost["solver_cpu_s"] / r.cost["simulated_s"])
@@ -234,11 +234,11 @@ def _x(v: float | None) -> str:
 
 
 def parse_threads(values: list[int] | None) -> list[int]:
-    """--threads: distinct positive counts, default 1 and every usable core."""
+    """threads=: distinct positive counts, default 1 and every usable core."""
     values = values or [1, usable_cpus()]
     out: list[int] = []
     for i, t in enumerate(values):
-        checks.positive_int(f"--threads[{i}]", t)
+        checks.positive_int(f"threads[{i}]", t)
         if t not in out:
             out.append(t)
     return out
@@ -270,11 +270,11 @@ def prepare(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: i
             sim_seconds: float, rollout_steps: int | None, threads: list[int] | None, reuse_dataset: bool,
             workdir: Path, keep_runs: bool = False, seed: int = 0, options: RolloutOptions | None = None) -> Plan:
     """Check every option and input (one clear error for a bad one) before anything is timed."""
-    checks.positive_int("--repeats", repeats)
-    checks.positive_int("--solver-repeats", solver_repeats)
+    checks.positive_int("repeats", repeats)
+    checks.positive_int("solver_repeats", solver_repeats)
     if rollout_steps is not None:
-        checks.positive_int("--rollout-steps", rollout_steps)
-    checks.positive_int("--seed", seed, allow_zero=True)
+        checks.positive_int("rollout_steps", rollout_steps)
+    checks.positive_int("seed", seed, allow_zero=True)
     options = options or RolloutOptions()
     other = sorted(set(options.given()) - set(STEP_COST_OPTIONS))
     if other:

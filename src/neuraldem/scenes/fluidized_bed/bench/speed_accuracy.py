@@ -1,8 +1,8 @@
 """The fluidized bed's speed-accuracy chart, and the smallest model that is accurate enough.
 
-`python -m neuraldem.bench fb_speed_accuracy --runs DIR... [--dataset DIR] [--solver-variants dt:2 substeps:0.5]
-[--solver-velocities 2] [--reuse-solver FILE | --skip-solver] [--steps 100] [--repeats 3] [--threads 1]
-[--tolerance 0.10] [--out PATH]` writes results/speed_accuracy/fb_speed_accuracy.json, .png and .md.
+`neuraldem bench fb_speed_accuracy runs=[DIR,...] [dataset=DIR] [solver_variants=[dt:2,substeps:0.5]]
+[solver_velocities=2] [reuse_solver=FILE | skip_solver=true] [steps=100] [repeats=3] [threads=1]
+[tolerance=0.10] [out=PATH]` writes results/speed_accuracy/fb_speed_accuracy.json, .png and .md.
 
 x = cost of one simulated second of the bed (CPU seconds, one thread); y = the error of what a practitioner
 asks of a bed, one panel each: the time-mean solid fraction per cell, its fluctuations (time std per cell),
@@ -10,9 +10,9 @@ both as relative L2, and the Lacey mixing index (mean absolute difference over t
 against the same CFD-DEM trajectories: one per held-out (test) velocity, the one the evaluation rolls out from,
 over its 3 stored seconds. Points:
 
-- surrogate: every evaluated fluidized-bed run under --runs; errors from its evaluation (rollouts from each test
+- surrogate: every evaluated fluidized-bed run under runs=; errors from its evaluation (rollouts from each test
   velocity's first snapshot, statistics over the CFD-DEM trajectory's steps), cost measured here
-  (`fb_speed.surrogate_timing`: --steps rollout steps, median of --repeats, --threads torch threads).
+  (`fb_speed.surrogate_timing`: steps= rollout steps, median of repeats=, threads= torch threads).
 - DPMFoam, another packing: the same velocity started from the dataset's other random packings. Two equally
   valid CFD-DEM runs differ by this much: the floor under any error measured on 3 s of a chaotic bed. Cost:
   what the manifest recorded for those runs.
@@ -21,7 +21,7 @@ over its 3 stored seconds. Points:
 
 The reference (DPMFoam at the dataset's settings, error 0 by definition) is a vertical line at the manifest's
 median cost. Right-sizing: per quantity, the smallest model (fewest parameters, then cheapest) whose error is
-within --tolerance (10 %) of the best model's; runs of one config (model and options, not the seed: e.g. the
+within tolerance= (10 %) of the best model's; runs of one config (model and options, not the seed: e.g. the
 same sweep run with seed=0 and seed=1) are one model with the mean of their errors. Runs whose rollouts
 diverged are drawn but neither right-sized nor on a front.
 """
@@ -103,12 +103,12 @@ def reference(dataset_dir: Path, split: str) -> Reference:
     m = require_dataset(dataset_dir, dataset_dir.name)
     if m.kind != "fluidized_bed":
         raise DataError(f"{dataset_dir}/manifest.json: kind={m.kind!r}, not a fluidized-bed dataset: pass the "
-                        "dataset the runs were trained on (--dataset)")
+                        "dataset the runs were trained on (dataset=)")
     regular = float(m.parameters.get("duration", 0.0))
     records = [r for r in held_out(m, split, "test", None) if float(r.params.get("duration", regular)) <= regular]
     if not records:
         raise DataError(f"{dataset_dir}: no finished test trajectory in split {split!r}: generate more with "
-                        f"python -m neuraldem.datagen data={m.name}")
+                        f"neuraldem datagen data={m.name}")
     return Reference(dataset_dir, m, records)
 
 
@@ -126,7 +126,7 @@ def surrogate_point(result: dict[str, Any], ref: Reference, steps: int, repeats:
     if not trajectories:
         raise DataError(f"{result['path']}: evaluated on {[t['sim_id'] for t in result['trajectories']]}, none of "
                         f"the reference trajectories {sorted(ref.ids)} of {ref.dataset_dir}: evaluate it on this "
-                        "dataset (python -m neuraldem.evaluate ckpt=...)")
+                        "dataset (neuraldem evaluate ckpt=...)")
     module = load_fb_checkpoint(Path(result["checkpoint"]))
     first = ref.records[0]
     with FbFile(ref.path(first)) as f:
@@ -197,7 +197,7 @@ class SolverVariant:
     def parse(cls, text: str) -> SolverVariant:
         kind, factor = split_kind_factor(text)
         if kind not in VARIANT_KINDS or not factor > 0:
-            raise ConfigError(f"--solver-variants {text!r} is invalid: write KIND:FACTOR with KIND one of "
+            raise ConfigError(f"solver_variants={text!r} is invalid: write KIND:FACTOR with KIND one of "
                               f"{sorted(VARIANT_KINDS)} and FACTOR > 0 (e.g. dt:2 or substeps:0.5)")
         return cls(kind, factor)
 
@@ -206,7 +206,7 @@ class SolverVariant:
             dt = scene.dt * self.factor
             ratio = scene.snapshot_interval / dt
             if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
-                raise ConfigError(f"--solver-variants {self.label}: a CFD step of {dt:g} s does not divide the "
+                raise ConfigError(f"solver_variants={self.label}: a CFD step of {dt:g} s does not divide the "
                                   f"snapshot interval {scene.snapshot_interval:g} s (pick a factor that does)")
             return replace(scene, dt=dt)
         return replace(scene, collision_resolution_steps=max(1, round(scene.collision_resolution_steps * self.factor)))
@@ -319,7 +319,7 @@ def right_size(points: list[dict[str, Any]], tolerance: float) -> list[dict[str,
     (fewest parameters, then cheapest) within (1 + tolerance) x its error, and the smallest within that on
     every quantity at once ("all"). A model's error is the mean over its runs (seeds of one config), so one
     lucky seed does not decide the size."""
-    checks.number("--tolerance", tolerance, lo=0.0)
+    checks.number("tolerance", tolerance, lo=0.0)
     families: dict[str, tuple[dict[str, Any], list[list[dict[str, Any]]]]] = {}
     for runs in config_groups(points):
         family = family_of(runs[0])
@@ -433,18 +433,18 @@ def main(argv: list[str]) -> int:
     a = p.parse_args(argv)
     for name in ("steps", "repeats", "threads", "solver_velocities"):
         checks.positive_int(f"--{name.replace('_', '-')}", getattr(a, name))
-    checks.number("--tolerance", a.tolerance, lo=0.0)
+    checks.number("tolerance", a.tolerance, lo=0.0)
     variants = [SolverVariant.parse(v) for v in a.solver_variants]
     if a.reuse_solver is not None and a.skip_solver:
-        raise ConfigError("--reuse-solver and --skip-solver exclude each other: give one")
+        raise ConfigError("reuse_solver= and skip_solver= exclude each other: give one")
     results_in = [r for r in find_results(a.runs) if r.get("kind", "fluidized_bed") == "fluidized_bed"
                   and "trajectories" in r and "rollout_steps" in r]
     if not results_in:
         raise DataError(f"no evaluated fluidized-bed run under {[str(r) for r in a.runs]}: train with experiment=fb "
-                        "(evaluate=true) or run python -m neuraldem.evaluate ckpt=...")
+                        "(evaluate=true) or run neuraldem evaluate ckpt=...")
     datasets = sorted({r["dataset"] for r in results_in})
     if a.dataset is None and len(datasets) > 1:
-        raise ConfigError(f"the runs were evaluated on several datasets {datasets}: pick one with --dataset")
+        raise ConfigError(f"the runs were evaluated on several datasets {datasets}: pick one with dataset=")
     dataset_dir = Path(a.dataset or datasets[0])
     splits = sorted({r["split"] for r in results_in})
     ref = reference(dataset_dir, splits[0])

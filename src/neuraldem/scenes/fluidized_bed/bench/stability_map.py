@@ -1,26 +1,26 @@
 """Stability map of fluidized-bed surrogates: how long a rollout stays physical, across the trained inlet
 velocities and beyond them.
 
-`python -m neuraldem.bench fb_stability --ckpt CKPT [CKPT ...] [--labels NAME ...] [--velocities V ...]
-[--n-velocities 9 | --velocity-step DV] [--steps N] [--drift-limit-pct 5] [--bed-limit-pct 10] [--settle-steps N]
-[rollout.<option>=VALUE ...] [--out PATH]` writes results/fluidized_bed/stability/fb_stability.json and .png (the
+`neuraldem bench fb_stability ckpt=[CKPT,...] [labels=[NAME,...]] [velocities=[V,...]]
+[n_velocities=9 | velocity_step=DV] [steps=N] [drift_limit_pct=5] [bed_limit_pct=10] [settle_steps=N]
+[rollout.<option>=VALUE ...] [out=PATH]` writes results/fluidized_bed/stability/fb_stability.json and .png (the
 rollout options of every command, `options.RolloutOptions`; left out: as each checkpoint was trained). A fine scan of
 the trained range:
-`--velocity-step 0.005 --steps 500`; of one stretch: `--velocities $(seq 2.00 0.002 2.10)`.
+`velocity_step=0.005 steps=500`; of one stretch: `velocities=[2.000,2.002,...,2.100]`.
 
 For every checkpoint (one series each, e.g. a model and its ablation without input noise) and every inlet
-velocity: one rollout of `--steps` steps from snapshot 1 of the dataset trajectory closest in velocity
+velocity: one rollout of `steps=` steps from snapshot 1 of the dataset trajectory closest in velocity
 (`scenes.fluidized_bed.rollout`, as `neuraldem.rollout` does). A velocity fails when the rollout diverges (the rollout's
 own detector: NaN/inf, solid fraction below 0 or above the maximum packing) or when the total solid volume
-of the solid-fraction field drifts by more than `--drift-limit-pct` from the initial state's; steps to
+of the solid-fraction field drifts by more than `drift_limit_pct=` from the initial state's; steps to
 failure is the first step at which either happens. Default velocities: 0.8x the lowest to 1.2x the highest
 trained velocity (over all checkpoints), plus the two trained ends.
 
 A rollout can stay finite and hold its mass and still leave the physics: a net with the velocity embedded at
 scale 1000 settled into a bed 21 % lower than CFD-DEM's at one velocity inside its trained range, in a hole
 0.004 m/s wide (results/fluidized_bed/options/velocity_embedding_scale1000_scan.png). So inside the trained range a
-velocity also fails when the rollout's time-mean bed height (after `--settle-steps`, the bed's start-up from its
-packing) is more than `--bed-limit-pct` from CFD-DEM's at that velocity: the time-mean bed heights of the
+velocity also fails when the rollout's time-mean bed height (after `settle_steps=`, the bed's start-up from its
+packing) is more than `bed_limit_pct=` from CFD-DEM's at that velocity: the time-mean bed heights of the
 checkpoint's own training trajectories (the same start-up left out), linear in velocity between the two around
 it. Outside the trained range there is no CFD-DEM to interpolate: the bed height is reported, not judged.
 """
@@ -62,12 +62,12 @@ NAME = "fb_stability"
 DEFAULT_DRIFT_LIMIT_PCT = 5.0  # mass drift > 5 % is an unphysical state (docs/benchmarks.md, fb_stability)
 DEFAULT_N_VELOCITIES = 9
 DEFAULT_SPAN = (0.8, 1.2)  # the grid runs from 0.8x the lowest to 1.2x the highest trained velocity
-DEFAULT_HORIZON_MULTIPLE = 10  # default --steps: 10x the training horizon, the longest horizon evaluation tests
+DEFAULT_HORIZON_MULTIPLE = 10  # default steps=: 10x the training horizon, the longest horizon evaluation tests
 # a time-mean bed height this far from CFD-DEM's is another regime, not noise: CFD-DEM's own runs 0.03 m/s apart
 # differ by ~1 mm of ~42 (2 %); a collapsed bed was 21 % low (results/fluidized_bed/options/
 # velocity_embedding_scale1000_scan.png)
 DEFAULT_BED_LIMIT_PCT = 10.0
-DEFAULT_SETTLE_FRACTION = 3  # default --settle-steps: a third of the training horizon (1 s of fb_small's 3 s)
+DEFAULT_SETTLE_FRACTION = 3  # default settle_steps=: a third of the training horizon (1 s of fb_small's 3 s)
 
 # (module, inlet velocity, open file of the initial state) -> stepper; tests inject faulty steppers here
 MakeStepper = Callable[[FluidizedBedModule, float, FbFile], Stepper]
@@ -78,9 +78,9 @@ def velocity_grid(lo: float, hi: float, n: int, span: tuple[float, float] = DEFA
     """`n` velocities evenly from span[0] * lo to span[1] * hi, plus lo and hi themselves (the edges of
     the trained range), sorted, rounded to 1e-6 m/s, without duplicates. With `step`: every `step` m/s from
     lo to hi instead (a fine scan of the trained range, where a net can fail between training velocities)."""
-    checks.positive_int("--n-velocities", n)
+    checks.positive_int("n_velocities", n)
     if step is not None:
-        checks.positive("--velocity-step", step)
+        checks.positive("velocity_step", step)
         grid = lo + step * np.arange(int(np.floor((hi - lo) / step + 1e-9)) + 1)
     else:
         grid = np.linspace(span[0] * lo, span[1] * hi, n) if n > 1 else np.array([lo])
@@ -183,27 +183,27 @@ def check_options(ckpts: list[Path], labels: list[str] | None, velocities: list[
                   velocity_step: float | None = None) -> list[str]:
     """Every option checked before anything is loaded or rolled out; returns the series labels."""
     if not ckpts:
-        raise ConfigError("--ckpt is required: give one or more fluidized-bed checkpoints")
+        raise ConfigError("ckpt= is required: give one or more fluidized-bed checkpoints")
     if labels is not None and len(labels) != len(ckpts):
-        raise ConfigError(f"--labels: {len(labels)} label(s) for {len(ckpts)} checkpoint(s): give one label per "
-                          "--ckpt, or none (the run folder names are used)")
+        raise ConfigError(f"labels=: {len(labels)} label(s) for {len(ckpts)} checkpoint(s): give one label per "
+                          "ckpt=, or none (the run folder names are used)")
     labels = list(labels) if labels is not None else default_labels(ckpts)
     if len(set(labels)) != len(labels):
-        raise ConfigError(f"--labels {labels} has duplicates: give each checkpoint its own label")
+        raise ConfigError(f"labels={labels} has duplicates: give each checkpoint its own label")
     for i, v in enumerate(velocities or []):
-        checks.positive(f"--velocities[{i}]", v)
+        checks.positive(f"velocities[{i}]", v)
     if steps is not None:
-        checks.positive_int("--steps", steps)
-    checks.number("--drift-limit-pct", drift_limit_pct, lo=0.0, lo_open=True, hi=100.0)
-    checks.number("--bed-limit-pct", bed_limit_pct, lo=0.0, lo_open=True, hi=100.0)
+        checks.positive_int("steps", steps)
+    checks.number("drift_limit_pct", drift_limit_pct, lo=0.0, lo_open=True, hi=100.0)
+    checks.number("bed_limit_pct", bed_limit_pct, lo=0.0, lo_open=True, hi=100.0)
     if settle_steps is not None:
-        checks.positive_int("--settle-steps", settle_steps, allow_zero=True)
+        checks.positive_int("settle_steps", settle_steps, allow_zero=True)
     if velocity_step is not None:
-        checks.positive("--velocity-step", velocity_step)
+        checks.positive("velocity_step", velocity_step)
         if velocities:
-            raise ConfigError("--velocity-step and --velocities both given: give the velocities, or a step across "
+            raise ConfigError("velocity_step= and velocities= both given: give the velocities, or a step across "
                               "the trained range")
-    checks.positive_int("--seed", seed, allow_zero=True)
+    checks.positive_int("seed", seed, allow_zero=True)
     return labels
 
 
@@ -217,7 +217,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
     given rollout options (None: as each checkpoint was trained)."""
     labels = check_options(ckpts, labels, velocities, steps, drift_limit_pct, seed, bed_limit_pct, settle_steps,
                            velocity_step)
-    checks.positive_int("--n-velocities", n_velocities)
+    checks.positive_int("n_velocities", n_velocities)
     limits = limits or DivergenceLimits()
     options = options or RolloutOptions()
     modules = [load_fb_checkpoint(Path(c)) for c in ckpts]  # refuses other kinds before any rollout
@@ -274,11 +274,11 @@ def merge_maps(*maps: dict[str, Any]) -> dict[str, Any]:
         for key in ("velocities", "steps", "drift_limit_pct"):
             if m[key] != first[key]:
                 raise DataError(f"stability maps differ in {key} ({first[key]} vs {m[key]}): run both with the "
-                                "same --velocities, --steps and --drift-limit-pct (gns_stability --like FB_JSON)")
+                                "same velocities=, steps= and drift_limit_pct= (gns_stability like=FB_JSON)")
     series = [dict(s, method=s.get("method", "field surrogate")) for m in maps for s in m["series"]]
     labels = [s["label"] for s in series]
     if len(set(labels)) != len(labels):
-        raise DataError(f"stability maps share series labels {labels}: give each series its own --labels")
+        raise DataError(f"stability maps share series labels {labels}: give each series its own labels=")
     return {**first, "limits": [m.get("limits") for m in maps], "series": series}
 
 
@@ -298,7 +298,7 @@ def main(argv: list[str]) -> int:
                    help="fluidized-bed checkpoints, one series each (e.g. a model and its ablations)")
     p.add_argument("--labels", nargs="+", default=None, help="series names, one per --ckpt (default: run folders)")
     p.add_argument("--velocities", type=float, nargs="+", default=None,
-                   help="inlet velocities [m/s] (default: --n-velocities from 0.8x the lowest to 1.2x the highest "
+                   help="inlet velocities [m/s] (default: n_velocities= from 0.8x the lowest to 1.2x the highest "
                         "trained velocity, plus the trained ends)")
     p.add_argument("--n-velocities", type=int, default=DEFAULT_N_VELOCITIES, help="size of the default grid")
     p.add_argument("--velocity-step", type=float, default=None,
@@ -324,7 +324,7 @@ def main(argv: list[str]) -> int:
     out = resolve_out(a.out, NAME)
     check_options(a.ckpt, a.labels, a.velocities, a.steps, a.drift_limit_pct, a.seed, a.bed_limit_pct,
                   a.settle_steps, a.velocity_step)
-    checks.positive_int("--n-velocities", a.n_velocities)
+    checks.positive_int("n_velocities", a.n_velocities)
     machine = machine_info()
     results = run(a.ckpt, a.labels, a.velocities, a.n_velocities, a.steps, a.dataset, a.drift_limit_pct, a.seed,
                   options=RolloutOptions.from_args(a), bed_limit_pct=a.bed_limit_pct, settle_steps=a.settle_steps,

@@ -1,24 +1,24 @@
 """`neuraldem import foam`: bring your own DPMFoam / MPPICFoam fluidized-bed run into a dataset.
 
 Reads an ASCII OpenFOAM case (serial, or parallel after `reconstructPar`): the cell fields of the continuous
-phase and the particle cloud of every time directory from --t0 on, one snapshot every --dt-ml seconds.
+phase and the particle cloud of every time directory from t0= on, one snapshot every dt_ml= seconds.
 The cells are put on a regular grid: a box mesh (blockMesh, any cell order) maps exactly; any other mesh is
-sampled at the nearest cell centre of a grid you give (--grid, --lo, --hi). The kernel solid fraction and
+sampled at the nearest cell centre of a grid you give (grid=, lo=, hi=). The kernel solid fraction and
 mixing concentration are computed exactly as for generated data, the file is written in the dataset format
 (one HDF5 file per trajectory) and its record (metrics included) is added to the dataset's manifest or
-replaces the one with the same --sim-id. Coordinates: z must point up (against gravity); the mixing groups
+replaces the one with the same sim_id=. Coordinates: z must point up (against gravity); the mixing groups
 split the box at its mid-plane in x. The manifest records the bed's scene as read (box, grid, mean particle
 diameter and density, snapshot interval, field kernels), so that `neuraldem evaluate ckpt=...
 dataset_dir=DATASET` rolls a bed checkpoint out on these cases when its scene matches (within 1 %, the grid
 exactly) and names the keys that differ when not; one dataset holds one bed.
 
-CFDEM cases: pass the CFD folder as --case with --fluid-fraction voidfraction --fluid-velocity U, and the
-particles from the LIGGGHTS dump with --liggghts-dump (columns id x y z vx vy vz, radius optional) and
---dem-dt (see docs/fluidized-bed.md).
+CFDEM cases: pass the CFD folder as case= with fluid_fraction=voidfraction fluid_velocity=U, and the
+particles from the LIGGGHTS dump with liggghts_dump= (columns id x y z vx vy vz, radius optional) and
+dem_dt= (see docs/fluidized-bed.md).
 
 Example:
-  neuraldem import foam --case ~/runs/bed_u16 --dataset ~/neuraldem-data/datasets/my_beds \\
-      --sim-id bed_u16 --inlet-velocity 1.6 --t0 0.2 --dt-ml 0.01
+  neuraldem import foam case=~/runs/bed_u16 dataset=~/neuraldem-data/datasets/my_beds \\
+      sim_id=bed_u16 inlet_velocity=1.6 t0=0.2 dt_ml=0.01
 """
 
 from __future__ import annotations
@@ -45,14 +45,14 @@ from neuraldem.sim.foam_reader import BoxGrid, CloudSnapshot, FoamCase, mesh_bou
 
 
 def choose_grid(case: FoamCase, a: argparse.Namespace) -> BoxGrid:
-    """--grid/--lo/--hi where given; else the mesh's bounding box with one grid cell per distinct cell-centre
+    """grid= / lo= / hi= where given; else the mesh's bounding box with one grid cell per distinct cell-centre
     coordinate along each axis (exact for a blockMesh box)."""
     bounds = mesh_bounds(case.path)
     lo = a.lo if a.lo else (bounds[0].tolist() if bounds else None)
     hi = a.hi if a.hi else (bounds[1].tolist() if bounds else None)
     if lo is None or hi is None:
-        raise ConfigError(f"{case.path}: constant/polyMesh/points is not readable: give the grid box with --lo "
-                          "and --hi")
+        raise ConfigError(f"{case.path}: constant/polyMesh/points is not readable: give the grid box with lo= "
+                          "and hi=")
     if a.grid:
         return BoxGrid(lo=tuple(lo), hi=tuple(hi), shape=tuple(a.grid))
     centres = case.cell_centres()
@@ -60,7 +60,7 @@ def choose_grid(case: FoamCase, a: argparse.Namespace) -> BoxGrid:
     shape = tuple(len(np.unique(np.round(centres[:, ax] / (1e-7 * span)))) for ax in range(3))
     if int(np.prod(shape)) != len(centres):
         raise ConfigError(f"{case.path}: the mesh is not a regular box grid; give the grid to sample it on with "
-                          "--grid NX NY NZ")
+                          "grid=[NX,NY,NZ]")
     return BoxGrid(lo=tuple(lo), hi=tuple(hi), shape=shape)  # type: ignore[arg-type]
 
 
@@ -109,7 +109,7 @@ def dump_cloud_reader(dump: Path, dem_dt: float, diameter: float | None):
         elif diameter:
             d = np.full(len(ids), diameter)
         else:
-            raise ConfigError(f"{dump} has no radius column: pass --diameter")
+            raise ConfigError(f"{dump} has no radius column: pass diameter=")
         xyz = np.stack([frame.column(c) for c in ("x", "y", "z")], axis=1)[order]
         vel = np.stack([frame.column(c) for c in ("vx", "vy", "vz")], axis=1)[order]
         return CloudSnapshot(orig_proc=np.zeros(len(ids), np.int64), orig_id=ids[order], positions=xyz,
@@ -151,13 +151,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
     if not a.inlet_velocity > 0:
-        raise ConfigError(f"--inlet-velocity must be positive, got {a.inlet_velocity}")
+        raise ConfigError(f"inlet_velocity= must be positive, got {a.inlet_velocity}")
     for name in ("dt_ml", "kernel_sigma", "mixing_sigma", "density", "dem_dt", "diameter"):
         v = getattr(a, name)
         if v is not None and not v > 0:
-            raise ConfigError(f"--{name.replace('_', '-')} must be positive, got {v}")
+            raise ConfigError(f"{name}= must be positive, got {v}")
     if a.liggghts_dump and not a.dem_dt:
-        raise ConfigError("--liggghts-dump needs --dem-dt (the DEM timestep, to turn dump steps into times)")
+        raise ConfigError("liggghts_dump= needs dem_dt= (the DEM timestep, to turn dump steps into times)")
     case = FoamCase(a.case, cloud=a.cloud, fluid_fraction=a.fluid_fraction, fluid_velocity=a.fluid_velocity,
                     pressure=a.pressure)
     times = case.times()
@@ -170,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     with_particles = [(v, n) for v, n in times if (reader is not None and v > 0) or case.has_cloud(n)]
     if not with_particles:
         raise DataError(f"{a.case}: no time directory holds particles of cloud {a.cloud!r} "
-                        f"(lagrangian/{a.cloud}/positions); is --cloud right?")
+                        f"(lagrangian/{a.cloud}/positions); is cloud= right?")
     t0 = a.t0 if a.t0 is not None else with_particles[0][0]
     dt_ml = a.dt_ml
     if dt_ml is None:
@@ -181,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
     grid = choose_grid(case, a)
     density = a.density if a.density is not None else particle_density(a.case, a.cloud)
     traj = read_trajectory(case, grid, t0, dt_ml, a.snapshots, density=density, cloud_reader=reader)
-    params = {"inlet_velocity": float(a.inlet_velocity), **parse_assignments(a.param, "--param", "packing=0")}
+    params = {"inlet_velocity": float(a.inlet_velocity), **parse_assignments(a.param, "param", "packing=0")}
     metrics = FbMetricSettings(lacey_block=tuple(a.lacey_block))  # type: ignore[arg-type]
     # the only writer; nothing changes until the checks pass
     with dataset_lock(a.dataset, command_line("neuraldem.scenes.fluidized_bed.dataset.importer")):

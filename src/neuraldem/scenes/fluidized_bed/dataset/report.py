@@ -1,13 +1,13 @@
-"""`neuraldem report fb-dataset DATASET --out DIR`: ground-truth report of a fluidized-bed dataset.
+"""`neuraldem report fb-dataset dataset=DATASET out=DIR`: ground-truth report of a fluidized-bed dataset.
 
 For the lowest and the highest inlet velocity among the dataset's finished trajectories (or the ones named
-with --sims) it writes:
+with sims=) it writes:
   curves.png          bed height, bubble fraction and Lacey index over time (field and particle versions)
   time_averages.png   per-cell time mean / std of solid fraction and fluid speed (central y slice)
   solid_volume.png    kernel-field solid volume relative to the particles' volume (mass conservation)
   report.json         the same series as numbers, the summary metrics, the solver cost of every trajectory
                       (CPU s per simulated s, with the machine load during the run) and the definitions
-DATASET is a dataset folder or a dataset name under $NEURALDEM_DATA/datasets. --note is added to the titles
+DATASET is a dataset folder or a dataset name under $NEURALDEM_DATA/datasets. note= is added to the titles
 and the JSON (e.g. "short 1-s runs").
 """
 
@@ -39,7 +39,7 @@ def resolve_dataset(arg: str) -> Path:
         return path
     named = data_dir() / "datasets" / arg
     raise DataError(f"no fluidized-bed dataset at {path} (nor {named})",
-                    fix="pass a dataset folder, or generate one with `python -m neuraldem.datagen data=fb_small`")
+                    fix="pass a dataset folder, or generate one with `neuraldem datagen data=fb_small`")
 
 
 def metric_settings(m: Manifest) -> dict[str, Any]:

@@ -2,13 +2,14 @@
 and the tests and the benchmark call directly.
 
 Split by what it costs:
-- numbers: the scalar GP (about a millisecond), the same call as `neuraldem predict fb --no-fields`;
+- numbers: the scalar GP (about a millisecond), the same call as `neuraldem predict fluidized_bed
+  fields=false`;
 - fields: a rollout of the field model over the answer window (a few hundred steps, seconds to tens of
-  seconds on two busy cores), as `neuraldem predict fb` runs it: too slow for a slider move. Rollouts are
-  therefore computed in the background (`fb_worker.py`) at a lattice of velocities over the trained range and
-  at the exact velocity once the slider rests; a move shows the nearest ready rollout at once, labelled with
-  its velocity, and the exact one when it is done. Only the central y slice of the grid (the bed is
-  quasi-2D) and the curves are kept per rollout.
+  seconds on two busy cores), as `neuraldem predict fluidized_bed` runs it: too slow for a slider move.
+  Rollouts are therefore computed in the background (`fb_worker.py`) at a lattice of velocities over the
+  trained range and at the exact velocity once the slider rests; a move shows the nearest ready rollout at
+  once, labelled with its velocity, and the exact one when it is done. Only the central y slice of the grid
+  (the bed is quasi-2D) and the curves are kept per rollout.
 """
 
 from __future__ import annotations
@@ -151,7 +152,8 @@ class BedEngine:
 
     # ---- numbers
     def numbers(self, v: float) -> dict[str, Any]:
-        """The GP's answer as `neuraldem predict fb --json` prints it under "gp", and its range warnings."""
+        """The GP's answer as `neuraldem predict fluidized_bed json=true` prints it under "gp", and its range
+        warnings."""
         v = self.velocity(v)
         return self._numbers.get_or_compute(v, lambda: self._gp_numbers(v))
 

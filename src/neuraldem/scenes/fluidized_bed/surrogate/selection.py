@@ -1,4 +1,4 @@
-"""`python -m neuraldem.scenes.fluidized_bed.surrogate.selection RUN_DIR`: choose a bed model's checkpoint on long
+"""`neuraldem report fb-select run_dir=RUN_DIR`: choose a bed model's checkpoint on long
 validation rollouts, with the rollout options it will be used with.
 
 Why: the rollout validation while training (`callbacks.rollout_validation`: 300 steps = 3 s from one trajectory per
@@ -6,13 +6,13 @@ velocity, plain rollouts) keeps one checkpoint, but the model is judged on 3000-
 noise, and a bed that erupts after 10 s (one seed at 2.05 m/s, results/fluidized_bed/options/
 flux_correction_test.md) scores well for 3 s. experiment=fb keeps
 every validated checkpoint in RUN_DIR/checkpoints/all/ (2.5 MB each for fb_tiny; elsewhere train with
-`callbacks.checkpoint.save_top_k=-1`); this then scores each one from `--from-step` on as `neuraldem evaluate
+`callbacks.checkpoint.save_top_k=-1`); this then scores each one from `from_step=` on as `neuraldem evaluate
 part=val` does (3000-step rollouts from every validation velocity; the evaluation is called as a function) under
 the rollout options, given as on every command (e.g. `rollout.rollout_noise=3 rollout.advection_correction=1
 rollout.mirror_alternate=true`; those left out: as trained), ranks them by the pooled score -- rel. L2 of the
 per-cell time mean + rel. L2 of the std field + Lacey MAE, each against every CFD-DEM run at the velocity, the sum
-the tables report (`scenes.fluidized_bed.table`) -- averaged over `--seeds` (rollout seeds: the noise draws and
-particle samples), and copies the winner to RUN_DIR/checkpoints/selected.ckpt (or `--copy-to`).
+the tables report (`scenes.fluidized_bed.table`) -- averaged over `seeds=` (rollout seeds: the noise draws and
+particle samples), and copies the winner to RUN_DIR/checkpoints/selected.ckpt (or `copy_to=`).
 
 Each evaluation lands in RUN_DIR/selection/OPTIONS/stepNNNNNN_seedS/evaluation/ (OPTIONS names the rollout options
 given, `RolloutOptions.tag()`, e.g. rollout_noise-3+advection_correction-1, or as_trained; metrics.json, report,
@@ -20,7 +20,7 @@ plots; `neuraldem report fb-table RUN_DIR/selection/OPTIONS` puts them side by s
 repeated, so a killed selection resumes. The ranking is RUN_DIR/selection/OPTIONS/selection.md (+ .json).
 Validation runs only: the test part stays untouched until the choice is made.
 
-`--long-val DATASET_DIR` adds a dataset of long validation trajectories of the same scene (e.g. data=fb_small_longval:
+`long_val=DATASET_DIR` adds a dataset of long validation trajectories of the same scene (e.g. data=fb_small_longval:
 30 s of CFD-DEM at a validation velocity, `data.parameters.long.part: val`): each checkpoint is also rolled out
 against it (`evaluate dataset_dir=... part=val`, into .../stepNNNNNN_seedS/<dataset name>/evaluation/) and the ranking
 is the mean over every validation velocity of both (each velocity weighs the same). Why: a bed whose statistics
@@ -52,7 +52,7 @@ from neuraldem.scenes.fluidized_bed.surrogate.options import OPTION_NAMES, Rollo
 
 STEP_CKPT = re.compile(r"^step(\d+)\.ckpt$")
 SELECTED = "selected.ckpt"
-VAL_SOURCE = "val"  # the run's own validation part, beside the --long-val datasets
+VAL_SOURCE = "val"  # the run's own validation part, beside the long_val= datasets
 
 # (checkpoint, output folder, rollout seed, dataset folder (None: the checkpoint's), rollout options) -> the
 # evaluation's metrics.json
@@ -76,21 +76,21 @@ def step_checkpoints(run_dir: Path, from_step: int) -> dict[int, Path]:
         raise DataError(f"{folder}: {len(chosen)} step checkpoint(s) from step {from_step} on "
                         f"({sorted(found) or 'none'}), nothing to choose between: train with experiment=fb "
                         "(keeps every validated checkpoint in checkpoints/all/) or callbacks.checkpoint.save_top_k=-1, "
-                        "or lower --from-step")
+                        "or lower from_step=")
     return chosen
 
 
 def long_val_datasets(paths: Sequence[Path]) -> dict[str, Path]:
-    """--long-val datasets by name, each with long validation trajectories (refused in one line otherwise)."""
+    """long_val= datasets by name, each with long validation trajectories (refused in one line otherwise)."""
     out: dict[str, Path] = {}
     for given in paths:
         path = find_dataset(str(given))  # a folder, or a name under <data dir>/datasets
         m = require_dataset(path, Path(given).name)
         if not m.splits.get("long", {}).get("val"):
-            raise ConfigError(f"--long-val {given}: dataset {m.name!r} lists no long validation trajectory; give one "
+            raise ConfigError(f"long_val={given}: dataset {m.name!r} lists no long validation trajectory; give one "
                               "made with data.parameters.long.part=val (e.g. data=fb_small_longval)")
         if m.name in out or m.name == VAL_SOURCE:
-            raise ConfigError(f"--long-val {given}: a second dataset named {m.name!r}; give each once")
+            raise ConfigError(f"long_val={given}: a second dataset named {m.name!r}; give each once")
         out[m.name] = Path(path).resolve()
     return out
 
@@ -136,7 +136,7 @@ def select(run_dir: Path, from_step: int = 0, options: RolloutOptions | None = N
     ranking, copy the winner."""
     options = options or RolloutOptions()
     if not seeds or any(s < 0 for s in seeds):
-        raise ConfigError(f"--seeds {list(seeds)}: give one or more rollout seeds >= 0 (e.g. --seeds 0 1)")
+        raise ConfigError(f"seeds={list(seeds)}: give one or more rollout seeds >= 0 (e.g. seeds=[0,1])")
     longs = long_val_datasets(long_val)
     ckpts = step_checkpoints(run_dir, from_step)
     sel = run_dir / "selection" / options.tag()

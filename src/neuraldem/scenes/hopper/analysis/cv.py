@@ -1,4 +1,4 @@
-"""`python -m neuraldem.scenes.hopper.analysis.cv --dataset DIR [GRID_DIR...] [--seed-floor FILE] --out FILE.md`:
+"""`neuraldem report hopper-cv dataset=DIR [grids=[GRID_DIR,...]] [seed_floor=FILE] out=FILE.md`:
 the hopper's Table 4 as a cross-validation, every method on the same held-out runs.
 
 For every cross-validation fold (`data.splits.cv_split`: random folds, and interior alpha bands) and every
@@ -6,10 +6,10 @@ conditioning row (micro: alpha, mu_s, mu_r; macro: alpha, theta, repose) the tab
 - **constant**: the training mean of every answer (the trivial baseline);
 - **GP**: a Gaussian process on the scene scalars of the row (`scenes.hopper.baselines`);
 - **field model**: the trained NeuralDEM runs found under GRID_DIR (`scripts/hopper_ablation.sh` with
-  FOLDS set), evaluated with `neuraldem.evaluate`; the baselines of that fold are fitted on exactly the runs
+  FOLDS set), evaluated with `neuraldem evaluate`; the baselines of that fold are fitted on exactly the runs
   the field model trained and validated on (the ids travel in its evaluation file);
 - **LIGGGHTS, another packing seed**: the solver rerun with 3 other seeds on >= 10 parameter sets
-  (`python -m neuraldem.bench seed_floor`), the noise floor no model can be expected to beat.
+  (`neuraldem bench seed_floor`), the noise floor no model can be expected to beat.
 Errors are means over each fold's test runs, then mean +- std over the folds (`score_answers`, one function
 for every method). Folds without a field-model run are scored for the baselines alone.
 """
@@ -232,21 +232,21 @@ def main(argv: list[str] | None = None) -> int:
                    help="score only these folds (default all; e.g. the folds a study trained)")
     p.add_argument("--n-sims", type=int, default=None,
                    help="folds over the first N simulations (data.datamodule.n_sims of the training runs)")
-    p.add_argument("--seed-floor", type=Path, default=None, help="seed_floor.json of python -m neuraldem.bench "
-                                                                  "seed_floor (the LIGGGHTS row)")
+    p.add_argument("--seed-floor", type=Path, default=None, help="seed_floor.json of neuraldem bench seed_floor "
+                                                                  "(the LIGGGHTS row)")
     p.add_argument("--out", type=Path, required=True, help="markdown file (+ .json beside it)")
     a = p.parse_args(argv)
     if a.n_folds < 2:
-        raise DataError(f"--n-folds {a.n_folds}: cross-validation needs >= 2 folds")
+        raise DataError(f"n_folds={a.n_folds}: cross-validation needs >= 2 folds")
     floor = None
     if a.seed_floor is not None:
         if not a.seed_floor.is_file():
-            raise DataError(f"--seed-floor {a.seed_floor} does not exist: run python -m neuraldem.bench seed_floor "
-                            f"--dataset {a.dataset}")
+            raise DataError(f"seed_floor={a.seed_floor} does not exist: run neuraldem bench seed_floor "
+                            f"dataset={a.dataset}")
         floor = json.loads(a.seed_floor.read_text())
     bad = [k for k in a.folds or [] if not 0 <= k < a.n_folds]
     if bad:
-        raise DataError(f"--folds {bad}: folds are 0 .. {a.n_folds - 1}")
+        raise DataError(f"folds={bad}: folds are 0 .. {a.n_folds - 1}")
     result = build(collect(a.dataset, a.grids, a.splits, a.n_folds, a.seed, a.n_sims, a.folds), floor)
     result.update(machine=machine_info(), command=module_command("neuraldem.scenes.hopper.analysis.cv", argv))
     text = render(result)

@@ -146,8 +146,8 @@ def imported_records(meta: dict[str, Any], m: Manifest, dataset_dir: Path,
         missing = [k for k in meta["conditioning"] if k != "t" and k not in rec.conditioning()]  # t: the query time
         if missing:
             raise DataError(f"imported run {rec.sim_id} in {dataset_dir} lacks {', '.join(missing)}, which the "
-                            f"model is conditioned on", fix="import it again with " +
-                            " ".join(f"--param {k}=VALUE" for k in missing) + " (--macro for measured ones)")
+                            f"model is conditioned on", fix="import it again with param=[" +
+                            ",".join(f"{k}=VALUE" for k in missing) + "] (macro=[...] for measured ones)")
     return records
 
 

@@ -1,7 +1,7 @@
-"""`python -m neuraldem.scenes.hopper.analysis.table RUNS_DIR... --out FILE.md`: the paper's Table 4 from runs.
+"""`neuraldem report hopper-table folders=[RUNS_DIR,...] out=FILE.md`: the paper's Table 4 from runs.
 
 Finds every `evaluation/metrics.json` under the given folders (e.g. the folder of the ablation sweep
-`python -m neuraldem.train -m experiment=... data.split=random,band`), and writes one markdown table per
+`neuraldem train -m experiment=... data.split=random,band`), and writes one markdown table per
 split with one row per conditioning, plus a JSON file with the same numbers next to it.
 """
 

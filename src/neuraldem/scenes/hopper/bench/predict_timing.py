@@ -1,11 +1,11 @@
 """What-if answers vs LIGGGHTS: how fast `neuraldem predict` answers, and how close, at random in-range points.
 
-    python -m neuraldem.bench whatif --points 5 --repeats 5
+    neuraldem bench whatif points=5 repeats=5
 
-- answer times (median of --repeats): the GP's answer in the process, the field model's (every 2nd time,
-  as `predict` does), and the whole `neuraldem predict ... --no-fields` command (Python start and imports
-  included), the numbers a user waits for;
-- --points random parameter sets inside the shipped model's trained ranges (seeded): the GP and the field
+- answer times (median of repeats=): the GP's answer in the process, the field model's (every 2nd time,
+  as `predict` does), and the whole `neuraldem predict hopper ... fields=false` command (Python start and
+  imports included), the numbers a user waits for;
+- points= random parameter sets inside the shipped model's trained ranges (seeded): the GP and the field
   model beside LIGGGHTS at the model's scene, each with its time, and LIGGGHTS's time over theirs. The solver
   runs are kept in <data dir>/bench/whatif/ and reused (resumable).
 Writes results/bench/whatif.json and whatif.md.
@@ -47,8 +47,8 @@ def answer_times(model: pretrained.Pretrained, repeats: int, settings: Any) -> d
     field_t, _ = time_call(lambda: field_answer(module.net, module.metadata, DEFAULT_POINT, settings,
                                                 time_stride=2), repeats)
     cmd = [sys.executable, "-m", "neuraldem", "predict", "hopper",
-           *(f"{k}={v:g}" for k, v in DEFAULT_POINT.items()), "--no-fields", "--out",
-           str(data_dir() / "bench" / "whatif" / "command")]
+           *(f"{k}={v:g}" for k, v in DEFAULT_POINT.items()), "fields=false",
+           f"out={data_dir() / 'bench' / 'whatif' / 'command'}"]
 
     def command() -> None:
         subprocess.run(cmd, check=True, capture_output=True)
@@ -83,7 +83,7 @@ def markdown(result: dict[str, Any], threshold: float) -> str:
              "| answer | median wall [s] |", "|---|---|",
              f"| GP, in the process | {t['gp_in_process']['median_wall_s']:.4f} |",
              f"| field model (every 0.1 s), in the process | {t['field_in_process']['median_wall_s']:.2f} |",
-             f"| `neuraldem predict ... --no-fields`, whole command | "
+             f"| `neuraldem predict hopper ... fields=false`, whole command | "
              f"{t['predict_command_no_fields']['median_wall_s']:.2f} |", "",
              "Random points inside the trained ranges (seeded), each answered three ways:", "",
              "| point | t95 LIGGGHTS [s] | t95 GP [95 %] | t95 field | outflow LIGGGHTS / GP / field [%/s] | "
@@ -121,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings
 
     argv = sys.argv[1:] if argv is None else argv
-    p = doc_parser("neuraldem.bench", __doc__)
+    p = doc_parser("neuraldem.bench whatif", __doc__)
     p.add_argument("--model", default=None, help="shipped hopper model (default: the shipped one)")
     p.add_argument("--points", type=int, default=5, help="random in-range points checked with LIGGGHTS")
     p.add_argument("--seed", type=int, default=0)

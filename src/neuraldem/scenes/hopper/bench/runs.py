@@ -1,8 +1,8 @@
 """Evaluated hopper training runs as benchmark points: their errors (`<run>/evaluation/metrics.json`, written
-by `neuraldem.evaluate` or `train evaluate=true`), their size (from the checkpoint and the run's config) and
-their measured time to answer one trajectory.
+by `neuraldem evaluate` or `neuraldem train ... evaluate=true`), their size (from the checkpoint and the run's
+config) and their measured time to answer one trajectory.
 
-A run folder is a folder holding `checkpoints/` (what `neuraldem.train` makes). A run without its
+A run folder is a folder holding `checkpoints/` (what `neuraldem train` makes). A run without its
 evaluation is an error unless skipped on purpose: a chart silently missing a model would mislead.
 """
 
@@ -25,8 +25,8 @@ from neuraldem.scenes.hopper.bench.surrogate import answer, full_question, load_
 
 METRICS = Path("evaluation") / "metrics.json"
 # practitioner's quantities: aggregate key in metrics.json -> chart label
-EVALUATE_HINT = ("evaluate it with `python -m neuraldem.evaluate ckpt={run}/checkpoints/last.ckpt "
-                 "hydra.run.dir={run}/evaluation`, or pass --skip-unevaluated")
+EVALUATE_HINT = ("evaluate it with `neuraldem evaluate ckpt={run}/checkpoints/last.ckpt "
+                 "hydra.run.dir={run}/evaluation`, or pass skip_unevaluated=true")
 
 
 @dataclass
@@ -58,7 +58,7 @@ def run_folders(folders: list[Path]) -> tuple[list[Path], list[Path]]:
     for folder in folders:
         folder = Path(folder)
         if not folder.is_dir():
-            raise DataError(f"--runs {folder}: no such folder: pass folders that hold training runs")
+            raise DataError(f"runs={folder}: no such folder: pass folders that hold training runs")
         for ckpts in folder.rglob("checkpoints"):
             if ckpts.is_dir():
                 run = ckpts.parent
@@ -84,7 +84,7 @@ def read_run(run_dir: Path) -> EvaluatedRun | None:
         return None  # another scene's metrics (kept out of hopper charts)
     if "drainage_t95_pct_of_mean" not in aggregate:
         raise DataError(f"{path} was scored with metrics older than drainage t95 (docs/metrics.md): re-run the "
-                        "evaluation with this neuraldem (python -m neuraldem.evaluate ckpt=...)")
+                        "evaluation with this neuraldem (neuraldem evaluate ckpt=...)")
     missing = [k for k in HOPPER_ERRORS if k not in aggregate]
     if missing:
         raise DataError(f"{path}: field 'aggregate' lacks {missing}: re-run the evaluation with this neuraldem")
@@ -122,7 +122,7 @@ def train_queries(run_dir: Path) -> int | None:
 
 
 def run_label(run_dir: Path, folders: list[Path]) -> str:
-    """The run folder relative to the `--runs` folder it lies in (e.g. `multirun_.../3`), else its name."""
+    """The run folder relative to the `runs=` folder it lies in (e.g. `multirun_.../3`), else its name."""
     for folder in folders:
         try:
             rel = run_dir.resolve().relative_to(Path(folder).resolve())
@@ -151,8 +151,8 @@ def collect_runs(folders: list[Path], skip_unevaluated: bool = False) -> tuple[l
             runs.append(run)
     if not runs:
         raise DataError(f"no evaluated hopper run under {[str(f) for f in folders]}: train with "
-                        "`python -m neuraldem.train experiment=hopper_micro` (evaluates at the end) or evaluate "
-                        "a checkpoint with `python -m neuraldem.evaluate ckpt=...`")
+                        "`neuraldem train experiment=hopper_micro` (evaluates at the end) or evaluate "
+                        "a checkpoint with `neuraldem evaluate ckpt=...`")
     return runs, notes
 
 

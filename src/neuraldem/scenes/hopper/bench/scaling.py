@@ -1,14 +1,14 @@
 """How the cost grows: LIGGGHTS with the particle count, the surrogate with query points and latent tokens.
 
-`python -m neuraldem.bench hopper_scaling [--dataset DIR] [--particles 2000 5000 10000 20000 50000]
-[--steps 1000] [--full-up-to 5000] [--ckpt CKPT | --model hopper_base] [--queries ...] [--tokens ...]`
+`neuraldem bench hopper_scaling [dataset=DIR] [particles=[2000,5000,10000,20000,50000]]
+[steps=1000] [full_up_to=5000] [ckpt=CKPT | model=hopper_base] [queries=[...]] [tokens=[...]]`
 writes results/hopper/speed/hopper_scaling.json and hopper_scaling.png (log-log).
 
 LIGGGHTS: the dataset's hopper scaled to N particles (same shape); each N is filled, settled and drained for
-2 x `--steps` timesteps only (the first `--steps` start the flow). Measured: settle time, particle-steps per
+2 x `steps=` timesteps only (the first `steps=` start the flow). Measured: settle time, particle-steps per
 second of the second chunk (LIGGGHTS's own loop clock) and the process's wall/CPU time. Extrapolated: a full
 run = measured settle + a full drain's particle-steps / the measured rate, where a full drain's duration and
-mean fill come from the dataset's stored runs. Counts up to `--full-up-to` are also run in full, which checks
+mean fill come from the dataset's stored runs. Counts up to `full_up_to=` are also run in full, which checks
 the extrapolation.
 Surrogate: one full trajectory (every snapshot time) at Q uniform query points; and at a fixed Q for
 untrained copies of the net with other latent token counts (the cost does not depend on the weights).
@@ -158,7 +158,7 @@ def main(argv: list[str]) -> int:
     p = command_parser(f"neuraldem.bench {NAME}", __doc__, summary=True)
     p.add_argument("--dataset", type=Path, default=None,
                    help="reference dataset: its scene is scaled, its runs give the full drain "
-                        "(default: the --ckpt's dataset, else <data dir>/datasets/hopper_small)")
+                        "(default: the dataset of ckpt=, else <data dir>/datasets/hopper_small)")
     p.add_argument("--particles", type=int, nargs="+", default=list(DEFAULT_PARTICLES))
     p.add_argument("--steps", type=int, default=1000,
                    help="timesteps per drain chunk after settling (2 chunks; the second one is measured)")
@@ -173,7 +173,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--reuse-solver", type=Path, default=None,
                    help="take the LIGGGHTS part from an earlier hopper_scaling.json instead of running")
     p.add_argument("--ckpt", type=Path, default=None, help="hopper checkpoint (its net and horizon)")
-    p.add_argument("--model", default="hopper_base", help="conf/model/ name, untrained, when no --ckpt")
+    p.add_argument("--model", default="hopper_base", help="conf/model/ name, untrained, when no ckpt=")
     p.add_argument("--queries", type=int, nargs="+", default=list(DEFAULT_QUERIES))
     p.add_argument("--tokens", type=int, nargs="+", default=list(DEFAULT_TOKENS))
     p.add_argument("--token-queries", type=int, default=5000, help="query points of the token sweep")
@@ -186,9 +186,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--out", type=Path, default=None,
                    help=f"default results/hopper/speed/{NAME}.json (+ .png beside it)")
     a = p.parse_args(argv)
-    params = {**DEFAULT_PARAMS, **parse_assignments(a.param, "--param", "alpha=30")}
+    params = {**DEFAULT_PARAMS, **parse_assignments(a.param, "param", "alpha=30")}
     for key in params:
-        checks.one_of("--param", key, DEFAULT_PARAMS)
+        checks.one_of("param", key, DEFAULT_PARAMS)
     for key in ("steps", "token_queries", "threads", "repeats", "solver_repeats"):
         checks.positive_int(key, getattr(a, key))
     checks.positive_int("full_up_to", a.full_up_to, allow_zero=True)
@@ -199,7 +199,7 @@ def main(argv: list[str]) -> int:
         checks.positive_int("n_times", a.n_times)
     profile = None
     if (a.drain_time is None) != (a.remaining_fraction is None):
-        raise ConfigError("--drain-time and --remaining-fraction go together (both describe the full drain): "
+        raise ConfigError("drain_time= and remaining_fraction= go together (both describe the full drain): "
                           "give both, or neither to take them from the dataset's stored runs")
     if a.drain_time is not None:
         profile = DrainProfile(checks.positive("drain_time", a.drain_time),
@@ -240,8 +240,8 @@ def reused_solver_part(path: Path) -> dict[str, Any]:
     """The LIGGGHTS part of an earlier hopper_scaling.json (labelled as reused)."""
     solver = read_results(path, NAME)["results"].get("solver")
     if solver is None:
-        raise DataError(f"{path} has no LIGGGHTS part (it was run with --skip-solver): run "
-                        f"`python -m neuraldem.bench {NAME}` without --skip-solver once")
+        raise DataError(f"{path} has no LIGGGHTS part (it was run with skip_solver=true): run "
+                        f"`neuraldem bench {NAME}` without skip_solver=true once")
     return {**solver, "reused_from": str(path)}
 
 

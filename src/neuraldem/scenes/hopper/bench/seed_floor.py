@@ -2,7 +2,7 @@
 
 A hopper run depends on the random packing; a surrogate cannot be expected to agree with the stored run better
 than another run of the same parameters does. For N parameter sets of a dataset (spread over the parameter
-space, chosen reproducibly from --seed) LIGGGHTS is rerun K times, each with packing seeds no stored run uses,
+space, chosen reproducibly from seed=) LIGGGHTS is rerun K times, each with packing seeds no stored run uses,
 stored like a dataset run (`<workdir>/files/`) and scored from that file with the functions that scored the
 dataset (`scenes.hopper.datagen.stored_metrics` on the scene's max_time grid, the manifest's metric settings; new
 settings rescore the stored reruns without running them again). Reported:
@@ -14,8 +14,8 @@ settings rescore the stored reruns without running them again). Reported:
                    residuals in percentage points
   cost             median solver CPU (and wall) seconds per rerun: the method's time to answer
 
-`python -m neuraldem.bench seed_floor --dataset DIR [--n-sets 10] [--seeds 3] [--workers 1] [--seed 0]
-[--out results/hopper/accuracy/seed_floor.json] [--workdir DIR]` writes the JSON and a markdown table beside it. Every
+`neuraldem bench seed_floor dataset=DIR [n_sets=10] [seeds=3] [workers=1] [seed=0]
+[out=results/hopper/accuracy/seed_floor.json] [workdir=DIR]` writes the JSON and a markdown table beside it. Every
 finished rerun is written at once to `<workdir>/reruns.json`; a restarted command reruns only what is missing.
 """
 
@@ -69,7 +69,7 @@ SPREAD = {
     "mass_flow_index": ("abs", None, "mass-flow index [index units]"),
 }
 SELECTION = ("farthest-point sampling over the usable runs in parameters scaled to [0, 1] by the dataset's "
-             "ranges, the first run drawn at random with --seed")
+             "ranges, the first run drawn at random with seed=")
 
 
 # ---- which parameter sets
@@ -82,8 +82,8 @@ def select_records(m: Manifest, n_sets: int, seed: int, keep: Sequence[str] = ()
     """
     usable = sorted(m.usable(), key=lambda r: r.index)
     if n_sets > len(usable):
-        raise DataError(f"dataset {m.name!r} has {len(usable)} usable run(s), fewer than --n-sets {n_sets}: pass "
-                        f"--n-sets {len(usable)} or less, or generate more runs with `python -m neuraldem.datagen "
+        raise DataError(f"dataset {m.name!r} has {len(usable)} usable run(s), fewer than n_sets={n_sets}: pass "
+                        f"n_sets={len(usable)} or less, or generate more runs with `neuraldem datagen "
                         f"data={m.name} n_sims=...`")
     names = sorted(usable[0].params)
     x = np.array([[r.params[k] for k in names] for r in usable], dtype=np.float64)
@@ -119,13 +119,13 @@ def check_seed_range(records: Sequence[SimRecord], seeds: int) -> None:
     top = max(r.index for r in records)
     if top >= SEED_OFFSET:
         raise DataError(f"run index {top} >= {SEED_OFFSET}: reruns of this dataset could share packing seeds with "
-                        "stored runs; pick parameter sets of lower index (another --seed) or raise SEED_OFFSET in "
+                        "stored runs; pick parameter sets of lower index (another seed=) or raise SEED_OFFSET in "
                         "neuraldem/scenes/hopper/bench/seed_floor.py")
     if prime_seeds(rerun_index(top, seeds), SEEDS_PER_RUN)[-1] > MAX_SEED:
         most = max(k for k in range(1, seeds + 1)
                    if prime_seeds(rerun_index(top, k), SEEDS_PER_RUN)[-1] <= MAX_SEED)
-        raise ConfigError(f"--seeds {seeds}: the packing seeds of the last reruns exceed LIGGGHTS's 32-bit seed "
-                          f"range: pass --seeds {most} or less")
+        raise ConfigError(f"seeds={seeds}: the packing seeds of the last reruns exceed LIGGGHTS's 32-bit seed "
+                          f"range: pass seeds={most} or less")
 
 
 # ---- reruns and their cache
@@ -156,7 +156,7 @@ def load_cache(path: Path, header: dict[str, Any]) -> dict[str, dict[str, Any]]:
     fatal = [k for k in differs if k not in RESCORABLE]
     if fatal:
         raise DataError(f"{path} holds reruns made with another {', '.join(fatal)}: delete it, or pass another "
-                        "--workdir to keep it")
+                        "workdir= to keep it")
     runs = dict(payload.get("runs", {}))
     if differs:  # new metric settings: rescore what has its trajectory, run again what has not
         settings = HopperMetricSettings.from_config(header["metric_settings"], f"{path} metric_settings")
@@ -292,7 +292,7 @@ def stored_truth(rec: SimRecord, dataset_dir: Path) -> dict[str, float]:
     missing = [k for k in METRIC_KEYS if k not in rec.metrics]
     if missing:
         raise DataError(f"{dataset_dir}/manifest.json: simulation {rec.sim_id} has no metrics {missing}: rescore "
-                        "the dataset with this neuraldem (`python -m neuraldem.datagen data=...` resumes and "
+                        "the dataset with this neuraldem (`neuraldem datagen data=...` resumes and "
                         "rescores)")
     return {k: float(rec.metrics[k]) for k in METRIC_KEYS}
 
@@ -417,10 +417,10 @@ def main(argv: list[str]) -> int:
     p.add_argument("--out", type=Path, default=None,
                    help=f"default results/hopper/accuracy/{NAME}.json (+ .md beside it)")
     a = p.parse_args(argv)
-    checks.positive_int("--n-sets", a.n_sets)
-    checks.positive_int("--seeds", a.seeds)
-    checks.positive_int("--workers", a.workers)
-    checks.positive_int("--seed", a.seed, allow_zero=True)
+    checks.positive_int("n_sets", a.n_sets)
+    checks.positive_int("seeds", a.seeds)
+    checks.positive_int("workers", a.workers)
+    checks.positive_int("seed", a.seed, allow_zero=True)
     out = resolve_out(a.out, NAME)
     todo = plan(a.dataset, a.n_sets, a.seeds, a.seed, a.workdir)  # everything that can fail, before any run
     machine = machine_info()

@@ -1,7 +1,7 @@
 """LIGGGHTS against the trained surrogate on the same hopper questions, side by side in one run.
 
-`python -m neuraldem.bench hopper_speed --ckpt CKPT [--dataset DIR] [--repeats 5] [--solver-repeats 3]
-[--reuse-dataset] [--reduced-queries 1000] [--threads 1]` writes results/hopper/speed/hopper_speed.json and .md.
+`neuraldem bench hopper_speed ckpt=CKPT [dataset=DIR] [repeats=5] [solver_repeats=3]
+[reuse_dataset=true] [reduced_queries=1000] [threads=1]` writes results/hopper/speed/hopper_speed.json and .md.
 
 Question 1: occupancy, transport and residence at every initial particle position for every snapshot time.
 Question 2: the same at a reduced set of query points. The solver answers both by simulating the hopper
@@ -64,7 +64,7 @@ def solver_timing_recorded(m: Manifest, dataset_dir: Path, rec: SimRecord) -> tu
     costs = [r.cost for r in m.usable() if "cpu_s" in r.cost and "wall_s" in r.cost]
     if not costs:
         raise DataError(f"{dataset_dir}/manifest.json records no cpu_s/wall_s cost for any simulation: drop "
-                        "--reuse-dataset to time LIGGGHTS here")
+                        "reuse_dataset=true to time LIGGGHTS here")
     with HopperFile(Path(dataset_dir) / str(rec.file)) as f:
         traj = f.load()
     timing = Timing([Sample(c["wall_s"], c["cpu_s"]) for c in costs], source=RECORDED,

@@ -7,14 +7,14 @@ ground-truth metrics computed exactly as for generated data. The manifest record
 (hopper and outlet diameter, cone height, particle diameter, timestep), so that `neuraldem evaluate
 ckpt=... dataset_dir=DATASET` scores a hopper checkpoint on these runs when its scene matches (geometry and
 particle size within 1 %) and names the keys that differ when not; one dataset holds one scene. The first
-frame at or after --open-step is t = 0 (the moment the outlet opens); coordinates must have the outlet centre
+frame at or after open_step= is t = 0 (the moment the outlet opens); coordinates must have the outlet centre
 at the origin, z up.
 
 Example:
-  neuraldem import liggghts --dump post/dump.txt --exits post/exits.txt \\
-      --dataset ~/neuraldem-data/datasets/my_hoppers --sim-id plant_a --dt 1e-5 --open-step 60000 \\
-      --diameter 0.004 --radius 0.12 --outlet-radius 0.025 --cone-height 0.08 \\
-      --param alpha=45 --param mu_s=0.4 --param mu_r=0.1 --macro theta=24.1 --macro repose=30.2
+  neuraldem import liggghts dump=post/dump.txt exits=post/exits.txt \\
+      dataset=~/neuraldem-data/datasets/my_hoppers sim_id=plant_a dt=1e-5 open_step=60000 \\
+      diameter=0.004 radius=0.12 outlet_radius=0.025 cone_height=0.08 \\
+      param=[alpha=45,mu_s=0.4,mu_r=0.1] macro=[theta=24.1,repose=30.2]
 """
 
 from __future__ import annotations
@@ -70,9 +70,9 @@ def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
     for name in ("dt", "diameter", "radius", "outlet_radius", "resolution"):
         if not getattr(a, name) > 0:
-            raise ConfigError(f"--{name.replace('_', '-')} must be positive, got {getattr(a, name)}")
-    params = parse_assignments(a.param, "--param", "alpha=30")
-    macro = parse_assignments(a.macro, "--macro", "theta=24")
+            raise ConfigError(f"{name}= must be positive, got {getattr(a, name)}")
+    params = parse_assignments(a.param, "param", "alpha=30")
+    macro = parse_assignments(a.macro, "macro", "theta=24")
     sink_z = a.sink_z if a.sink_z is not None else -np.inf
     geom = HopperGeometry(radius=a.radius, outlet_radius=a.outlet_radius, cone_height=a.cone_height,
                           wall_height=np.nan, sink_z=sink_z)

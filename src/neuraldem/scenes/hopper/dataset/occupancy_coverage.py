@@ -1,6 +1,5 @@
-"""`python -m neuraldem.scenes.hopper.dataset.occupancy_coverage DATASET [--runs 6] [--radii 0.6 0.8 1.0] [--times 0.25
-0.5 1
-2]`: how well the occupancy field counts material, for a choice of occupancy radius.
+"""`neuraldem report occupancy dataset=DATASET [runs=6] [radii=[0.6,0.8,1.0]] [times=[0.25,0.5,1,2]]`: how well
+the occupancy field counts material, for a choice of occupancy radius.
 
 The hopper metrics count material by the occupancy at the initial particle positions. Flowing material dilates:
 its particles no longer sit on those positions, and a point in a void is empty unless some centre lies within
@@ -42,7 +41,7 @@ def coverage_rows(dataset: Path, n_runs: int, radii: list[float], times: list[fl
                     row[f"r{r:g}"] = float(nearest_particle(points, pos, r * diameter)[0].mean())
                 rows.append(row)
     if not rows:
-        raise DataError(f"{dataset}: no usable run reaches the times {times}: pass earlier --times")
+        raise DataError(f"{dataset}: no usable run reaches the times {times}: pass earlier times=")
     return rows
 
 

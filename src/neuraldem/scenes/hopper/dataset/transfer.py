@@ -9,8 +9,8 @@ normal schema (without /snapshots/velocity) and the manifest, with each record's
 rebuilt file; scene, parameters, metrics and splits are unchanged, so a model trained on the copy evaluates
 on the original.
 
-    python -m neuraldem.scenes.hopper.dataset.transfer pack DATASET_DIR OUT_DIR [--max-part-mb 60]
-    python -m neuraldem.scenes.hopper.dataset.transfer unpack OUT_DIR/part_* --dataset NEW_DATASET_DIR
+    neuraldem export pack dataset=DATASET_DIR out=OUT_DIR [max_part_mb=60]
+    neuraldem export unpack parts=[OUT_DIR/part_000,OUT_DIR/part_001] dataset=NEW_DATASET_DIR
 """
 
 from __future__ import annotations

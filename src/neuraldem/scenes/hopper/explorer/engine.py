@@ -2,7 +2,7 @@
 tests and the benchmark call directly.
 
 A slider move must answer fast, so the work is split by what it costs:
-- numbers: the scalar GP (milliseconds), the same call and formatting as `neuraldem predict --no-fields`;
+- numbers: the scalar GP (milliseconds), the same call and formatting as `neuraldem predict hopper fields=false`;
 - the shown frame: the field model at one time on the drawn material (a subset of the lattice the model fills
   at t = 0, cached per point), tens of milliseconds; frames are cached per point and time (play);
 - the whole discharge: the field model at every 0.1 s on all the material, as `neuraldem predict` computes it
@@ -143,7 +143,7 @@ class HopperEngine:
 
     # ---- numbers
     def numbers(self, point: Point) -> dict[str, Any]:
-        """The GP's answer as `neuraldem predict --json` prints it under "gp", and its range warnings."""
+        """The GP's answer as `neuraldem predict hopper json=true` prints it under "gp", and its range warnings."""
         return self._numbers.get_or_compute(point, lambda: self._gp_numbers(point))
 
     def _gp_numbers(self, point: Point) -> dict[str, Any]:

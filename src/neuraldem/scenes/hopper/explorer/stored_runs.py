@@ -1,6 +1,6 @@
 """Stored LIGGGHTS runs near the explored point: shown beside the model's answer when one is close enough.
 
-The runs are the model's own training dataset (meta.json names it) or `--dataset DIR`, and only when its
+The runs are the model's own training dataset (meta.json names it) or `dataset=DIR`, and only when its
 scene is the model's. Near means every parameter within `near` (a share of its trained range) of the run's.
 Without a dataset on disk the explorer works the same, with the overlay off and a line that says why.
 """
@@ -54,7 +54,7 @@ class StoredRuns:
 
         name = (meta.get("training_data") or {}).get("dataset")
         if dataset_dir is None and not name:
-            return None, "overlay off: the model does not name its dataset (pass --dataset DIR)"
+            return None, "overlay off: the model does not name its dataset (pass dataset=DIR)"
         folder = Path(dataset_dir) if dataset_dir is not None else data_dir() / "datasets" / str(name)
         if not (folder / MANIFEST_NAME).is_file():
             return None, f"overlay off: no stored LIGGGHTS runs at {folder}"

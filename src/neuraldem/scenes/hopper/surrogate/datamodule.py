@@ -157,7 +157,7 @@ def cv_records(m: Manifest, n_sims: int | None, dataset_dir: Path) -> list[SimRe
         return m.usable()
     if n_sims > len(m.simulations):
         raise DataError(f"data.datamodule.n_sims={n_sims} but {dataset_dir} has {len(m.simulations)} simulations: "
-                        f"lower it or generate more with python -m neuraldem.datagen data={m.name} n_sims={n_sims}")
+                        f"lower it or generate more with neuraldem datagen data={m.name} n_sims={n_sims}")
     pending = [r.sim_id for r in m.simulations[:n_sims] if r.status == "pending"]
     if pending:
         raise DataError(f"{len(pending)} of the first {n_sims} simulations of {dataset_dir} are not finished (e.g. "
@@ -249,7 +249,7 @@ class HopperDataModule(PartLoaders):
             for part in ("train", "val", "test"):
                 if not self.split_ids.get(part):
                     raise DataError(f"dataset {self.dataset_dir}: split {self.split!r} has no {part} "
-                                    "simulations; generate more with python -m neuraldem.datagen "
+                                    "simulations; generate more with neuraldem datagen "
                                     f"data={self.name} n_sims=N")
             self.manifest = m
         return self.manifest
