@@ -71,6 +71,8 @@ SCENE = Scene(
                        "LIGGGHTS rerun with other packing seeds: the noise floor of every hopper quantity"),
         "query_budget": ("neuraldem.scenes.hopper.bench.query_budget",
                          "the field model's errors against answer time over its query budget (lattice, times)"),
+        "runtime": ("neuraldem.scenes.hopper.bench.runtime",
+                    "what runs the field model fastest: eager torch, torch.compile, ONNX Runtime (threads)"),
         "whatif": ("neuraldem.scenes.hopper.bench.predict_timing",
                    "neuraldem predict hopper: answer times, and GP / field model vs LIGGGHTS at random points"),
     },
