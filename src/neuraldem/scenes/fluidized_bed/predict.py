@@ -48,11 +48,13 @@ def fb_settings(model: pretrained.Pretrained) -> Any:
 
 def predict_fb(point: dict[str, float], model_name: str, out: Path, fields: bool, verify: bool,
                seed: int = 0) -> dict[str, Any]:
-    from neuraldem.models.scalar_baselines import ArrayGaussianProcess, gp_answers
+    from neuraldem.models.scalar_baselines import gp_answers
+    from neuraldem.scenes.fluidized_bed.whatif import check_fluidized, load_gp
 
     model = pretrained.load(model_name, "fluidized_bed")
+    check_fluidized(model.meta["scene"], point["inlet_velocity"])
     window = fb_window(model)
-    a = gp_answers(ArrayGaussianProcess.load_npz(model.file("gp")), [point])[0]
+    a = gp_answers(load_gp(model.file("gp")), [point])[0]
     stored = {k: v for k, v in model.meta.get("test_errors", {}).items() if k != "runs"}
     answer: dict[str, Any] = {
         "scene": "fb", "model": model.name, "parameters": point, "answer_window": window.as_dict(),
