@@ -22,8 +22,18 @@ from neuraldem import pretrained
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError
 from neuraldem.models.onnx_runtime import RUNTIMES, check_threads
+from neuraldem.pretrained.trust import ErrorKey, as_dict, recommend, trust_label, trust_reasons
 from neuraldem.scenes.hopper.whatif import ANSWER_BUDGET
 from neuraldem.scenes.parameters import range_warnings
+
+# how each answer's validated error is recorded in meta.json `test_errors` (which answer to trust, per quantity)
+ERROR_KEYS = {
+    "drainage_t95": ErrorKey("drainage_t95_pct_of_mean", " %"),
+    "drainage_time": ErrorKey("drainage_mae_pct_of_mean", " %"),
+    "residual_fraction": ErrorKey("residual_mae_pp", " pp"),
+    "outflow_rate": ErrorKey("outflow_rel_err_pct", " %"),
+    "mass_flow_index": ErrorKey("flow_regime_accuracy", " share of regimes right", higher_is_better=True),
+}
 
 
 def add_options(p: argparse.ArgumentParser) -> None:
@@ -110,9 +120,10 @@ def table(answer: dict[str, Any]) -> str:
     from neuraldem.scenes.hopper.whatif import QUANTITIES
 
     cols = ["GP [95 % interval]"] + (["field model"] if "field" in answer else []) + \
-        (["LIGGGHTS"] if "liggghts" in answer else [])
+        (["LIGGGHTS"] if "liggghts" in answer else []) + ["trust"]
     lines = [f"| quantity | {' | '.join(cols)} |", "|---|" + "---|" * len(cols)]
     gp = answer["gp"]
+    trusted = answer.get("recommended", {})
     for key, (label, unit, _) in QUANTITIES.items():
         row = [f"{format_value(key, gp['mean'][key])} [{format_value(key, gp['low'][key])}, "
                f"{format_value(key, gp['high'][key])}]"]
@@ -120,14 +131,16 @@ def table(answer: dict[str, Any]) -> str:
             row.append(format_value(key, answer["field"]["summary"][key]))
         if "liggghts" in answer:
             row.append(format_value(key, answer["liggghts"]["metrics"].get(key, float("nan"))))
+        row.append(trust_label(trusted.get(key)))
         lines.append(f"| {label}{f' [{unit}]' if unit else ''} | {' | '.join(row)} |")
     regimes = [answer["gp"]["regime"]] + ([answer["field"]["regime"]] if "field" in answer else []) + \
-        ([answer["liggghts"]["regime"]] if "liggghts" in answer else [])
+        ([answer["liggghts"]["regime"]] if "liggghts" in answer else []) + [trust_label(trusted.get("mass_flow_index"))]
     lines.append(f"| flow regime | {' | '.join(regimes)} |")
     times = [f"{answer['gp']['seconds']:.3g} s"] + \
         ([f"{answer['field']['seconds']:.3g} s"] if "field" in answer else []) + \
-        ([f"{answer['liggghts']['seconds']:.3g} s"] if "liggghts" in answer else [])
+        ([f"{answer['liggghts']['seconds']:.3g} s"] if "liggghts" in answer else []) + [""]
     lines.append(f"| answer time | {' | '.join(times)} |")
+    lines += trust_reasons(trusted, {k: v[0] for k, v in QUANTITIES.items()})
     stored = answer.get("stored_test_errors") or {}
     if stored.get("n_test_runs"):
         lines += ["", f"measured on {stored['n_test_runs']} held-out LIGGGHTS runs (meta.json): " + "; ".join(
@@ -188,6 +201,9 @@ def predict_hopper(point: dict[str, float], model_name: str, out: Path, fields: 
         warnings += range_warnings(f.extrapolation, "field model")
     if verify:
         answer["liggghts"], _ = hopper_verify(model.meta["scene"], point, settings, out)
+    trust = recommend(model.meta, point, bool(a.extrapolation), ERROR_KEYS)
+    answer["recommended"] = as_dict(trust)
+    warnings += sorted({r.warning for r in trust.values() if r.warning})
     answer["warnings"] = warnings
     atomic_write_json(out / "answer.json", answer)
     return answer
