@@ -20,6 +20,7 @@ import numpy as np
 
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.errors import ConfigError, DataError
+from neuraldem.pretrained.card import write_card
 
 ERROR_UNITS = {"bed_height": ("bed_height_mae_mm", 1000.0), "bubble_fraction": ("bubble_fraction_mae_pp", 100.0),
                "lacey": ("lacey_mae", 1.0)}
@@ -148,6 +149,7 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
                                                                          strict=True)]},
         build_flags=f"lacey_time={lacey_time:g}")
     atomic_write_json(folder / "meta.json", info)
+    write_card(folder)
     return folder
 
 
@@ -237,6 +239,7 @@ def refresh_field_answers(folder: Path, progress: bool = True,
         "field_model_errors_before": before, "commit": commit(),
         "date_utc": datetime.now(UTC).isoformat(timespec="seconds")})
     atomic_write_json(path, meta)
+    write_card(folder)
     return meta
 
 

@@ -18,6 +18,7 @@ from neuraldem.data.manifest import MANIFEST_NAME
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.pretrained.building import build_record, strip_checkpoint, training_inputs
+from neuraldem.pretrained.card import write_card
 
 PROBES = [{"alpha": 10.0, "mu_s": 0.2, "mu_r": 0.05}, {"alpha": 35.0, "mu_s": 0.5, "mu_r": 0.2},
           {"alpha": 55.0, "mu_s": 0.8, "mu_r": 0.4}]
@@ -110,6 +111,7 @@ def export_field(folder: Path) -> Path:
                              "max_abs_difference_to_torch": worst}
     meta["field_metadata"] = checkpoint.metadata
     atomic_write_json(meta_path, meta)
+    write_card(folder)
     return path
 
 
