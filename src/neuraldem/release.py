@@ -34,6 +34,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--name", required=True, help="the model's name (its folder)")
     p.add_argument("--out", type=Path, default=pretrained.root(), help="folder of shipped models")
     p.add_argument("--dataset", type=Path, default=None, help="dataset dir (default: the checkpoint's)")
+    p.add_argument("--reuse-test", action="store_true",
+                   help="release although the test runs were read for another recipe of the same family (the "
+                        "model card says so; new test runs are the honest way)")
     p.add_argument("--card-only", action="store_true",
                    help="write MODEL_CARD.md of a released model again from its meta.json (name=, out=)")
     for module in able.values():

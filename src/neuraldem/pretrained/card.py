@@ -61,10 +61,17 @@ def render(meta: dict[str, Any], meta_sha: str) -> str:
               "(not recorded for this model: it was chosen before the release protocol recorded choices)", ""]
     errors = meta.get("test_errors", {})
     reads = meta.get("test_reads", [])
-    lines += ["## Test scores", "",
-              f"On {errors.get('n_test_runs', '?')} held-out solver runs"
-              + (f", read {len(reads)} time(s): " + "; ".join(str(r) for r in reads) if reads else
-                 " (the test reads before the release protocol were not recorded)") + ":", ""]
+    if not reads:
+        read_note = " (the test reads before the release protocol were not recorded)"
+    elif len(reads) == 1:
+        read_note = f", read once for this recipe family ({reads[0]['family']}, {reads[0]['date']})"
+    else:
+        read_note = (f", read {len(reads)} times for this recipe family ({reads[-1]['family']}): "
+                     + "; ".join(f"{r['date']} for {r['model']}" for r in reads)
+                     + (" -- this release changed the recipe after an earlier read: its test scores are not "
+                        "held-out evidence for the change, new test runs are" if reads[-1].get("changed_recipe")
+                        else ""))
+    lines += ["## Test scores", "", f"On {errors.get('n_test_runs', '?')} held-out solver runs{read_note}:", ""]
     lines += errors_table(errors)
     if meta.get("test_errors_outside"):
         lines += ["", "Outside the trained ranges:", ""] + errors_table(meta["test_errors_outside"])

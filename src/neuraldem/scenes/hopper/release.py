@@ -17,7 +17,7 @@ from neuraldem.data.integrity import digest
 from neuraldem.data.manifest import MANIFEST_NAME
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError, DataError
-from neuraldem.pretrained.building import build_record, strip_checkpoint, training_inputs
+from neuraldem.pretrained.building import build_record, read_test_split, strip_checkpoint, training_inputs
 from neuraldem.pretrained.card import write_card
 
 PROBES = [{"alpha": 10.0, "mu_s": 0.2, "mu_r": 0.05}, {"alpha": 35.0, "mu_s": 0.5, "mu_r": 0.2},
@@ -35,7 +35,7 @@ def probe_answers(gp: Any, module: Any, settings: Any) -> list[dict[str, Any]]:
     return out
 
 
-def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) -> Path:
+def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None, reuse_test: bool = False) -> Path:
     from neuraldem.eval.checkpoints import read_checkpoint
     from neuraldem.models.scalar_baselines import ArrayGaussianProcess
     from neuraldem.scenes.hopper.analysis.baselines import baseline_inputs, fit_baseline
@@ -43,6 +43,7 @@ def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) ->
     from neuraldem.scenes.hopper.analysis.scoring import dataset_metric_settings
 
     meta, dataset, m = training_inputs(ckpt, "hopper", dataset)
+    reads = read_test_split(dataset, ckpt, name, reuse_test)
     ids = meta.get("split_ids") or {}
     fit_runs = [m.record(i) for i in ids.get("train", []) + ids.get("val", [])]
     folder = out_root / name
@@ -72,7 +73,8 @@ def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) ->
         extra={"conditioning": meta["conditioning"], "metric_settings": settings.as_dict(), "scene": meta["scene"],
                "test_errors": {"n_test_runs": len(result["simulations"]),
                                "runs": [s["sim_id"] for s in result["simulations"]], **test_errors},
-               "probes": probe_answers(gp, module, settings)})  # scikit-learn's answers: the arrays must match
+               # the probes: scikit-learn's answers, which the shipped arrays must match
+               "probes": probe_answers(gp, module, settings), "test_reads": reads})
     atomic_write_json(folder / "meta.json", info)
     export_field(folder)
     return folder
@@ -134,6 +136,6 @@ def release(args: argparse.Namespace) -> str:
         return f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB) and its entry in meta.json"
     if args.ckpt is None:
         raise ConfigError("ckpt= is required: the checkpoint to release (e.g. ckpt=RUN/checkpoints/last.ckpt)")
-    folder = build_hopper(args.ckpt, args.name, args.out, args.dataset)
+    folder = build_hopper(args.ckpt, args.name, args.out, args.dataset, args.reuse_test)
     sizes = ", ".join(f"{f.name} {f.stat().st_size / 1e6:.2f} MB" for f in sorted(folder.iterdir()))
     return f"wrote {folder} ({sizes})"
