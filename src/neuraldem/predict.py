@@ -23,7 +23,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from neuraldem import pretrained, scenes
+from neuraldem import STARTED, pretrained, scenes
 from neuraldem.cli import CommandParser, command_parser, output_folder, report_user_errors
 from neuraldem.errors import ConfigError
 from neuraldem.paths import data_dir
@@ -84,13 +84,15 @@ def main(argv: list[str] | None = None) -> int:
         print(found)
         return 0
     scene, module = found
-    t0 = time.perf_counter()
+    t0 = STARTED
     name = peek(argv[1:], "model") or pretrained.default_for(scene.kind)
     inputs = list(pretrained.load(name, scene.kind).meta["inputs"])
     p = what_if_parser("predict", scene, module, inputs, "VALUE")
     p.add_argument("--verify", action="store_true", help="also run the solver and show both answers")
     p.add_argument("--no-fields", dest="fields", action="store_false", help="the GP's numbers only")
     p.add_argument("--json", action="store_true", help="print answer.json instead of the table")
+    p.add_argument("--no-pictures", dest="pictures", action="store_false",
+                   help="numbers only: no plots and ParaView files after them")
     module.add_options(p)
     args = p.parse_args(argv[1:])
     given = {n: getattr(args, n) for n in inputs if getattr(args, n) is not None}
@@ -100,11 +102,16 @@ def main(argv: list[str] | None = None) -> int:
     for w in answer["warnings"]:
         print(w, file=sys.stderr)
     if args.json:
-        print(json.dumps(answer, indent=1, default=float))
+        print(json.dumps(answer, indent=1, default=float), flush=True)
     else:
         print(f"{scene.kind} what-if {' '.join(f'{k}={v:g}' for k, v in point.items())} (model {name}):")
         print(module.table(answer))
-        print(f"outputs in {out} ({time.perf_counter() - t0:.2f} s in this command)")
+        print(f"numbers in {time.perf_counter() - t0:.2f} s since the command started", flush=True)
+    follow_up = getattr(module, "follow_up", None)  # pictures and ParaView files come after the numbers
+    if follow_up is not None and args.pictures:
+        files = follow_up(answer, out, args)
+        if not args.json:
+            print(f"{len(files)} picture(s) and ParaView series in {out} ({time.perf_counter() - t0:.2f} s in all)")
     return 0
 
 

@@ -34,9 +34,25 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--name", required=True, help="the model's name (its folder)")
     p.add_argument("--out", type=Path, default=pretrained.root(), help="folder of shipped models")
     p.add_argument("--dataset", type=Path, default=None, help="dataset dir (default: the checkpoint's)")
+    p.add_argument("--reuse-test", action="store_true",
+                   help="release although the test runs were read for another recipe of the same family (the "
+                        "model card says so; new test runs are the honest way)")
+    p.add_argument("--card-only", action="store_true",
+                   help="write MODEL_CARD.md of a released model again from its meta.json (name=, out=)")
     for module in able.values():
         module.add_options(p)
     args = p.parse_args(argv)
+    if args.card_only:  # the card of an already released model, from its meta.json
+        import json
+
+        from neuraldem.pretrained.card import write_card
+
+        folder = args.out / args.name
+        if not (folder / "meta.json").is_file():
+            raise ConfigError(f"card_only=true: {folder} holds no released model (no meta.json)",
+                              "give name= and out= of a released model")
+        print(f"wrote {write_card(folder)} ({json.loads((folder / 'meta.json').read_text()).get('kind')} model)")
+        return 0
     if args.ckpt is not None:
         from neuraldem.eval.checkpoints import checkpoint_metadata
 

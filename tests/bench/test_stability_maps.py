@@ -12,7 +12,7 @@ from neuraldem.bench import stability_maps as hopper_stability
 from neuraldem.bench.__main__ import main as bench_main
 from neuraldem.bench.stability_maps import field_check
 from neuraldem.errors import ConfigError
-from neuraldem.scenes.hopper.surrogate.inference import TrajectoryFields
+from neuraldem.scenes.hopper.surrogate.predictors import TrajectoryFields
 from tests.helpers import train_tiny_gns
 
 LO, HI = np.array([-1.0, -1.0, 0.0]), np.array([1.0, 1.0, 2.0])

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from neuraldem.pretrained.card import write_card
 from tests.helpers import run_module
 
 PLUGIN = Path(__file__).resolve().parents[1] / "plugins" / "toy_drum"
@@ -28,6 +29,7 @@ def toy_model(tmp_path: Path) -> Path:
     folder.mkdir(parents=True)
     (folder / "meta.json").write_text(json.dumps({"name": "toy_model", "kind": "toy_drum",
                                                   "inputs": ["speed", "friction"], "files": {}}))
+    write_card(folder)
     return folder.parent
 
 

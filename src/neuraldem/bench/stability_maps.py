@@ -43,7 +43,7 @@ from neuraldem.gns.rollout import Accelerator, model_accelerator, rollout
 from neuraldem.paths import data_dir
 from neuraldem.scenes.hopper.bench.surrogate import Question, answer, full_question, load_surrogate, surrogate_dataset
 from neuraldem.scenes.hopper.dataset.store import HopperFile
-from neuraldem.scenes.hopper.surrogate.inference import DemPredictor, TrajectoryFields
+from neuraldem.scenes.hopper.surrogate.predictors import DemPredictor, TrajectoryFields
 
 NAME = "hopper_stability"
 DEFAULT_MU_S = (0.05, 0.5, 1.0, 1.5, 2.0)

@@ -20,6 +20,7 @@ from typing import Any
 
 from neuraldem.data.integrity import digest
 from neuraldem.errors import ConfigError, DataError
+from neuraldem.pretrained.card import check_card
 
 META = "meta.json"
 
@@ -77,6 +78,7 @@ def load(name: str, kind: str | None = None) -> Pretrained:
     except (OSError, json.JSONDecodeError) as err:
         raise DataError(f"{folder / META} is unreadable ({type(err).__name__})",
                         "reinstall neuraldem or rebuild the model with neuraldem release") from None
+    check_card(folder, f"neuraldem release {meta.get('kind', '')} name={name} out={folder.parent} card_only=true")
     return Pretrained(name, folder, meta)
 
 

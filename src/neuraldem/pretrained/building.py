@@ -76,3 +76,43 @@ def build_record(ckpt: Path, name: str, kind: str, folder: Path, files: dict[str
         "built_from": {"checkpoint": str(Path(ckpt).resolve()), "commit": commit(),
                        "date_utc": datetime.now(UTC).isoformat(timespec="seconds")},
     }
+
+
+# ---- the sealed test split: every read of a dataset's test runs for a release is recorded beside the dataset
+TEST_READS = "test_reads.json"
+NOT_THE_RECIPE = ("seed=", "trainer", "logger", "callbacks.progress", "hydra.", "paths.", "evaluate=", "ckpt_path=")
+
+
+def recipe_of(ckpt: Path) -> tuple[str, list[str]]:
+    """(recipe family, recipe) of a checkpoint: its experiment, and its training overrides besides the seed and
+    where and how it ran (trainer, logger, paths)."""
+    overrides = run_overrides(Path(ckpt))
+    family = next((o.split("=", 1)[1] for o in overrides if o.startswith("experiment=")), "custom")
+    return family, sorted(o for o in overrides if not o.startswith(NOT_THE_RECIPE))
+
+
+def read_test_split(dataset: Path, ckpt: Path, name: str, reuse: bool = False) -> list[dict[str, Any]]:
+    """Record that the release of `name` reads the test runs of `dataset`, and return every read of them for the
+    same recipe family (this one last), for the model card. A changed recipe of a family whose test runs were
+    already read is refused unless `reuse` (then the card says so): a recipe changed after a test result needs
+    new test runs."""
+    import json
+
+    from neuraldem.data.schema import atomic_write_json
+    from neuraldem.errors import ConfigError
+
+    family, recipe = recipe_of(ckpt)
+    path = Path(dataset) / TEST_READS
+    reads = json.loads(path.read_text()) if path.is_file() else []
+    same = [r for r in reads if r["family"] == family]
+    changed = [r for r in same if r["recipe"] != recipe]
+    if changed and not reuse:
+        raise ConfigError(f"the test runs of {Path(dataset).name} were read on {changed[-1]['date']} for model "
+                          f"{changed[-1]['model']!r} of recipe family {family!r} with another recipe: a changed "
+                          "recipe needs new test runs",
+                          "generate them (neuraldem datagen ... first=[...]) and release on those, or reuse_test=true "
+                          "to release anyway (the model card then says so)")
+    entry = {"date": datetime.now(UTC).isoformat(timespec="seconds"), "model": name, "family": family,
+             "recipe": recipe, "checkpoint": str(Path(ckpt).resolve()), "changed_recipe": bool(changed)}
+    atomic_write_json(path, [*reads, entry])
+    return [*same, entry]

@@ -51,3 +51,23 @@ def test_shipped_states_round_trip_and_pick_the_nearest_velocity(fb_tiny_dataset
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
     with pytest.raises(DataError, match="bad.npz is damaged"):
         InitialStates.load_npz(tmp_path / "bad.npz")
+
+
+def test_answers_stay_in_their_physical_range_and_a_fixed_bed_is_refused(tmp_path):
+    """Below the minimum fluidization velocity (Wen & Yu, 1.07 m/s for fb_small) the bed does not bubble or mix:
+    refused in one line with the velocity to ask at; near it, the GP's intervals end inside [0, 1] for the
+    Lacey index and the bubble fraction (its stored range let them go negative)."""
+    import json
+
+    from tests.helpers import run_module
+
+    fixed = run_module("neuraldem", "predict", "fluidized_bed", "inlet_velocity=0", "fields=false", f"out={tmp_path}")
+    assert fixed.returncode == 2 and fixed.stderr.count("\n") == 1, fixed.stderr
+    assert "below this bed's minimum fluidization velocity (1.07 m/s" in fixed.stderr
+    assert "ask at inlet_velocity >= 1.07" in fixed.stderr
+    low = run_module("neuraldem", "predict", "fluidized_bed", "inlet_velocity=1.08", "fields=false", "json=true",
+                     f"out={tmp_path}")
+    assert low.returncode == 0, low.stderr
+    gp = json.loads(low.stdout)["gp"]
+    for key in ("lacey", "bubble_fraction"):
+        assert 0.0 <= gp["low"][key] <= gp["mean"][key] <= gp["high"][key] <= 1.0, (key, gp)

@@ -4,14 +4,15 @@ volume and rollout stability against CFD-DEM (`neuraldem.scenes.fluidized_bed.an
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
-
-from omegaconf import DictConfig
+from typing import TYPE_CHECKING, Any
 
 from neuraldem.config import checks
 from neuraldem.scenes import Scene
 from neuraldem.scenes.fluidized_bed.parameters import PARAMETERS
 from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RENAMED_OVERRIDES
+
+if TYPE_CHECKING:
+    from omegaconf import DictConfig  # the configs a scene is handed; imported only for type checks
 
 
 def pipeline(data_cfg: DictConfig) -> Any:

@@ -22,7 +22,12 @@ import numpy as np
 
 from neuraldem import pretrained
 from neuraldem.data.schema import atomic_write_json
+from neuraldem.pretrained.trust import ErrorKey, as_dict, recommend, trust_label, trust_reasons
 from neuraldem.scenes.parameters import range_warnings
+
+# how each answer's validated error is recorded in meta.json `test_errors` (which answer to trust, per quantity)
+ERROR_KEYS = {"bed_height": ErrorKey("bed_height_mae_mm", " mm"),
+              "bubble_fraction": ErrorKey("bubble_fraction_mae_pp", " pp"), "lacey": ErrorKey("lacey_mae")}
 
 
 def add_options(p: argparse.ArgumentParser) -> None:
@@ -48,11 +53,13 @@ def fb_settings(model: pretrained.Pretrained) -> Any:
 
 def predict_fb(point: dict[str, float], model_name: str, out: Path, fields: bool, verify: bool,
                seed: int = 0) -> dict[str, Any]:
-    from neuraldem.models.scalar_baselines import ArrayGaussianProcess, gp_answers
+    from neuraldem.models.scalar_baselines import gp_answers
+    from neuraldem.scenes.fluidized_bed.whatif import check_fluidized, load_gp
 
     model = pretrained.load(model_name, "fluidized_bed")
+    check_fluidized(model.meta["scene"], point["inlet_velocity"])
     window = fb_window(model)
-    a = gp_answers(ArrayGaussianProcess.load_npz(model.file("gp")), [point])[0]
+    a = gp_answers(load_gp(model.file("gp")), [point])[0]
     stored = {k: v for k, v in model.meta.get("test_errors", {}).items() if k != "runs"}
     answer: dict[str, Any] = {
         "scene": "fb", "model": model.name, "parameters": point, "answer_window": window.as_dict(),
@@ -76,6 +83,9 @@ def predict_fb(point: dict[str, float], model_name: str, out: Path, fields: bool
 
         plot_curves(series, out / "curves.png",
                     f"{model.name}: inlet velocity {point['inlet_velocity']:g} m/s")
+    trust = recommend(model.meta, point, bool(a.extrapolation), ERROR_KEYS)
+    answer["recommended"] = as_dict(trust)
+    warnings += sorted({r.warning for r in trust.values() if r.warning})
     answer["warnings"] = warnings
     atomic_write_json(out / "answer.json", answer)
     return answer
@@ -131,7 +141,7 @@ def table(answer: dict[str, Any]) -> str:
 
     q = quantities(answer["answer_window"]["lacey_time"])
     cols = ["GP [95 % interval]"] + (["field model"] if "field" in answer else []) + \
-        (["DPMFoam"] if "dpmfoam" in answer else [])
+        (["DPMFoam"] if "dpmfoam" in answer else []) + ["trust"]
     lines = [f"| quantity | {' | '.join(cols)} |", "|---|" + "---|" * len(cols)]
 
     def fmt(key: str, v: float) -> str:
@@ -144,10 +154,12 @@ def table(answer: dict[str, Any]) -> str:
             row.append(fmt(key, answer["field"]["summary"][key]))
         if "dpmfoam" in answer:
             row.append(fmt(key, answer["dpmfoam"]["answers"].get(key, float("nan"))))
+        row.append(trust_label(answer.get("recommended", {}).get(key)))
         lines.append(f"| {answer_label(key, q)} | {' | '.join(row)} |")
     times = [f"{gp['seconds']:.3g} s"] + ([f"{answer['field']['seconds']:.3g} s"] if "field" in answer else []) + \
-        ([f"{answer['dpmfoam']['seconds']:.3g} s"] if "dpmfoam" in answer else [])
+        ([f"{answer['dpmfoam']['seconds']:.3g} s"] if "dpmfoam" in answer else []) + [""]
     lines.append(f"| answer time | {' | '.join(times)} |")
+    lines += trust_reasons(answer.get("recommended", {}), {k: answer_label(k, q) for k in q})
     if "field" in answer and answer["field"]["diverged_at"] is not None:
         lines.append(f"field model rollout diverged at step {answer['field']['diverged_at']}: no field answers")
     stored = answer.get("stored_test_errors") or {}

@@ -20,6 +20,7 @@ import numpy as np
 
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.errors import ConfigError, DataError
+from neuraldem.pretrained.card import write_card
 
 ERROR_UNITS = {"bed_height": ("bed_height_mae_mm", 1000.0), "bubble_fraction": ("bubble_fraction_mae_pp", 100.0),
                "lacey": ("lacey_mae", 1.0)}
@@ -64,7 +65,7 @@ def seed_floor(test: list[SimRecord], answers: dict[str, dict[str, float]]) -> d
 
 
 def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | None, lacey_time: float = 1.0,
-                        progress: bool = True) -> Path:
+                        progress: bool = True, reuse_test: bool = False) -> Path:
     from tqdm import tqdm
 
     from neuraldem.data.integrity import digest
@@ -72,7 +73,7 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
     from neuraldem.data.schema import atomic_write_json
     from neuraldem.eval.checkpoints import read_checkpoint
     from neuraldem.models.scalar_baselines import ArrayGaussianProcess, ConstantBaseline, GaussianProcessBaseline
-    from neuraldem.pretrained.building import build_record, strip_checkpoint, training_inputs
+    from neuraldem.pretrained.building import build_record, read_test_split, strip_checkpoint, training_inputs
     from neuraldem.scenes.fluidized_bed.dataset.datagen import FbMetricSettings
     from neuraldem.scenes.fluidized_bed.whatif import (
         TARGET_RANGE,
@@ -84,6 +85,7 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
     )
 
     meta, dataset, m = training_inputs(ckpt, "fluidized_bed", dataset)
+    reads = read_test_split(dataset, ckpt, name, reuse_test)
     parts = split_records(m, meta)
     fit_runs = parts.get("train", []) + parts.get("val", [])
     test = parts.get("test", [])
@@ -143,11 +145,13 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
                        "run_ids": {p: [r.sim_id for r in rs] for p, rs in parts.items()}},
         extra={"conditioning": meta["conditioning"], "metric_settings": settings.__dict__ | {
                    "lacey_block": list(settings.lacey_block)},
-               "answer_window": window.as_dict(), "scene": m.scene, "test_errors": test_errors, "probes": probes,
+               "answer_window": window.as_dict(), "scene": m.scene, "test_errors": test_errors, "test_reads": reads,
+               "probes": probes,
                "initial_states": [f"{i} ({v:.4g} m/s)" for i, v in zip(states.sim_ids, states.velocities,
                                                                          strict=True)]},
         build_flags=f"lacey_time={lacey_time:g}")
     atomic_write_json(folder / "meta.json", info)
+    write_card(folder)
     return folder
 
 
@@ -237,6 +241,7 @@ def refresh_field_answers(folder: Path, progress: bool = True,
         "field_model_errors_before": before, "commit": commit(),
         "date_utc": datetime.now(UTC).isoformat(timespec="seconds")})
     atomic_write_json(path, meta)
+    write_card(folder)
     return meta
 
 
@@ -267,6 +272,7 @@ def release(args: argparse.Namespace) -> str:
     if options:
         raise ConfigError(f"{' / '.join(f'rollout.{k}=' for k in ROLLOUT_OPTIONS)} go with refresh_field=true "
                           "(build first, then set them)")
-    folder = build_fluidized_bed(args.ckpt, args.name, args.out, args.dataset, args.lacey_time)
+    folder = build_fluidized_bed(args.ckpt, args.name, args.out, args.dataset, args.lacey_time,
+                                 reuse_test=args.reuse_test)
     sizes = ", ".join(f"{f.name} {f.stat().st_size / 1e6:.2f} MB" for f in sorted(folder.iterdir()))
     return f"wrote {folder} ({sizes})"

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from neuraldem.errors import DataError
+from neuraldem.errors import ConfigError, DataError
 from neuraldem.scenes.fluidized_bed.analysis.metrics import bed_height, bubble_fraction, lacey_from_fields
 from neuraldem.sim.foam_reader import BoxGrid
 
@@ -35,7 +35,37 @@ if TYPE_CHECKING:  # torch (rollout) and scipy (datagen) load only when fields a
 
 START_SNAPSHOT = 1
 TARGETS = ("bed_height", "bubble_fraction", "lacey")
-TARGET_RANGE = {"bed_height": (0.0, math.inf), "bubble_fraction": (0.0, 1.0), "lacey": (-math.inf, math.inf)}
+# what each answer can be at all: a GP's mean and interval ends, and a rollout's answer, are clipped to it (a Lacey
+# index is 0 for segregated and 1 for randomly mixed material; a fraction lies in [0, 1]; a height is >= 0)
+TARGET_RANGE = {"bed_height": (0.0, math.inf), "bubble_fraction": (0.0, 1.0), "lacey": (0.0, 1.0)}
+
+
+def clipped(values: dict[str, float]) -> dict[str, float]:
+    """Answers inside their physical range (`TARGET_RANGE`); NaN stays NaN."""
+    return {k: (float(min(max(v, TARGET_RANGE[k][0]), TARGET_RANGE[k][1])) if k in TARGET_RANGE and v == v else v)
+            for k, v in values.items()}
+
+
+def load_gp(path: Path) -> Any:
+    """A shipped bed GP answering inside the physical ranges (`TARGET_RANGE`, also for GPs stored before a range
+    was tightened)."""
+    from neuraldem.models.scalar_baselines import ArrayGaussianProcess
+
+    gp = ArrayGaussianProcess.load_npz(path)
+    gp.target_range.update(TARGET_RANGE)
+    return gp
+
+
+def check_fluidized(scene_record: dict[str, Any], velocity: float, key: str = "inlet_velocity") -> None:
+    """Below the minimum fluidization velocity the bed stays a fixed packing, which no bed model was trained on
+    and the answers (bubbles, mixing) do not describe: refused with the velocity to ask at instead."""
+    from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
+
+    u_mf = FluidizedBedScene.from_config(scene_record["fluidized_bed"], "model scene").minimum_fluidization_velocity
+    if velocity < u_mf:
+        raise ConfigError(f"{key}={velocity:g} m/s is below this bed's minimum fluidization velocity "
+                          f"({u_mf:.2f} m/s, Wen & Yu): the bed stays a fixed packing, with no bubbles and no "
+                          "mixing, and no model here was trained on one", f"ask at {key} >= {u_mf:.2f}")
 
 
 def quantities(lacey_time: float) -> dict[str, tuple[str, str, float]]:

@@ -4,12 +4,13 @@ outflow, flow regime, stripes and residence time (`neuraldem.scenes.hopper.analy
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
-
-from omegaconf import DictConfig
+from typing import TYPE_CHECKING, Any
 
 from neuraldem.scenes import Scene
 from neuraldem.scenes.hopper.parameters import PARAMETERS
+
+if TYPE_CHECKING:
+    from omegaconf import DictConfig  # the configs a scene is handed; imported only for type checks
 
 
 def pipeline(data_cfg: DictConfig) -> Any:
@@ -68,6 +69,10 @@ SCENE = Scene(
                            "LIGGGHTS cost vs particle count; surrogate cost vs query points and latent tokens"),
         "seed_floor": ("neuraldem.scenes.hopper.bench.seed_floor",
                        "LIGGGHTS rerun with other packing seeds: the noise floor of every hopper quantity"),
+        "query_budget": ("neuraldem.scenes.hopper.bench.query_budget",
+                         "the field model's errors against answer time over its query budget (lattice, times)"),
+        "runtime": ("neuraldem.scenes.hopper.bench.runtime",
+                    "what runs the field model fastest: eager torch, torch.compile, ONNX Runtime (threads)"),
         "whatif": ("neuraldem.scenes.hopper.bench.predict_timing",
                    "neuraldem predict hopper: answer times, and GP / field model vs LIGGGHTS at random points"),
     },

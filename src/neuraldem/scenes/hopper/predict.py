@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -20,18 +21,50 @@ import numpy as np
 from neuraldem import pretrained
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError
+from neuraldem.models.onnx_runtime import RUNTIMES, check_threads
+from neuraldem.pretrained.trust import ErrorKey, as_dict, recommend, trust_label, trust_reasons
+from neuraldem.scenes.hopper.whatif import ANSWER_BUDGET
 from neuraldem.scenes.parameters import range_warnings
+
+# how each answer's validated error is recorded in meta.json `test_errors` (which answer to trust, per quantity)
+ERROR_KEYS = {
+    "drainage_t95": ErrorKey("drainage_t95_pct_of_mean", " %"),
+    "drainage_time": ErrorKey("drainage_mae_pct_of_mean", " %"),
+    "residual_fraction": ErrorKey("residual_mae_pp", " pp"),
+    "outflow_rate": ErrorKey("outflow_rel_err_pct", " %"),
+    "mass_flow_index": ErrorKey("flow_regime_accuracy", " share of regimes right", higher_is_better=True),
+}
 
 
 def add_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--time-stride", type=int, default=2,
-                   help="field model: every Nth time of the 0.05 s grid (default 2: every 0.1 s)")
+                   help="the fields in the stripes plot and ParaView files: every Nth time of the 0.05 s grid "
+                        "(default 2: every 0.1 s)")
+    p.add_argument("--query-points", type=float, default=ANSWER_BUDGET.points,
+                   help="the field model's numbers: the share of the lattice's material points queried (default "
+                        f"{ANSWER_BUDGET.points:g}, chosen in results/hopper/speed/query_budget.md; 1 = every one)")
+    p.add_argument("--answer-stride", type=int, default=ANSWER_BUDGET.time_stride,
+                   help=f"the field model's numbers: every Nth time (default {ANSWER_BUDGET.time_stride})")
+    p.add_argument("--runtime", choices=("auto", *RUNTIMES), default="auto",
+                   help="what runs the field model: onnx (ONNX Runtime, no torch import; the model's field.onnx), "
+                        "torch, or auto (onnx when the model has it and the runtime is installed)")
+    p.add_argument("--threads", type=int, default=1, help="threads of the field model (default 1)")
 
 
 def answer(point: dict[str, float], model_name: str, out: Path, args: argparse.Namespace) -> dict[str, Any]:
+    from neuraldem.scenes.hopper.whatif import QueryBudget
+
     if args.time_stride < 1:
         raise ConfigError(f"time_stride={args.time_stride} is invalid: must be >= 1")
-    return predict_hopper(point, model_name, out, args.fields, args.verify, args.time_stride)
+    budget = QueryBudget(args.query_points, args.answer_stride)
+    check_threads(args.threads)
+    return predict_hopper(point, model_name, out, args.fields, args.verify, budget=budget, runtime=args.runtime,
+                          threads=args.threads)
+
+
+def follow_up(answer: dict[str, Any], out: Path, args: argparse.Namespace) -> list[Path]:
+    """After the numbers are printed: the stripes plot and the ParaView files of the whole discharge."""
+    return hopper_pictures(answer, out, args.time_stride, args.runtime, args.threads)
 
 
 def hopper_gp(model: pretrained.Pretrained) -> Any:
@@ -42,10 +75,37 @@ def hopper_gp(model: pretrained.Pretrained) -> Any:
 
 
 def hopper_module(model: pretrained.Pretrained) -> Any:
-    """The shipped field model (file verified first); loads torch, so only when fields are asked for."""
+    """The shipped field model's LightningModule (file verified first): what training tools need."""
     from neuraldem.eval.checkpoints import read_checkpoint
 
     return read_checkpoint(model.file("field")).module("hopper", "cpu", "predict")
+
+
+def hopper_net(model: pretrained.Pretrained, runtime: str = "auto", threads: int = 1) -> tuple[Any, dict[str, Any]]:
+    """(net, metadata) of the shipped field model for an answer: its ONNX export through ONNX Runtime (no torch
+    import) when `runtime` allows and the model has one, else the torch net alone (no Lightning import)."""
+    has_onnx = "onnx" in model.meta.get("files", {})
+    if runtime == "onnx" and not has_onnx:
+        raise ConfigError(f"runtime=onnx: model {model.name} has no field.onnx",
+                          f"release it again (neuraldem release hopper name={model.name} onnx_only=true) or "
+                          "use runtime=torch")
+    if runtime == "onnx" or (runtime == "auto" and has_onnx and onnx_available()):
+        from neuraldem.models.onnx_runtime import OnnxNet
+
+        return OnnxNet(model.file("onnx"), threads), model.meta["field_metadata"]
+    import torch
+
+    from neuraldem.eval.checkpoints import checkpoint_net, read_checkpoint
+
+    torch.set_num_threads(threads)
+    checkpoint = read_checkpoint(model.file("field"))
+    return checkpoint_net(checkpoint, "hopper", "cpu", "predict"), checkpoint.metadata
+
+
+def onnx_available() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("onnxruntime") is not None
 
 
 def format_value(key: str, v: float) -> str:
@@ -60,9 +120,10 @@ def table(answer: dict[str, Any]) -> str:
     from neuraldem.scenes.hopper.whatif import QUANTITIES
 
     cols = ["GP [95 % interval]"] + (["field model"] if "field" in answer else []) + \
-        (["LIGGGHTS"] if "liggghts" in answer else [])
+        (["LIGGGHTS"] if "liggghts" in answer else []) + ["trust"]
     lines = [f"| quantity | {' | '.join(cols)} |", "|---|" + "---|" * len(cols)]
     gp = answer["gp"]
+    trusted = answer.get("recommended", {})
     for key, (label, unit, _) in QUANTITIES.items():
         row = [f"{format_value(key, gp['mean'][key])} [{format_value(key, gp['low'][key])}, "
                f"{format_value(key, gp['high'][key])}]"]
@@ -70,14 +131,16 @@ def table(answer: dict[str, Any]) -> str:
             row.append(format_value(key, answer["field"]["summary"][key]))
         if "liggghts" in answer:
             row.append(format_value(key, answer["liggghts"]["metrics"].get(key, float("nan"))))
+        row.append(trust_label(trusted.get(key)))
         lines.append(f"| {label}{f' [{unit}]' if unit else ''} | {' | '.join(row)} |")
     regimes = [answer["gp"]["regime"]] + ([answer["field"]["regime"]] if "field" in answer else []) + \
-        ([answer["liggghts"]["regime"]] if "liggghts" in answer else [])
+        ([answer["liggghts"]["regime"]] if "liggghts" in answer else []) + [trust_label(trusted.get("mass_flow_index"))]
     lines.append(f"| flow regime | {' | '.join(regimes)} |")
     times = [f"{answer['gp']['seconds']:.3g} s"] + \
         ([f"{answer['field']['seconds']:.3g} s"] if "field" in answer else []) + \
-        ([f"{answer['liggghts']['seconds']:.3g} s"] if "liggghts" in answer else [])
+        ([f"{answer['liggghts']['seconds']:.3g} s"] if "liggghts" in answer else []) + [""]
     lines.append(f"| answer time | {' | '.join(times)} |")
+    lines += trust_reasons(trusted, {k: v[0] for k, v in QUANTITIES.items()})
     stored = answer.get("stored_test_errors") or {}
     if stored.get("n_test_runs"):
         lines += ["", f"measured on {stored['n_test_runs']} held-out LIGGGHTS runs (meta.json): " + "; ".join(
@@ -106,10 +169,11 @@ def errors_vs(values: dict[str, float], truth: dict[str, float], threshold: floa
 
 
 def predict_hopper(point: dict[str, float], model_name: str, out: Path, fields: bool, verify: bool,
-                   time_stride: int = 1) -> dict[str, Any]:
+                   budget: Any = None, runtime: str = "auto", threads: int = 1) -> dict[str, Any]:
+    """The numbers: the GP's, the field model's (from the queries of `budget`), LIGGGHTS's with `verify`."""
     from neuraldem.models.scalar_baselines import gp_answers
     from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings
-    from neuraldem.scenes.hopper.whatif import regime
+    from neuraldem.scenes.hopper.whatif import field_answer, regime
 
     model = pretrained.load(model_name, "hopper")
     gp = hopper_gp(model)
@@ -125,37 +189,56 @@ def predict_hopper(point: dict[str, float], model_name: str, out: Path, fields: 
         "stored_test_errors": model.meta.get("test_errors", {}),
     }
     warnings = range_warnings(a.extrapolation, "GP")
-    out.mkdir(parents=True, exist_ok=True)
-    panels = []
     if fields:
-        f = hopper_fields(hopper_module(model), point, settings, out, time_stride)
-        answer["field"] = f.pop("answer")
-        panels.append(f["panel"])
-        warnings += range_warnings(answer["field"]["extrapolation"], "field model")
+        t0 = time.perf_counter()
+        net, meta = hopper_net(model, runtime, threads)
+        f = field_answer(net, meta, point, settings, budget=budget)
+        index = f.summary["mass_flow_index"]
+        answer["field"] = {"summary": f.summary, "seconds": time.perf_counter() - t0, "n_points": len(f.points),
+                           "n_times": len(f.fields.times), "budget": budget.as_dict() if budget else None,
+                           "runtime": "onnx" if hasattr(net, "session") else "torch",
+                           "regime": f"{regime(index, settings)} ({index:.2f})", "extrapolation": f.extrapolation}
+        warnings += range_warnings(f.extrapolation, "field model")
     if verify:
-        answer["liggghts"], panel = hopper_verify(model.meta["scene"], point, settings, out)
-        if panel is not None:
-            panels.append(panel)
-    if panels:
-        from neuraldem.scenes.hopper.analysis.plots import stripe_panels
-
-        stripe_panels([panels], out / "stripes.png")
+        answer["liggghts"], _ = hopper_verify(model.meta["scene"], point, settings, out)
+    trust = recommend(model.meta, point, bool(a.extrapolation), ERROR_KEYS)
+    answer["recommended"] = as_dict(trust)
+    warnings += sorted({r.warning for r in trust.values() if r.warning})
     answer["warnings"] = warnings
     atomic_write_json(out / "answer.json", answer)
     return answer
 
 
-def hopper_fields(module: Any, point: dict[str, float], settings: Any, out: Path, time_stride: int) -> dict[str, Any]:
+def hopper_pictures(answer: dict[str, Any], out: Path, time_stride: int, runtime: str = "auto",
+                    threads: int = 1) -> list[Path]:
+    """The stripes plot (field model and LIGGGHTS side by side) and the field model's ParaView series, from the
+    whole lattice at every `time_stride`-th time, answered a frame at a time (memory stays at one frame)."""
     from neuraldem.scenes.hopper.analysis.evaluation import predicted_point_series
-    from neuraldem.scenes.hopper.whatif import field_answer, regime
+    from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings
+    from neuraldem.scenes.hopper.analysis.plots import stripe_panels
+    from neuraldem.scenes.hopper.whatif import field_frames
 
-    f = field_answer(module.net, module.metadata, point, settings, time_stride=time_stride)
-    vtk = predicted_point_series(f.points, f.fields, out / "vtk", "hopper_predicted", 0.5, settings.n_layers)
-    index = f.summary["mass_flow_index"]
-    return {"answer": {"summary": f.summary, "seconds": f.seconds, "n_points": len(f.points),
-                       "regime": f"{regime(index, settings)} ({index:.2f})", "extrapolation": f.extrapolation,
-                       "vtk": str(vtk)},
-            "panel": ("field model", f.fields.times, f.stripes)}
+    model = pretrained.load(answer["model"], "hopper")
+    settings = HopperMetricSettings.from_config(model.meta.get("metric_settings", {}), f"{model.name} metric_settings")
+    panels, files = [], []
+    if "field" in answer:
+        net, meta = hopper_net(model, runtime, threads)
+        frames = field_frames(net, meta, answer["parameters"], settings, time_stride)
+        vtk = predicted_point_series(frames.points, frames.fields, out / "vtk", "hopper_predicted", 0.5,
+                                     settings.n_layers)
+        panels.append(("field model", frames.fields.times, frames.stripes))
+        answer["field"]["vtk"] = str(vtk)
+        files.append(vtk)
+    kept = out / "liggghts.json"
+    if "liggghts" in answer and kept.is_file():
+        stripes = json.loads(kept.read_text()).get("stripes")
+        if stripes:
+            panels.append(("LIGGGHTS", np.array(json.loads(kept.read_text())["times"]), np.array(stripes)))
+    if panels:
+        stripe_panels([panels], out / "stripes.png")
+        files.append(out / "stripes.png")
+    atomic_write_json(out / "answer.json", answer)
+    return files
 
 
 def hopper_verify(scene_record: dict[str, Any], point: dict[str, float], settings: Any,

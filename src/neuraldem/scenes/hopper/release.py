@@ -16,8 +16,9 @@ from typing import Any
 from neuraldem.data.integrity import digest
 from neuraldem.data.manifest import MANIFEST_NAME
 from neuraldem.data.schema import atomic_write_json
-from neuraldem.errors import ConfigError
-from neuraldem.pretrained.building import build_record, strip_checkpoint, training_inputs
+from neuraldem.errors import ConfigError, DataError
+from neuraldem.pretrained.building import build_record, read_test_split, strip_checkpoint, training_inputs
+from neuraldem.pretrained.card import write_card
 
 PROBES = [{"alpha": 10.0, "mu_s": 0.2, "mu_r": 0.05}, {"alpha": 35.0, "mu_s": 0.5, "mu_r": 0.2},
           {"alpha": 55.0, "mu_s": 0.8, "mu_r": 0.4}]
@@ -34,7 +35,7 @@ def probe_answers(gp: Any, module: Any, settings: Any) -> list[dict[str, Any]]:
     return out
 
 
-def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) -> Path:
+def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None, reuse_test: bool = False) -> Path:
     from neuraldem.eval.checkpoints import read_checkpoint
     from neuraldem.models.scalar_baselines import ArrayGaussianProcess
     from neuraldem.scenes.hopper.analysis.baselines import baseline_inputs, fit_baseline
@@ -42,6 +43,7 @@ def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) ->
     from neuraldem.scenes.hopper.analysis.scoring import dataset_metric_settings
 
     meta, dataset, m = training_inputs(ckpt, "hopper", dataset)
+    reads = read_test_split(dataset, ckpt, name, reuse_test)
     ids = meta.get("split_ids") or {}
     fit_runs = [m.record(i) for i in ids.get("train", []) + ids.get("val", [])]
     folder = out_root / name
@@ -71,18 +73,69 @@ def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) ->
         extra={"conditioning": meta["conditioning"], "metric_settings": settings.as_dict(), "scene": meta["scene"],
                "test_errors": {"n_test_runs": len(result["simulations"]),
                                "runs": [s["sim_id"] for s in result["simulations"]], **test_errors},
-               "probes": probe_answers(gp, module, settings)})  # scikit-learn's answers: the arrays must match
+               # the probes: scikit-learn's answers, which the shipped arrays must match
+               "probes": probe_answers(gp, module, settings), "test_reads": reads})
     atomic_write_json(folder / "meta.json", info)
+    export_field(folder)
     return folder
 
 
+def export_field(folder: Path) -> Path:
+    """`field.onnx` beside `field.pt` (what `predict` answers with when ONNX Runtime is installed, without
+    importing torch) and the field model's metadata in meta.json (what the answer needs besides the net); the
+    export is checked against the torch net at the probe points before it is recorded."""
+    import json
+
+    import numpy as np
+    import torch
+
+    from neuraldem.eval.checkpoints import checkpoint_net, read_checkpoint
+    from neuraldem.models.onnx_runtime import OnnxNet, export_onnx
+
+    checkpoint = read_checkpoint(folder / "field.pt")
+    net = checkpoint_net(checkpoint, "hopper", "cpu", "the ONNX export")
+    example = net.example_inputs(batch_size=2, n_queries=64, generator=torch.Generator().manual_seed(0))
+    path = export_onnx(net, example, ["occupancy", "transport", "residence"], folder / "field.onnx",
+                       {"scalars": {0: "times"}, "query_pos": {0: "times", 1: "queries"},
+                        **{k: {0: "times", 1: "queries"} for k in ("occupancy", "transport", "residence")}})
+    check = net.example_inputs(batch_size=3, n_queries=500, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        want = net(**check)
+    got = OnnxNet(path)(**{k: v.numpy() for k, v in check.items()})
+    worst = max(float(np.abs(want[k].numpy() - got[k]).max()) for k in got)
+    if worst > ONNX_TOLERANCE:
+        path.unlink()
+        raise DataError(f"{path}: the ONNX export differs from the torch net by {worst:.2g} (> {ONNX_TOLERANCE:g})",
+                        "keep runtime=torch for this model")
+    meta_path = folder / "meta.json"
+    meta = json.loads(meta_path.read_text())
+    meta["files"]["onnx"] = {"file": path.name, "sha256": digest(path), "bytes": path.stat().st_size,
+                             "max_abs_difference_to_torch": worst}
+    meta["field_metadata"] = checkpoint.metadata
+    atomic_write_json(meta_path, meta)
+    write_card(folder)
+    return path
+
+
+ONNX_TOLERANCE = 1e-3  # largest output difference (model units) an export may have from the torch net
+
+
 def add_options(p: argparse.ArgumentParser) -> None:
-    """The hopper's release takes only the common options."""
+    p.add_argument("--onnx-only", action="store_true",
+                   help="hopper, no ckpt=: add field.onnx (answers without torch) to an already released model")
 
 
 def release(args: argparse.Namespace) -> str:
+    if args.onnx_only:
+        if args.ckpt is not None:
+            raise ConfigError("onnx_only=true exports an already released model: give name= only, not ckpt=")
+        if not (args.out / args.name / "field.pt").is_file():
+            raise ConfigError(f"onnx_only=true: {args.out / args.name} holds no released hopper model",
+                              "give name= of a model in out= (default: the shipped models)")
+        path = export_field(args.out / args.name)
+        return f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB) and its entry in meta.json"
     if args.ckpt is None:
         raise ConfigError("ckpt= is required: the checkpoint to release (e.g. ckpt=RUN/checkpoints/last.ckpt)")
-    folder = build_hopper(args.ckpt, args.name, args.out, args.dataset)
+    folder = build_hopper(args.ckpt, args.name, args.out, args.dataset, args.reuse_test)
     sizes = ", ".join(f"{f.name} {f.stat().st_size / 1e6:.2f} MB" for f in sorted(folder.iterdir()))
     return f"wrote {folder} ({sizes})"

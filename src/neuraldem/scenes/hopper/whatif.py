@@ -25,7 +25,7 @@ from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings, flow_
 from neuraldem.scenes.hopper.solver import HopperGeometry, HopperScene
 
 if TYPE_CHECKING:
-    from neuraldem.scenes.hopper.surrogate.inference import TrajectoryFields
+    from neuraldem.scenes.hopper.surrogate.predictors import TrajectoryFields
 
 PACKING_FRACTION = 0.6  # random close packing of the settled fill: sets the lattice spacing
 QUANTITIES = {  # answer key -> (label, unit, scale to the unit)
@@ -35,6 +35,47 @@ QUANTITIES = {  # answer key -> (label, unit, scale to the unit)
     "outflow_rate": ("outflow", "%/s", 100.0),
     "mass_flow_index": ("mass-flow index", "", 1.0),
 }
+
+
+@dataclass(frozen=True)
+class QueryBudget:
+    """How many queries the field model's numbers cost: a share of the lattice points (a fixed, seeded subsample of
+    the material found at t = 0, so the points keep the fill's distribution) and every n-th time of the snapshot
+    grid. The numbers are fractions and times read off a discharge curve, so far fewer queries than one per
+    particle and snapshot answer them nearly as well (`neuraldem bench query_budget`,
+    results/hopper/speed/query_budget.md; a coarser lattice instead biased the outflow by a few percent)."""
+
+    points: float = 1.0
+    time_stride: int = 1
+
+    def __post_init__(self) -> None:
+        from neuraldem.config import checks
+
+        checks.number("query_points", self.points, lo=MIN_POINT_SHARE, hi=1.0)
+        checks.positive_int("time_stride", self.time_stride)
+        if self.time_stride > MAX_TIME_STRIDE:
+            raise DataError(f"time_stride={self.time_stride} is invalid: at most {MAX_TIME_STRIDE} (every "
+                            f"{MAX_TIME_STRIDE * 0.05:g} s of the 0.05-s grid; the drainage time needs finer)")
+
+    def as_dict(self) -> dict[str, float]:
+        return {"query_points": self.points, "time_stride": self.time_stride}
+
+    def subsample(self, points: np.ndarray) -> np.ndarray:
+        """The budget's share of `points`: a seeded subsample, in the lattice's order (the same every call)."""
+        if self.points >= 1.0:
+            return points
+        keep = max(MIN_POINTS, int(round(self.points * len(points))))
+        if keep >= len(points):
+            return points
+        return points[np.sort(np.random.default_rng(0).permutation(len(points))[:keep])]
+
+
+MIN_POINT_SHARE = 0.01
+MIN_POINTS = 64  # fewer material points cannot count eight height layers
+MAX_TIME_STRIDE = 20
+# the budget of `neuraldem predict`'s field numbers: the cheapest whose errors against LIGGGHTS stay within 10 %
+# of the full budget's on the validation runs (results/hopper/speed/query_budget.md)
+ANSWER_BUDGET = QueryBudget(0.125, 4)
 
 
 def lattice_points(scene: HopperScene, alpha: float, box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:
@@ -65,30 +106,73 @@ class FieldAnswer:
     extrapolation: dict[str, list[float]]
 
 
-def field_answer(net: Any, meta: dict[str, Any], params: dict[str, float], settings: HopperMetricSettings,
-                 threshold: float = 0.5, time_stride: int = 1) -> FieldAnswer:
-    """The field model's answer for scene parameters `params` (those of its conditioning besides t)."""
-    from neuraldem.data.manifest import SimRecord
+def predictor_for(net: Any, meta: dict[str, Any]) -> Any:
+    """The field predictor of a net: an exported one (`models.onnx_runtime.OnnxNet`) is answered without torch."""
     from neuraldem.data.normalization import HopperNormalizer
+
+    norm = HopperNormalizer.from_dict(meta["normalizer"])
+    if hasattr(net, "session"):
+        from neuraldem.scenes.hopper.surrogate.predictors import OnnxPredictor
+
+        return OnnxPredictor(net, norm, list(meta["conditioning"]), times_per_call=16)
+    from neuraldem.scenes.hopper.surrogate.inference import ModelPredictor  # torch: only for a torch net
+
+    return ModelPredictor(net, norm, list(meta["conditioning"]), times_per_call=16)
+
+
+def field_answer(net: Any, meta: dict[str, Any], params: dict[str, float], settings: HopperMetricSettings,
+                 threshold: float = 0.5, time_stride: int = 1, budget: QueryBudget | None = None) -> FieldAnswer:
+    """The field model's answer for scene parameters `params` (those of its conditioning besides t), from the
+    queries of `budget` (default: every lattice point, every `time_stride`-th snapshot)."""
+    from neuraldem.data.manifest import SimRecord
+    from neuraldem.scenes.hopper.analysis.metrics import metric_times
     from neuraldem.scenes.hopper.analysis.scoring import summarise
-    from neuraldem.scenes.hopper.surrogate.inference import ModelPredictor, time_grid  # torch: only for fields
 
     t0 = time.perf_counter()
-    norm = HopperNormalizer.from_dict(meta["normalizer"])
+    budget = budget or QueryBudget(1.0, time_stride)
+    predictor = predictor_for(net, meta)
+    norm = predictor.norm
     hop = meta["scene"]["hopper"]
     scene = HopperScene.from_config(hop, "model scene")
-    predictor = ModelPredictor(net, norm, list(meta["conditioning"]), times_per_call=16)
     rec = SimRecord("what-if", 0, dict(params))
     lattice = lattice_points(scene, float(params["alpha"]), np.asarray(norm.box_lo), np.asarray(norm.box_hi))
     start = predictor.fields(rec, np.array([0.0]), lattice).occupancy[0]
-    points = lattice[start >= threshold]
+    points = budget.subsample(lattice[start >= threshold])
     if len(points) == 0:
         raise DataError(f"the field model sees no material at t = 0 for {params}",
                         "ask within the trained ranges, or use the GP answer")
-    times = time_grid(norm.horizon, float(hop["snapshot_interval"]))[::time_stride]
+    times = metric_times(norm.horizon, float(hop["snapshot_interval"]))[::budget.time_stride]
     fields = predictor.fields(rec, times, points)
     summary, stripes = summarise(fields, points[:, 2], settings)
     return FieldAnswer(points, fields, summary, stripes, time.perf_counter() - t0, predictor.extrapolation(rec))
+
+
+@dataclass
+class FieldFrames:
+    points: np.ndarray  # (Q, 3) the whole lattice occupied at t = 0
+    fields: TrajectoryFields
+    stripes: np.ndarray  # (T, layers)
+
+
+def field_frames(net: Any, meta: dict[str, Any], params: dict[str, float], settings: HopperMetricSettings,
+                 time_stride: int = 2, threshold: float = 0.5) -> FieldFrames:
+    """The fields of the whole lattice (one query per particle spacing) at every `time_stride`-th time, answered
+    one frame per call: what pictures and ParaView files show, after the numbers."""
+    from neuraldem.data.manifest import SimRecord
+    from neuraldem.scenes.hopper.analysis.metrics import layer_edges, layer_stripes, metric_times
+
+    predictor = predictor_for(net, meta)
+    predictor.times_per_call = 1
+    norm = predictor.norm
+    hop = meta["scene"]["hopper"]
+    rec = SimRecord("what-if", 0, dict(params))
+    lattice = lattice_points(HopperScene.from_config(hop, "model scene"), float(params["alpha"]),
+                             np.asarray(norm.box_lo), np.asarray(norm.box_hi))
+    points = lattice[predictor.fields(rec, np.array([0.0]), lattice).occupancy[0] >= threshold]
+    fields = predictor.fields(rec, metric_times(norm.horizon, float(hop["snapshot_interval"]))[::time_stride],
+                              points)
+    stripes = layer_stripes(fields.occupancy, fields.transport[..., 2], layer_edges(points[:, 2], settings.n_layers))
+    return FieldFrames(points, fields, stripes)
 
 
 @dataclass

@@ -4,13 +4,14 @@ outlet residence-time distribution (`neuraldem.scenes.hopper_refill.evaluation`)
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
-
-from omegaconf import DictConfig
+from typing import TYPE_CHECKING, Any
 
 from neuraldem.config import checks
 from neuraldem.scenes import Scene
 from neuraldem.scenes.hopper.parameters import PARAMETERS as HOPPER_PARAMETERS  # the same solver, the same ranges
+
+if TYPE_CHECKING:
+    from omegaconf import DictConfig  # the configs a scene is handed; imported only for type checks
 
 
 def pipeline(data_cfg: DictConfig) -> Any:

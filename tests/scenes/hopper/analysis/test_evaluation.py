@@ -15,7 +15,7 @@ from neuraldem.errors import DataError
 from neuraldem.scenes.hopper.analysis.evaluation import load_hopper_checkpoint
 from neuraldem.scenes.hopper.analysis.scoring import SCALARS, aggregate, dataset_metric_settings, evaluate_sims
 from neuraldem.scenes.hopper.dataset.store import HopperFile
-from neuraldem.scenes.hopper.surrogate.inference import DemPredictor, time_grid
+from neuraldem.scenes.hopper.surrogate.predictors import DemPredictor, time_grid
 from tests.helpers import rerecord_checksum
 
 pytestmark = pytest.mark.solver

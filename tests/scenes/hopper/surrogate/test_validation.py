@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from neuraldem.errors import ConfigError
-from neuraldem.scenes.hopper.surrogate.inference import TrajectoryFields
+from neuraldem.scenes.hopper.surrogate.predictors import TrajectoryFields
 from neuraldem.scenes.hopper.surrogate.validation import PractitionerValidation, count_bias, practitioner_score
 
 

@@ -89,10 +89,9 @@ class BedEngine:
 
     def __init__(self, model: pretrained.Pretrained, lattice: int = LATTICE, cache_rollouts: int = 32):
         from neuraldem.eval.checkpoints import read_checkpoint
-        from neuraldem.models.scalar_baselines import ArrayGaussianProcess
         from neuraldem.scenes.fluidized_bed.parameters import PARAMETERS
         from neuraldem.scenes.fluidized_bed.predict import fb_settings, fb_window
-        from neuraldem.scenes.fluidized_bed.whatif import InitialStates, quantities
+        from neuraldem.scenes.fluidized_bed.whatif import InitialStates, load_gp, quantities
 
         self.model = model
         lo, hi = (float(x) for x in model.meta["trained_range"][KEY])
@@ -101,7 +100,7 @@ class BedEngine:
         self.window = fb_window(model)
         self.settings = fb_settings(model)
         self.quantities = quantities(self.window.lacey_time)
-        self.gp = ArrayGaussianProcess.load_npz(model.file("gp"))
+        self.gp = load_gp(model.file("gp"))
         self.module = read_checkpoint(model.file("field")).module("fluidized_bed", "cpu", "predict")
         self.states = InitialStates.load_npz(model.file("states"))
         g = self.states.grid

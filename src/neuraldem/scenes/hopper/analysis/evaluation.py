@@ -28,8 +28,9 @@ from neuraldem.scenes.hopper.analysis.baselines import score_baseline
 from neuraldem.scenes.hopper.analysis.metrics import layer_edges
 from neuraldem.scenes.hopper.analysis.scoring import SimEvaluation, aggregate, dataset_metric_settings, evaluate_sims
 from neuraldem.scenes.hopper.dataset.store import HopperFile
-from neuraldem.scenes.hopper.surrogate.inference import DemPredictor, ModelPredictor, TrajectoryFields, time_grid
+from neuraldem.scenes.hopper.surrogate.inference import ModelPredictor
 from neuraldem.scenes.hopper.surrogate.module import HopperModule
+from neuraldem.scenes.hopper.surrogate.predictors import DemPredictor, TrajectoryFields, time_grid
 
 TABLE_SCALARS = ("mu_s", "mu_r", "theta", "repose")
 

@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.normalization import OutsideBoxError
@@ -26,7 +25,7 @@ from neuraldem.scenes.hopper.analysis.metrics import (
     layer_stripes,
 )
 from neuraldem.scenes.hopper.dataset.store import HopperFile
-from neuraldem.scenes.hopper.surrogate.inference import HopperPredictor, TrajectoryFields
+from neuraldem.scenes.hopper.surrogate.predictors import HopperPredictor, TrajectoryFields
 
 # error name -> (label, truth key, answer key); every table and chart uses these names
 HOPPER_ERRORS = {
@@ -79,6 +78,8 @@ def evaluate_sims(records: list[SimRecord], dataset_dir: Path, truth: HopperPred
     """Model and truth on every run. With `skipped` (a list), a run whose query points lie far outside the
     box the model was trained on is recorded there ({sim_id, reason}) and the others are still evaluated;
     without it, that run is an error."""
+    from tqdm import tqdm  # imported when runs are scored, not with the what-if path
+
     out = []
     for i, rec in enumerate(tqdm(records, desc="evaluate", unit="sim", disable=not progress)):
         with HopperFile(dataset_dir / str(rec.file)) as f:

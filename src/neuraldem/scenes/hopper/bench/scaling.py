@@ -50,7 +50,7 @@ from neuraldem.scenes.hopper.bench.surrogate import (
     untrained_surrogate,
 )
 from neuraldem.scenes.hopper.solver import STATUS_FAILED, HopperRunResult, HopperScene
-from neuraldem.scenes.hopper.surrogate.inference import time_grid
+from neuraldem.scenes.hopper.surrogate.predictors import time_grid
 from neuraldem.sim.liggghts import find_liggghts
 
 NAME = "hopper_scaling"

@@ -23,7 +23,8 @@ from neuraldem.models.registry import build_net as build_named_net
 from neuraldem.models.schemas import build_net
 from neuraldem.scenes.hopper.analysis.evaluation import load_hopper_checkpoint
 from neuraldem.scenes.hopper.dataset.store import HopperFile
-from neuraldem.scenes.hopper.surrogate.inference import ModelPredictor, TrajectoryFields, time_grid
+from neuraldem.scenes.hopper.surrogate.inference import ModelPredictor
+from neuraldem.scenes.hopper.surrogate.predictors import TrajectoryFields, time_grid
 
 
 @dataclass

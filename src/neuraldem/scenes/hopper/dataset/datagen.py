@@ -27,7 +27,7 @@ from neuraldem.scenes.hopper.solver import (
     HopperTrajectory,
     run_hopper,
 )
-from neuraldem.scenes.hopper.surrogate.inference import hold_final_state
+from neuraldem.scenes.hopper.surrogate.predictors import hold_final_state
 from neuraldem.sim import liggghts
 from neuraldem.sim.material import Material
 

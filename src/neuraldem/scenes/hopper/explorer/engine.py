@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from neuraldem import pretrained
-from neuraldem.scenes.hopper.predict import hopper_gp, hopper_module
+from neuraldem.scenes.hopper.predict import hopper_gp, hopper_net
 from neuraldem.scenes.parameters import range_warnings
 from neuraldem.serve.cache import LruCache
 from neuraldem.serve.inputs import parameter_value
@@ -77,7 +77,7 @@ class HopperEngine:
         from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings
         from neuraldem.scenes.hopper.parameters import PARAMETERS
         from neuraldem.scenes.hopper.solver import HopperScene
-        from neuraldem.scenes.hopper.surrogate.inference import time_grid
+        from neuraldem.scenes.hopper.surrogate.predictors import time_grid
 
         self.model = model
         self.inputs: list[str] = list(model.meta["inputs"])
@@ -86,9 +86,7 @@ class HopperEngine:
         self.settings = HopperMetricSettings.from_config(model.meta.get("metric_settings", {}),
                                                          f"{model.name} metric_settings")
         self.gp = hopper_gp(model)
-        module = hopper_module(model)
-        self.net, self.meta = module.net, module.metadata
-        self.net.eval()
+        self.net, self.meta = hopper_net(model)  # ONNX Runtime when the model has its export: frames in ms
         self.norm = HopperNormalizer.from_dict(self.meta["normalizer"])
         hop = self.meta["scene"]["hopper"]
         self.scene = HopperScene.from_config(hop, "model scene")
@@ -161,9 +159,11 @@ class HopperEngine:
     # ---- fields
     def _predictor(self) -> Any:
         """A fresh predictor per call: it records per-run state, and the page and the worker run at once."""
-        from neuraldem.scenes.hopper.surrogate.inference import ModelPredictor
+        from neuraldem.scenes.hopper.whatif import predictor_for
 
-        return ModelPredictor(self.net, self.norm, list(self.meta["conditioning"]), times_per_call=TIMES_PER_CALL)
+        predictor = predictor_for(self.net, self.meta)
+        predictor.times_per_call = TIMES_PER_CALL
+        return predictor
 
     def _record(self, point: Point) -> Any:
         from neuraldem.data.manifest import SimRecord
@@ -236,7 +236,7 @@ class HopperEngine:
         the numbers are `neuraldem predict`'s."""
         from neuraldem.scenes.hopper.analysis.metrics import occupied_counts
         from neuraldem.scenes.hopper.analysis.scoring import summarise
-        from neuraldem.scenes.hopper.surrogate.inference import TrajectoryFields
+        from neuraldem.scenes.hopper.surrogate.predictors import TrajectoryFields
         from neuraldem.scenes.hopper.whatif import regime
 
         found = self._discharge.get(point)

@@ -31,7 +31,8 @@ from neuraldem.errors import ConfigError
 from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings, metric_times, occupied_counts
 from neuraldem.scenes.hopper.analysis.scoring import dataset_metric_settings, score_answers, summarise
 from neuraldem.scenes.hopper.dataset.store import HopperFile
-from neuraldem.scenes.hopper.surrogate.inference import DemPredictor, ModelPredictor, TrajectoryFields
+from neuraldem.scenes.hopper.surrogate.inference import ModelPredictor
+from neuraldem.scenes.hopper.surrogate.predictors import DemPredictor, TrajectoryFields
 
 log = logging.getLogger(__name__)
 
