@@ -231,18 +231,19 @@ class HopperEngine:
         return self._discharge.get(point)
 
     def compute_discharge(self, point: Point, cancelled: Callable[[], bool] = lambda: False) -> Discharge | None:
-        """The field model at every frame time, chunk by chunk (None when `cancelled()` turns true between
-        chunks, paused while a frame is answered); the calls of `whatif.field_answer` on the same points, so
-        the numbers are `neuraldem predict`'s."""
+        """The numbers as `neuraldem predict` answers them (`whatif.field_answer` with its query budget: the same
+        calls, the same numbers), then the field model at every frame time for the curve and the particles, chunk
+        by chunk (None when `cancelled()` turns true between chunks, paused while a frame is answered)."""
         from neuraldem.scenes.hopper.analysis.metrics import occupied_counts
-        from neuraldem.scenes.hopper.analysis.scoring import summarise
         from neuraldem.scenes.hopper.surrogate.predictors import TrajectoryFields
-        from neuraldem.scenes.hopper.whatif import regime
+        from neuraldem.scenes.hopper.whatif import ANSWER_BUDGET, field_answer, regime
 
         found = self._discharge.get(point)
         if found is not None:
             return found
         t0 = time.perf_counter()
+        numbers = field_answer(self.net, self.meta, self.values(point), self.settings,
+                               budget=ANSWER_BUDGET)
         m, predictor, rec = self.material(point), self._predictor(), self._record(point)
         parts = []
         for k in range(0, len(self.times), TIMES_PER_CALL):
@@ -252,11 +253,10 @@ class HopperEngine:
             parts.append(predictor.fields(rec, self.times[k:k + TIMES_PER_CALL], m.points))
         fields = TrajectoryFields(self.times, *(np.concatenate([getattr(p, name) for p in parts])
                                                for name in ("occupancy", "transport", "residence")))
-        summary, _ = summarise(fields, m.points[:, 2], self.settings)
-        index = summary["mass_flow_index"]
-        answer = {"summary": summary, "regime": f"{regime(index, self.settings)} ({index:.2f})",
-                  "seconds": time.perf_counter() - t0, "n_points": len(m.points),
-                  "extrapolation": predictor.extrapolation(rec)}
+        index = numbers.summary["mass_flow_index"]
+        answer = {"summary": numbers.summary, "regime": f"{regime(index, self.settings)} ({index:.2f})",
+                  "seconds": time.perf_counter() - t0, "numbers_s": numbers.seconds, "n_points": len(numbers.points),
+                  "extrapolation": numbers.extrapolation}
         remaining = occupied_counts(fields.occupancy) / len(m.points)
         return self._discharge.put(point, Discharge(answer, self.times, remaining, fields))
 
