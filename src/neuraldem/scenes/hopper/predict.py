@@ -124,14 +124,15 @@ def predict_hopper(point: dict[str, float], model_name: str, out: Path, fields: 
                "extrapolation": a.extrapolation},
         "stored_test_errors": model.meta.get("test_errors", {}),
     }
-    warnings = range_warnings(a.extrapolation, "GP")
+    warnings = range_warnings(a.extrapolation, "GP", model.meta.get("asked_range"))
     out.mkdir(parents=True, exist_ok=True)
     panels = []
     if fields:
         f = hopper_fields(hopper_module(model), point, settings, out, time_stride)
         answer["field"] = f.pop("answer")
         panels.append(f["panel"])
-        warnings += range_warnings(answer["field"]["extrapolation"], "field model")
+        warnings += range_warnings(answer["field"]["extrapolation"], "field model",
+                                   model.meta.get("asked_range"))
     if verify:
         answer["liggghts"], panel = hopper_verify(model.meta["scene"], point, settings, out)
         if panel is not None:

@@ -68,7 +68,9 @@ def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None) ->
         trained_range={n: [float(lo), float(hi)] for n, lo, hi in zip(inputs, gp.lo, gp.hi, strict=True)},
         training_data={"dataset": meta["data_name"], "manifest_sha256": digest(dataset / MANIFEST_NAME),
                        "split": meta["split"], "run_ids": ids},
-        extra={"conditioning": meta["conditioning"], "metric_settings": settings.as_dict(), "scene": meta["scene"],
+        extra={"asked_range": {n: [float(v) for v in r] for n, r in (m.parameters.get("ranges") or {}).items()
+                               if n in inputs},
+               "conditioning": meta["conditioning"], "metric_settings": settings.as_dict(), "scene": meta["scene"],
                "test_errors": {"n_test_runs": len(result["simulations"]),
                                "runs": [s["sim_id"] for s in result["simulations"]], **test_errors},
                "probes": probe_answers(gp, module, settings)})  # scikit-learn's answers: the arrays must match
