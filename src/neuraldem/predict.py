@@ -105,7 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps(answer, indent=1, default=float))
     else:
-        print(f"{scene.kind} what-if {' '.join(f'{k}={v:g}' for k, v in point.items())} (model {name}):")
+        print(f"{scene.kind} what-if {' '.join(f'{k}={v:g}' for k, v in point.items())} "
+              f"(model {answer.get('model', name)}):")
         print(module.table(answer))
         print(f"outputs in {out} ({time.perf_counter() - t0:.2f} s in this command)")
     return 0
