@@ -54,7 +54,8 @@ def test_model_takes_a_released_folder(tiny_pretrained: Path, clean_env, tmp_pat
     proc = run_module("neuraldem", "predict", "hopper", f"model={folder}", "alpha=40", "mu_s=0.3", "mu_r=0.1",
                       "fields=false", f"out={tmp_path / 'p'}")
     assert proc.returncode == 0, proc.stderr
-    assert f"(model {TINY})" in proc.stdout and json.loads((tmp_path / "p" / "answer.json").read_text())["model"] == TINY
+    assert f"(model {TINY})" in proc.stdout
+    assert json.loads((tmp_path / "p" / "answer.json").read_text())["model"] == TINY
     scan = run_module("neuraldem", "scan", "hopper", f"model={folder}", "alpha=20:50:3", "mu_s=0.2:0.6:2", "mu_r=0.1",
                       f"out={tmp_path / 's'}")
     assert scan.returncode == 0 and (tmp_path / "s" / "scan.json").is_file(), scan.stderr
