@@ -48,9 +48,8 @@ def user_dirs() -> list[Path]:
             _noted.append(True)
             print(f"neuraldem: note: {OLD_ENV_VAR} is the old name of {ENV_VAR} (kept for one release); its folders "
                   "are searched before the shipped models, which stay available", file=sys.stderr)
-    if value is None:
-        return [data_dir() / "models"]
-    return [Path(p).expanduser() for p in value.split(os.pathsep) if p.strip()]
+    folders = [Path(p).expanduser() for p in (value or "").split(os.pathsep) if p.strip()]
+    return folders or [data_dir() / "models"]
 
 
 def release_dir() -> Path:
