@@ -203,3 +203,14 @@ def test_evaluate_scores_an_imported_run_as_the_generated_one(raw_dataset: Path,
     for kind in ("gp", "constant"):
         assert errors(imported["baselines"][kind]["aggregate"]) == errors(generated["baselines"][kind]["aggregate"])
     assert imported["truth"].startswith("every row against the DEM fields")
+
+
+def test_one_dataset_scores_every_run_over_one_horizon(liggghts_run, tmp_path: Path):
+    workdir, res, open_step = liggghts_run
+    assert _import(workdir, tmp_path / "ds", res, open_step).returncode == 0
+    assert Manifest.load(tmp_path / "ds").scene["hopper"]["max_time"] == 5
+    again = _import(workdir, tmp_path / "ds", res, open_step, sim_id="other", max_time=None)  # the dataset's
+    assert again.returncode == 0, again.stderr
+    other = _import(workdir, tmp_path / "ds", res, open_step, sim_id="third", max_time=3)
+    assert other.returncode == 2 and "scores its runs over max_time=5 s, this run would be scored over 3 s" in \
+        other.stderr, other.stderr

@@ -106,10 +106,10 @@ def main(argv: list[str] | None = None) -> int:
     macro = parse_assignments(a.macro, "macro", "theta=24")
     stated = stated_scene(a.scene, a.dataset)
     v = resolve(a, stated, deck_values(a.dump), params)
-    if (a.dataset / MANIFEST_NAME).exists() and a.scene is not None:  # the dataset's horizon is every run's
+    if (a.dataset / MANIFEST_NAME).exists():  # the dataset's horizon is every run's
         held = Manifest.load(a.dataset).scene.get("hopper", {}).get("max_time")
         if held is not None and abs(float(held) - v["max_time"]) > 1e-9:
-            raise ConfigError(f"{a.dataset} scores its runs over max_time={held:g} s, this scene over "
+            raise ConfigError(f"{a.dataset} scores its runs over max_time={held:g} s, this run would be scored over "
                               f"{v['max_time']:g} s", "give max_time= the dataset's, or import into another dataset=")
     geom = HopperGeometry(radius=v["radius"], outlet_radius=v["outlet_radius"], cone_height=v["cone_height"],
                           wall_height=np.nan, sink_z=v["sink_z"])
