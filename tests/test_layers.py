@@ -38,7 +38,7 @@ LAYERS = [
     ("export", ["neuraldem.export"]),
     ("composition", ["neuraldem.bench", "neuraldem.datagen", "neuraldem.train", "neuraldem.evaluate",
                      "neuraldem.rollout", "neuraldem.doctor", "neuraldem.__main__", "neuraldem.release",
-                     "neuraldem.predict", "neuraldem.scan", "neuraldem.serve.__main__"]),
+                     "neuraldem.predict", "neuraldem.scan", "neuraldem.serve.__main__", "neuraldem.scene_files"]),
 ]
 
 

@@ -1,6 +1,6 @@
 """`neuraldem VERB [OBJECT] key=value ...`: one command line for everything the package does (docs/cli.md).
 
-Twelve verbs, each with one example; everything else is reachable under them (`neuraldem report --help`,
+About twelve verbs, each with one example; everything else is reachable under them (`neuraldem report --help`,
 `neuraldem bench --help`, `neuraldem import --help` list what each holds, by scene). Scene-specific commands come
 from the scenes (`Scene.reports`, `Scene.benchmarks`, `Scene.importer`), so a plug-in scene adds its own.
 Old verbs and names still work for one release and print the new spelling.
@@ -17,14 +17,16 @@ from neuraldem.commands import SHARED_REPORTS
 # verb -> (module whose main() runs it, one line of help, an example)
 VERBS: dict[str, tuple[str, str, str]] = {
     "doctor": ("neuraldem.doctor", "check solvers, torch, torch-cluster and the data dir", "neuraldem doctor"),
+    "scene": ("neuraldem.scene_files", "a scene of your own: `scene new NAME from=SCENE`, `scene list`, `scene show`",
+              "neuraldem scene new my_hopper from=hopper_small"),
     "datagen": ("neuraldem.datagen.__main__", "run the real solvers for a dataset (resumable)",
                 "neuraldem datagen data=hopper_small n_sims=200 workers=2"),
     "train": ("neuraldem.train", "train a surrogate (Hydra; -m for sweeps)",
               "neuraldem train experiment=hopper_micro"),
     "evaluate": ("neuraldem.evaluate", "score a checkpoint against its solver; `evaluate rollout` rolls one out",
                  "neuraldem evaluate ckpt=RUN/checkpoints/last.ckpt"),
-    "release": ("neuraldem.release", "build a shipped model folder from a checkpoint",
-                "neuraldem release hopper ckpt=RUN/checkpoints/last.ckpt name=my_hopper out=DIR"),
+    "release": ("neuraldem.release", "a model folder from a checkpoint, for predict, scan and serve",
+                "neuraldem release ckpt=RUN/checkpoints/last.ckpt name=my_hopper"),
     "predict": ("neuraldem.predict", "a what-if answer from a shipped model, in about a second",
                 "neuraldem predict hopper alpha=40 mu_s=0.3 mu_r=0.1 verify=true"),
     "scan": ("neuraldem.scan", "a design chart over two parameters",

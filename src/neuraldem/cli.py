@@ -355,9 +355,12 @@ def parse_assignments(items: list[str], key: str, example: str) -> dict[str, flo
 
 
 def check_overrides(config_name: str, overrides: list[str]) -> None:
-    """Hydra overrides checked before composing: each key once, and a first segment the config knows (its
-    keys, its groups, `hydra`), so a typo names the options instead of Hydra's stack of messages."""
+    """Hydra overrides checked before composing: each key once, a first segment the config knows (its keys, its
+    groups, `hydra`), and a group option that exists in one config folder (`data=nope` names the folders searched,
+    your own included: `neuraldem.config.user`), so a typo names the options instead of Hydra's stack of messages."""
     from omegaconf import OmegaConf
+
+    from neuraldem.config.user import check_group_choice
 
     seen: set[str] = set()
     primary = OmegaConf.to_container(OmegaConf.load(config_dir() / f"{config_name}.yaml"))
@@ -377,6 +380,11 @@ def check_overrides(config_name: str, overrides: list[str]) -> None:
             fail(f"neuraldem {config_name}: {bare}= is given twice: give each option once")
         seen.add(bare)
         if token.startswith(("+", "~")) or bare.split(".")[0].split("/")[0] in known:
+            if "." not in bare and "/" not in bare and not token.startswith("~"):
+                try:
+                    check_group_choice(bare, token.partition("=")[2])
+                except ConfigError as err:
+                    fail(f"neuraldem {config_name}: {err}")
             continue
         fail(f"neuraldem {config_name}: unknown option {bare}=: the options are "
              f"{', '.join(sorted(k + '=' for k in known if k != 'hydra'))} (and their sub-keys, e.g. data.name=)")
@@ -399,6 +407,24 @@ def renamed_overrides(config_name: str, overrides: list[str]) -> list[str]:
     return out
 
 
+def named_scene_file(task: Callable[[DictConfig], Any]) -> Callable[[DictConfig], Any]:
+    """A config error about a `data.` key names the scene file it came from (`neuraldem.config.user`)."""
+
+    @functools.wraps(task)
+    def run(cfg: DictConfig) -> Any:
+        try:
+            return task(cfg)
+        except ConfigError as err:
+            from hydra.core.hydra_config import HydraConfig
+
+            from neuraldem.config.user import with_scene_file
+
+            choices = dict(HydraConfig.get().runtime.choices) if HydraConfig.initialized() else {}
+            raise with_scene_file(err, choices) from None
+
+    return run
+
+
 def hydra_app(config_name: str) -> Callable[[Callable[[DictConfig], Any]], Callable[[], Any]]:
     """Decorator for `main(cfg)` functions: our config tree, our error reporting, offline defaults."""
 
@@ -410,7 +436,7 @@ def hydra_app(config_name: str) -> Callable[[Callable[[DictConfig], Any]], Calla
         import neuraldem.config  # noqa: F401  (registers resolvers before Hydra composes)
 
         quiet_environment()
-        wrapped = report_user_errors(task)
+        wrapped = report_user_errors(named_scene_file(task))
         app = hydra.main(version_base="1.3", config_path=str(config_dir()), config_name=config_name)(wrapped)
 
         @functools.wraps(app)

@@ -1,6 +1,8 @@
 """Where datasets, checkpoints and run outputs live: the data dir, never the git checkout.
 
 Resolution order: $NEURALDEM_DATA, then $XDG_DATA_HOME/neuraldem, then ~/.local/share/neuraldem.
+Your own configs (scene files written by `neuraldem scene new`) live in the user config folder:
+$NEURALDEM_CONFIG, then $XDG_CONFIG_HOME/neuraldem, then ~/.config/neuraldem.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ from pathlib import Path
 from neuraldem.commands import command_or_module
 
 ENV_VAR = "NEURALDEM_DATA"
+CONFIG_ENV_VAR = "NEURALDEM_CONFIG"
 
 
 def data_dir() -> Path:
@@ -20,6 +23,16 @@ def data_dir() -> Path:
     if env:
         return Path(env).expanduser().resolve()
     xdg = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return (Path(xdg).expanduser() / "neuraldem").resolve()
+
+
+def user_config_dir() -> Path:
+    """Your own Hydra configs (`data/<scene>.yaml`, ...): every Hydra command searches it after the packaged
+    configs (a name that is packaged already is refused, never shadowed). Not created here."""
+    env = os.environ.get(CONFIG_ENV_VAR)
+    if env:
+        return Path(env).expanduser().resolve()
+    xdg = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
     return (Path(xdg).expanduser() / "neuraldem").resolve()
 
 

@@ -8,9 +8,11 @@
 Every scene answers from its scalar Gaussian process (95 % intervals, milliseconds) and from its field model
 (seconds), with the model's errors on its held-out runs beside them; `verify=true` runs the solver on the same
 parameters and prints both answers and both times. Values the solver cannot run are refused; values outside the
-trained ranges are answered with a warning that names the range. What each scene answers is in its what-if
-module (`Scene.whatif`). Outputs go to `out=` (default <data dir>/predict/<scene>/<parameters>/): answer.json,
-plots, vtk/.
+trained ranges are answered with a warning that names the range (and the range datagen was asked for, where the
+runs covered less). `model=` is a model's name (yours in `NEURALDEM_MODELS`, default <data dir>/models, then
+the shipped ones) or a released model's folder (`neuraldem release ... out=DIR`: model=DIR/NAME). What each
+scene answers is in its what-if module (`Scene.whatif`). Outputs go to `out=` (default
+<data dir>/predict/<scene>/<parameters>/): answer.json, plots, vtk/.
 """
 
 from __future__ import annotations
@@ -71,7 +73,8 @@ def what_if_parser(verb: str, scene: scenes.Scene, module: ModuleType, inputs: l
                        help=(scene.parameters[name].meaning if name in scene.parameters else "a model input")
                        + (f" [{unit}]" if unit else ""))
     p.add_argument("--model", default=None,
-                   help=f"shipped model name (default: the scene's; shipped: {', '.join(pretrained.names())})")
+                   help=f"a model's name or a released model's folder (default: the first {scene.kind} model found, "
+                        f"yours before the shipped one; found: {', '.join(pretrained.names())})")
     p.add_argument("--out", type=Path, default=None, help="output folder")
     return p
 
@@ -104,7 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps(answer, indent=1, default=float), flush=True)
     else:
-        print(f"{scene.kind} what-if {' '.join(f'{k}={v:g}' for k, v in point.items())} (model {name}):")
+        print(f"{scene.kind} what-if {' '.join(f'{k}={v:g}' for k, v in point.items())} "
+              f"(model {answer.get('model', name)}):")
         print(module.table(answer))
         print(f"numbers in {time.perf_counter() - t0:.2f} s since the command started", flush=True)
     follow_up = getattr(module, "follow_up", None)  # pictures and ParaView files come after the numbers

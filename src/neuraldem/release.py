@@ -1,15 +1,21 @@
-"""`neuraldem release [SCENE] ckpt=RUN/checkpoints/last.ckpt name=NAME [out=DIR]`: a shipped model folder.
+"""`neuraldem release [SCENE] ckpt=RUN/checkpoints/last.ckpt name=NAME [out=DIR]`: a model folder for predict.
 
-    neuraldem release ckpt=RUN/checkpoints/last.ckpt name=hopper_small
-    neuraldem release ckpt=FB_RUN/checkpoints/best.ckpt name=fb_small lacey_time=1
+    neuraldem release ckpt=RUN/checkpoints/last.ckpt name=my_hopper       # into <data dir>/models/my_hopper
+    neuraldem release ckpt=RUN/checkpoints/last.ckpt name=my_hopper out=$HOME/my-models
+    neuraldem release ckpt=FB_RUN/checkpoints/best.ckpt name=fb_small lacey_time=1 out=src/neuraldem/pretrained
     neuraldem release fluidized_bed name=fb_small refresh_field=true   # after a change of the bed rollouts
 
 Writes `<out>/<name>/`: `field.pt` (the checkpoint without optimizer state), the scene's scalar GP as arrays
 numpy answers with (`gp.npz`), what else its answers need (a bed's first states), and `meta.json`: the training
 data (dataset, SHA-256 of its manifest, the run ids of each part), the config, the test errors of the field
-model, the GP and the constant on the checkpoint's held-out test runs, the trained ranges, answers at probe
-points and the rebuild commands. The checkpoint says which scene releases it (`Scene.release`); SCENE is needed
-only without a checkpoint. `out=` defaults to the folder of the shipped models.
+model, the GP and the constant on the checkpoint's held-out test runs, the trained ranges (covered by the runs,
+and asked of datagen), answers at probe points and the rebuild commands. The checkpoint says which scene
+releases it (`Scene.release`); SCENE is needed only without a checkpoint.
+
+`out=` defaults to your model folder, the first of `NEURALDEM_MODELS` (default `<data dir>/models`), which
+`predict`, `scan` and `serve` search before the shipped models: `model=NAME` then answers with it, and
+`model=<out>/<name>` works from any folder. The shipped models are built the same way with
+`out=src/neuraldem/pretrained`. `refresh_field=true` rewrites the model found under `name=` (or `<out>/<name>`).
 """
 
 from __future__ import annotations
@@ -32,7 +38,10 @@ def main(argv: list[str] | None = None) -> int:
     p = command_parser("neuraldem.release", __doc__)
     p.add_argument("--ckpt", type=Path, default=None, help="a checkpoint written by neuraldem train")
     p.add_argument("--name", required=True, help="the model's name (its folder)")
-    p.add_argument("--out", type=Path, default=pretrained.root(), help="folder of shipped models")
+    p.add_argument("--out", type=Path, default=None,
+                   help=f"folder the model folder goes into (default: your model folder, {pretrained.ENV_VAR} or "
+                        f"<data dir>/models, now {pretrained.release_dir()}; the shipped models: "
+                        "out=src/neuraldem/pretrained)")
     p.add_argument("--dataset", type=Path, default=None, help="dataset dir (default: the checkpoint's)")
     p.add_argument("--reuse-test", action="store_true",
                    help="release although the test runs were read for another recipe of the same family (the "
@@ -63,6 +72,8 @@ def main(argv: list[str] | None = None) -> int:
         raise ConfigError("ckpt= is required: the checkpoint to release (e.g. ckpt=RUN/checkpoints/last.ckpt)")
     if kind not in able:
         raise ConfigError(f"the {scene(kind).kind} scene has no release", f"release one of {', '.join(able)}")
+    if args.out is None and not getattr(args, "refresh_field", False):
+        args.out = pretrained.release_dir()
     print(able[kind].release(args))
     return 0
 

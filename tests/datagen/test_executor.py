@@ -170,8 +170,8 @@ def test_slurm_without_submitit_or_sbatch_and_bad_values_end_in_one_line(tmp_pat
         assert proc.returncode == 2 and message in proc.stderr, (args, proc.stderr)
         assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert not (tmp_path / DATASET).exists()
-    unknown = datagen(tmp_path, "executor=pbs")  # Hydra's own refusal lists the executors there are
-    assert unknown.returncode != 0 and "Could not find 'executor/pbs'" in unknown.stderr
+    unknown = datagen(tmp_path, "executor=pbs")  # refused before Hydra composes, listing the executors there are
+    assert unknown.returncode == 2 and "no executor config 'pbs': searched" in unknown.stderr
     assert "submitit_local" in unknown.stderr and "slurm" in unknown.stderr
 
 

@@ -17,7 +17,7 @@ from tests.conftest import TINY
 def model_copy(tiny_pretrained: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """A copy of the tiny shipped-model folder that `neuraldem serve` loads (to break on purpose)."""
     shutil.copytree(tiny_pretrained / TINY, tmp_path / TINY)
-    monkeypatch.setenv("NEURALDEM_PRETRAINED_DIR", str(tmp_path))
+    monkeypatch.setenv("NEURALDEM_MODELS", str(tmp_path))
     return tmp_path / TINY
 
 
@@ -46,7 +46,10 @@ def test_a_damaged_model_file_is_one_line(model_copy: Path, capsys):
 
 
 def test_without_a_shipped_model_no_page_is_served(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys):
-    monkeypatch.setenv("NEURALDEM_PRETRAINED_DIR", str(tmp_path))
+    from neuraldem import pretrained
+
+    monkeypatch.setenv("NEURALDEM_MODELS", str(tmp_path))  # your folders: none of yours ...
+    monkeypatch.setattr(pretrained, "shipped_dir", lambda: tmp_path / "shipped")  # ... and none shipped
     err = serve_error(capsys)
     assert "no page can be served: hopper: page off: no pretrained hopper model is shipped" in err
     assert "bed: page off: no pretrained fluidized_bed model is shipped" in err and err.endswith("model=NAME\n")

@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -30,6 +31,25 @@ def random_split(ids: Sequence[str], fractions: dict[str, float], seed: int) -> 
     n_train = n - n_val - n_test
     return {"train": sorted(order[:n_train]), "val": sorted(order[n_train:n_train + n_val]),
             "test": sorted(order[n_train + n_val:])}
+
+
+def runs_for_own_parts(fractions: dict[str, float]) -> int:
+    """The fewest runs (or velocities) for which every asked part besides training gets a whole run of its own
+    from its fraction (fraction x runs >= 1), not only the one run `random_split` rounds it up to."""
+    return max((math.ceil(1 / f - 1e-9) for k, f in fractions.items() if k != "train" and f > 0), default=1)
+
+
+def too_few_warning(name: str, n: int, fractions: dict[str, float], unit: str, key: str, setting: str) -> str | None:
+    """One line when `n` runs (velocities) are too few for a validation and a test part of their own, naming how
+    many would be enough (`runs_for_own_parts`); None when they are enough."""
+    need = runs_for_own_parts(fractions)
+    if n >= need:
+        return None
+    parts = ", ".join(f"{k} {f:g}" for k, f in fractions.items() if k != "train" and f > 0)
+    return (f"{name}: {n} {unit} are too few for a validation and a test part of their own ({key}: {parts}): "
+            f"each gets one {unit[:-1]} by rounding up, the model's trained range is the span of the training "
+            f"{unit} alone (less than the ranges asked) and its test {unit[:-1]} may lie outside it; {need} {unit} "
+            f"would be enough ({setting}={need})")
 
 
 def auto_theta_band(thetas: np.ndarray, alpha_band: tuple[float, float],

@@ -81,6 +81,9 @@ def main(cfg: DictConfig) -> None:
         log.warning("%d simulations at a time > %d cores: runs will share cores and each gets slower", parallel,
                     cpu_count())
     pipe = make_pipeline(cfg.data)
+    few = getattr(pipe, "split_warning", lambda n: None)(n_sims)
+    if few:
+        log.warning(few)
     run_dir = Path(cfg.paths.output_dir)
     opts = DatagenOptions(n_sims=n_sims, workers=workers, retry_failed=bool(cfg.retry_failed),
                           progress=bool(cfg.progress), first=first_ids(cfg.get("first")),

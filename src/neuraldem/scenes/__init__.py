@@ -74,6 +74,9 @@ class Scene:
     import_match_keys: tuple[str, ...] = ()  # scene keys an imported run must share with a model's (1 %)
     import_report_keys: tuple[str, ...] = ()  # solver settings reported when they differ, not refused
     config_dir: Path | None = None  # a plug-in's own Hydra configs (data/, model/, experiment/)
+    # "package.module:NAME" of its scene-file keys (a tuple of parameters.SceneKey): the comments of the files
+    # `neuraldem scene new` writes and the reference table of docs/your-own-scene.md
+    scene_keys: str | None = None
     # Hydra overrides renamed in this scene, read one release with a note: command config -> {old key: new key}
     renamed_keys: Mapping[str, Mapping[str, str]] = field(default_factory=dict)
 

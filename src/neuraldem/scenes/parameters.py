@@ -77,6 +77,25 @@ class ParameterTable:
         return "\n".join(rows)
 
 
+@dataclass(frozen=True)
+class SceneKey:
+    """One key of a scene file (dotted, as in `conf/data/<scene>.yaml`): its unit, what it means and what changing
+    it costs. A scene's table (`Scene.scene_keys`) comments the files `neuraldem scene new` writes and is the
+    reference table of docs/your-own-scene.md."""
+
+    key: str
+    unit: str  # "-" for dimensionless
+    meaning: str
+    cost: str
+
+
+def scene_key_markdown(keys: Iterable[SceneKey]) -> str:
+    """The reference table of a scene's keys as docs/your-own-scene.md shows it."""
+    rows = ["| key | unit | meaning | cost |", "|---|---|---|---|"]
+    rows += [f"| `{k.key}` | {k.unit} | {k.meaning} | {k.cost} |" for k in keys]
+    return "\n".join(rows)
+
+
 def named_values(items: Mapping[str, str], names: list[str], scene: str) -> dict[str, str]:
     """`name=text` arguments of a what-if: the model's inputs only, and every one of them."""
     for key in items:
@@ -103,7 +122,36 @@ def parse_point(items: Mapping[str, str], names: list[str], scene: str, table: P
     return out
 
 
-def range_warnings(extrapolation: Mapping[str, list[float]], who: str) -> list[str]:
-    """One warning per input outside the range a model was trained on (`{name: [value, low, high]}`)."""
-    return [f"warning: {who}: {k}={v[0]:.4g} is outside the trained range {v[1]:.4g} .. {v[2]:.4g}: an "
-            "extrapolation, trust it less" for k, v in extrapolation.items() if k != "query_points_outside_box"]
+def asked_note(name: str, trained: tuple[float, float] | list[float] | None,
+               asked: Mapping[str, list[float]] | None) -> str:
+    """`, asked 0.2 .. 0.8` where the runs covered less of a parameter than datagen was asked for (else '')."""
+    if not asked or name not in asked or trained is None:
+        return ""
+    lo, hi = (float(v) for v in asked[name])
+    if all(abs(a - float(b)) <= 1e-9 * max(1.0, abs(a)) for a, b in zip((lo, hi), trained, strict=True)):
+        return ""
+    return f"; datagen was asked for {lo:.4g} .. {hi:.4g}, the runs cover less (more runs fill it)"
+
+
+def range_warnings(extrapolation: Mapping[str, list[float]], who: str,
+                   asked: Mapping[str, list[float]] | None = None) -> list[str]:
+    """One warning per input outside the range a model was trained on (`{name: [value, low, high]}`), naming
+    the range datagen was asked for where its runs covered less (`asked`: meta.json's `asked_range`)."""
+    return [f"warning: {who}: {k}={v[0]:.4g} is outside the trained range {v[1]:.4g} .. {v[2]:.4g}"
+            f"{asked_note(k, v[1:3], asked)}: an extrapolation, trust it less"
+            for k, v in extrapolation.items() if k != "query_points_outside_box"]
+
+
+def ranges_line(meta: Mapping[str, object]) -> str:
+    """What a released model was trained on, per input: the range its runs cover and, where datagen was asked
+    for more, that range (the explorer shows it under the sliders)."""
+    trained = meta.get("trained_range") or {}
+    asked = meta.get("asked_range") or {}
+    parts = []
+    for name, (lo, hi) in trained.items():  # type: ignore[union-attr]
+        part = f"{name} {lo:.4g} .. {hi:.4g}"
+        if name in asked and asked_note(name, (lo, hi), asked):  # type: ignore[arg-type]
+            a = asked[name]  # type: ignore[index]
+            part += f" (asked {float(a[0]):.4g} .. {float(a[1]):.4g})"
+        parts.append(part)
+    return "trained on runs covering " + ", ".join(parts) if parts else ""

@@ -3,6 +3,7 @@
     neuraldem serve                        # http://127.0.0.1:5006/hopper and /bed
     neuraldem serve port=5010 show=true    # another port, and open the browser
     neuraldem serve model=hopper_small dataset=~/data/hopper_small
+    neuraldem serve model=$HOME/my-models/my_hopper     # a model you released (neuraldem release ... out=DIR)
 
 Hopper page: sliders for the cone angle and the two frictions (their trained ranges; type a value beside a
 slider to go beyond: values past what LIGGGHTS can run are clamped with a note, values past the trained range
@@ -49,7 +50,9 @@ def main(argv: list[str] | None = None) -> int:
     p = doc_parser("neuraldem.serve", __doc__)
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}; 0: any free one)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine)")
-    p.add_argument("--model", default=None, help="shipped model to show (default: each scene's)")
+    p.add_argument("--model", default=None,
+                   help="a model's name or released folder to show on its scene's page (default: each scene's first "
+                        "model found, yours before the shipped one)")
     p.add_argument("--dataset", type=Path, default=None,
                    help="stored LIGGGHTS runs to overlay (default: the model's own dataset in the data dir)")
     p.add_argument("--near", type=float, default=NEAR,

@@ -66,7 +66,7 @@ SCENE = Scene(
     parameters=PARAMETERS, pipeline=pipeline, evaluate=evaluate, evaluate_run=evaluate_run, rollout=rollout,
     module="neuraldem.scenes.fluidized_bed.surrogate.module:FluidizedBedModule", aliases=("bed", "fb"),
     whatif="neuraldem.scenes.fluidized_bed.predict", page="neuraldem.scenes.fluidized_bed.explorer.page",
-    release="neuraldem.scenes.fluidized_bed.release",
+    release="neuraldem.scenes.fluidized_bed.release", scene_keys="neuraldem.scenes.fluidized_bed.scene_keys:SCENE_KEYS",
     benchmarks={
         "fb_speed": ("neuraldem.scenes.fluidized_bed.bench.speed",
                      "DPMFoam vs the fluidized-bed rollout per simulated second, side by side (speed-up ratios)"),

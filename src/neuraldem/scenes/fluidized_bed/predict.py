@@ -66,14 +66,15 @@ def predict_fb(point: dict[str, float], model_name: str, out: Path, fields: bool
         "gp": {"mean": a.mean, "low": a.low, "high": a.high, "seconds": a.seconds, "extrapolation": a.extrapolation},
         "stored_test_errors": stored,
     }
-    warnings = range_warnings(a.extrapolation, "GP")
+    warnings = range_warnings(a.extrapolation, "GP", model.meta.get("asked_range"))
     out.mkdir(parents=True, exist_ok=True)
     series = {}
     settings = fb_settings(model) if fields or verify else None
     if fields:
         answer["field"], curves = fb_fields(model, point["inlet_velocity"], settings, window, out, seed)
         series["field model"] = curves.as_series()
-        warnings += range_warnings(answer["field"]["extrapolation"], "field model")
+        warnings += range_warnings(answer["field"]["extrapolation"], "field model",
+                                   model.meta.get("asked_range"))
     if verify:
         answer["dpmfoam"], curves = fb_verify(model, point["inlet_velocity"], settings, window, out, seed)
         if curves is not None:

@@ -143,7 +143,9 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
         inputs=["inlet_velocity"], trained_range={"inlet_velocity": [lo, hi]},
         training_data={"dataset": m.name, "manifest_sha256": digest(dataset / MANIFEST_NAME), "split": meta["split"],
                        "run_ids": {p: [r.sim_id for r in rs] for p, rs in parts.items()}},
-        extra={"conditioning": meta["conditioning"], "metric_settings": settings.__dict__ | {
+        extra={"asked_range": {n: [float(v) for v in r] for n, r in (m.parameters.get("ranges") or {}).items()
+                               if n == "inlet_velocity"},
+               "conditioning": meta["conditioning"], "metric_settings": settings.__dict__ | {
                    "lacey_block": list(settings.lacey_block)},
                "answer_window": window.as_dict(), "scene": m.scene, "test_errors": test_errors, "test_reads": reads,
                "probes": probes,
@@ -263,9 +265,12 @@ def release(args: argparse.Namespace) -> str:
     if args.refresh_field:
         if args.ckpt is not None:
             raise ConfigError("refresh_field=true reruns a shipped model's answers: give name= only, not ckpt=")
-        meta = refresh_field_answers(args.out / args.name, rollout_options=options)
+        from neuraldem import pretrained
+
+        folder = args.out / args.name if args.out is not None else pretrained.load(args.name, "fluidized_bed").folder
+        meta = refresh_field_answers(folder, rollout_options=options)
         change = meta["refreshed"][-1]["field_model_errors_before"]
-        return (f"refreshed {args.out / args.name}/meta.json: field-model test errors {change} -> "
+        return (f"refreshed {folder}/meta.json: field-model test errors {change} -> "
                 f"{meta['test_errors']['field model']}")
     if args.ckpt is None:
         raise ConfigError("ckpt= is required (or refresh_field=true for a shipped fluidized-bed model)")

@@ -62,6 +62,7 @@ SCENE = Scene(
     module="neuraldem.scenes.hopper.surrogate.module:HopperModule",
     whatif="neuraldem.scenes.hopper.predict", scan="neuraldem.scenes.hopper.scan",
     page="neuraldem.scenes.hopper.explorer.page", release="neuraldem.scenes.hopper.release",
+    scene_keys="neuraldem.scenes.hopper.scene_keys:SCENE_KEYS",
     benchmarks={
         "hopper_speed": ("neuraldem.scenes.hopper.bench.speed",
                          "LIGGGHTS vs the hopper surrogate on the same questions, side by side (speed-up ratios)"),

@@ -188,7 +188,7 @@ def predict_hopper(point: dict[str, float], model_name: str, out: Path, fields: 
                "extrapolation": a.extrapolation},
         "stored_test_errors": model.meta.get("test_errors", {}),
     }
-    warnings = range_warnings(a.extrapolation, "GP")
+    warnings = range_warnings(a.extrapolation, "GP", model.meta.get("asked_range"))
     if fields:
         t0 = time.perf_counter()
         net, meta = hopper_net(model, runtime, threads)
@@ -198,7 +198,7 @@ def predict_hopper(point: dict[str, float], model_name: str, out: Path, fields: 
                            "n_times": len(f.fields.times), "budget": budget.as_dict() if budget else None,
                            "runtime": "onnx" if hasattr(net, "session") else "torch",
                            "regime": f"{regime(index, settings)} ({index:.2f})", "extrapolation": f.extrapolation}
-        warnings += range_warnings(f.extrapolation, "field model")
+        warnings += range_warnings(f.extrapolation, "field model", model.meta.get("asked_range"))
     if verify:
         answer["liggghts"], _ = hopper_verify(model.meta["scene"], point, settings, out)
     trust = recommend(model.meta, point, bool(a.extrapolation), ERROR_KEYS)

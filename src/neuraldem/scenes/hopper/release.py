@@ -23,15 +23,34 @@ from neuraldem.pretrained.card import write_card
 PROBES = [{"alpha": 10.0, "mu_s": 0.2, "mu_r": 0.05}, {"alpha": 35.0, "mu_s": 0.5, "mu_r": 0.2},
           {"alpha": 55.0, "mu_s": 0.8, "mu_r": 0.4}]
 PROBE_TIME_STRIDE = 4  # the field model's probe answers use every 4th time (fast enough for the tests)
-def probe_answers(gp: Any, module: Any, settings: Any) -> list[dict[str, Any]]:
+PROBE_SHARES = (1 / 6, 1 / 2, 5 / 6)  # probes of a model trained on other ranges: these shares of each range
+
+
+def probe_points(trained_range: dict[str, list[float]]) -> list[dict[str, float]]:
+    """The fixed PROBES where the model was trained on them, else points at PROBE_SHARES of each trained range."""
+    inside = all(set(p) == set(trained_range) and all(trained_range[n][0] <= v <= trained_range[n][1]
+                                                      for n, v in p.items()) for p in PROBES)
+    if inside:
+        return PROBES
+    return [{n: lo + share * (hi - lo) for n, (lo, hi) in trained_range.items()} for share in PROBE_SHARES]
+
+
+def probe_answers(gp: Any, module: Any, settings: Any, points: list[dict[str, float]]) -> list[dict[str, Any]]:
+    """The GP's and the field model's answers at the probe points (what a test of the released files repeats); a
+    field model that sees no material at a probe (barely trained) gets a note instead of numbers."""
+    from neuraldem.errors import DataError
     from neuraldem.models.scalar_baselines import gp_answers
     from neuraldem.scenes.hopper.whatif import field_answer
 
     out = []
-    for point, a in zip(PROBES, gp_answers(gp, PROBES), strict=True):
-        f = field_answer(module.net, module.metadata, point, settings, time_stride=PROBE_TIME_STRIDE)
-        out.append({"parameters": point, "gp_mean": a.mean, "field_summary": f.summary,
-                    "field_time_stride": PROBE_TIME_STRIDE})
+    for point, a in zip(points, gp_answers(gp, points), strict=True):
+        row: dict[str, Any] = {"parameters": point, "gp_mean": a.mean, "field_time_stride": PROBE_TIME_STRIDE}
+        try:
+            row["field_summary"] = field_answer(module.net, module.metadata, point, settings,
+                                                time_stride=PROBE_TIME_STRIDE).summary
+        except DataError as err:
+            row["field_summary"], row["field_note"] = {}, str(err)
+        out.append(row)
     return out
 
 
@@ -59,6 +78,7 @@ def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None, re
         result = evaluate_checkpoint(ckpt, Path(tmp), dataset.parent, dataset, vtk=False, progress=True)
     settings = dataset_metric_settings(m)
     module = read_checkpoint(folder / "field.pt").module("hopper", "cpu", "build")
+    trained_range = {n: [float(lo), float(hi)] for n, lo, hi in zip(inputs, gp.lo, gp.hi, strict=True)}
     test_errors = {"field model": result["aggregate"],
                    **{k: v["aggregate"] for k, v in result["baselines"].items() if "aggregate" in v}}
     info = build_record(
@@ -67,14 +87,16 @@ def build_hopper(ckpt: Path, name: str, out_root: Path, dataset: Path | None, re
                     f"parameters) and scalar GP, trained on {len(ids.get('train', []))} {meta['data_name']} "
                     f"LIGGGHTS runs ({len(ids.get('val', []))} for validation)",
         inputs=inputs,
-        trained_range={n: [float(lo), float(hi)] for n, lo, hi in zip(inputs, gp.lo, gp.hi, strict=True)},
+        trained_range=trained_range,
         training_data={"dataset": meta["data_name"], "manifest_sha256": digest(dataset / MANIFEST_NAME),
                        "split": meta["split"], "run_ids": ids},
-        extra={"conditioning": meta["conditioning"], "metric_settings": settings.as_dict(), "scene": meta["scene"],
+        extra={"asked_range": {n: [float(v) for v in r] for n, r in (m.parameters.get("ranges") or {}).items()
+                               if n in inputs},
+               "conditioning": meta["conditioning"], "metric_settings": settings.as_dict(), "scene": meta["scene"],
                "test_errors": {"n_test_runs": len(result["simulations"]),
                                "runs": [s["sim_id"] for s in result["simulations"]], **test_errors},
                # the probes: scikit-learn's answers, which the shipped arrays must match
-               "probes": probe_answers(gp, module, settings), "test_reads": reads})
+               "probes": probe_answers(gp, module, settings, probe_points(trained_range)), "test_reads": reads})
     atomic_write_json(folder / "meta.json", info)
     export_field(folder)
     return folder

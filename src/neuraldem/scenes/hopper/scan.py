@@ -30,7 +30,7 @@ from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError
 from neuraldem.paths import data_dir
 from neuraldem.scenes.hopper.predict import hopper_gp
-from neuraldem.scenes.parameters import ParameterTable, named_values
+from neuraldem.scenes.parameters import ParameterTable, asked_note, named_values
 
 MAX_POINTS = 250_000  # a grid larger than this is refused (the GP answers ~10k points per second)
 
@@ -184,7 +184,8 @@ def scan(items: dict[str, str], model_name: str, out: Path | None, args: argpars
              for q in QUANTITIES for s in ("mean", "low", "high")}
     outside = sorted({k for a in answers for k in a.extrapolation})
     warnings = [f"warning: GP: the scanned {k} partly lies outside the trained range "
-                f"{model.meta['trained_range'][k][0]:.4g} .. {model.meta['trained_range'][k][1]:.4g}: those points "
+                f"{model.meta['trained_range'][k][0]:.4g} .. {model.meta['trained_range'][k][1]:.4g}"
+                f"{asked_note(k, model.meta['trained_range'][k], model.meta.get('asked_range'))}: those points "
                 "are extrapolations, trust them less" for k in outside]
     out = output_folder(out or data_dir() / "scan" / "hopper" / "_".join(
         f"{k}{v.min():g}-{v.max():g}x{len(v)}" for k, v in axes.items()))

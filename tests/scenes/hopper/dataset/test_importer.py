@@ -1,5 +1,8 @@
 """Importing a user's own LIGGGHTS dump gives the same file and metrics as datagen's own conversion, records
-its scene, and a checkpoint of that scene scores it (another scene is refused naming the keys)."""
+its scene, and a checkpoint of that scene scores it (another scene is refused naming the keys). A run datagen
+made, imported with its scene, reads the generated metrics bit for bit (a run that drained early holds its final
+state up to the horizon), and `evaluate` scores it as it scores the generated run, every row against one truth.
+A dump that does not fit the stated hopper is refused in one line."""
 
 from __future__ import annotations
 
@@ -38,9 +41,9 @@ def _import(workdir: Path, dataset: Path, res, open_step: int, **changed: str):
     g = res.trajectory.geometry
     options = {"dump": workdir / "dump.txt", "exits": workdir / "exits.txt", "dataset": dataset, "sim_id": "mine",
                "dt": "1e-4", "open_step": open_step, "diameter": "0.01", "radius": g.radius,
-               "outlet_radius": g.outlet_radius, "cone_height": g.cone_height, "sink_z": g.sink_z,
+               "outlet_radius": g.outlet_radius, "cone_height": g.cone_height, "sink_z": g.sink_z, "max_time": 5,
                "param": "[alpha=40,mu_s=0.4,mu_r=0.1]", **changed}
-    return run_module("neuraldem", "import", "liggghts", *(f"{k}={v}" for k, v in options.items()))
+    return run_module("neuraldem", "import", "liggghts", *(f"{k}={v}" for k, v in options.items() if v is not None))
 
 
 def test_import_matches_datagen_conversion(liggghts_run, tmp_path: Path):
@@ -50,7 +53,7 @@ def test_import_matches_datagen_conversion(liggghts_run, tmp_path: Path):
     rec = Manifest.load(tmp_path / "ds").record("mine")
     # datagen's own conversion of the same run: write, then score what was stored
     write_hopper_file(tmp_path / "datagen.h5", "mine", res.trajectory, {}, "test", 1e-5)
-    assert rec.metrics == stored_metrics(tmp_path / "datagen.h5", 0.01)
+    assert rec.metrics == stored_metrics(tmp_path / "datagen.h5", 0.01, horizon=5.0)  # the scene's horizon
     with HopperFile(tmp_path / "ds" / rec.file) as f:
         np.testing.assert_allclose(f.positions(), res.trajectory.positions, atol=1e-5)
 
@@ -112,3 +115,102 @@ def test_scene_differences_within_the_stated_tolerance():
     far = {"hopper": {"hopper_diameter": 0.15, "outlet_diameter": 0.07, "material": {}}}
     assert imported_scene_differences("hopper", trained, far) == [
         "hopper.hopper_diameter: trained 0.14, imported 0.15", "hopper.material.diameter: trained 0.01, imported None"]
+
+
+@pytest.mark.parametrize(("changed", "expected"), [
+    ({"radius": 0.05, "param": "[mu_s=0.4,mu_r=0.1]"},
+     "particle centres lie outside the stated hopper radius 0.05 m, the farthest"),
+    ({"radius": 0.10, "param": "[mu_s=0.4,mu_r=0.1]"}, "the stated hopper radius 0.1 m is"),
+    ({"cone_height": 0.0, "param": "[mu_s=0.4,mu_r=0.1]"}, "above the stated cone (height 0 m at the wall)"),
+    ({"cone_height": 0.12}, "cone_height=0.12 differs from the cone of alpha=40"),
+    ({"cone_height": 0.08, "param": "[mu_s=0.4,mu_r=0.1]"}, "particle centres lie below the stated cone"),
+    ({"cone_height": None, "param": "[mu_s=0.4,mu_r=0.1]"}, "cone_height= is needed"),
+    ({"max_time": None}, "give max_time= (the horizon every run is scored over"),
+])
+def test_a_dump_that_does_not_fit_the_stated_hopper_is_one_line(liggghts_run, tmp_path: Path, changed, expected):
+    workdir, res, open_step = liggghts_run
+    proc = _import(workdir, tmp_path / "ds", res, open_step, **changed)
+    assert proc.returncode == 2 and expected in proc.stderr, proc.stderr
+    assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+    assert not (tmp_path / "ds" / "manifest.json").exists()
+
+
+@pytest.fixture(scope="module")
+def raw_dataset(data_root: Path) -> Path:
+    """hopper_tiny generated again with its raw LIGGGHTS files kept (no characterization): the same 8 runs,
+    their dumps beside them (resumable: reused when NEURALDEM_TEST_DATA is set)."""
+    from omegaconf import open_dict
+
+    from neuraldem.datagen.driver import DatagenOptions, generate
+    from neuraldem.scenes.hopper.dataset.datagen import HopperPipeline
+    from tests.helpers import compose_cfg
+
+    cfg = compose_cfg("datagen", ["data=hopper_tiny", "data.name=hopper_tiny_raw", "data.storage.keep_raw=true",
+                                  "data.characterization.enabled=false"], output_dir=data_root / "runs")
+    with open_dict(cfg):
+        cfg.data.dataset_dir = str(data_root / "datasets" / "hopper_tiny_raw")
+    m = generate(HopperPipeline(cfg.data), DatagenOptions(n_sims=8, workers=1, progress=False))
+    assert all(r.status == "ok" for r in m.simulations), [(r.sim_id, r.status, r.reason) for r in m.simulations]
+    return Path(cfg.data.dataset_dir)
+
+
+def _import_generated(raw: Path, sim_id: str, dataset: Path, *extra: str):
+    rec = Manifest.load(raw).record(sim_id)
+    run = raw / "runs" / sim_id
+    params = ",".join(f"{k}={v!r}" for k, v in rec.params.items())
+    return rec, run_module("neuraldem", "import", "liggghts", f"dump={run / 'dump.txt'}", f"exits={run / 'exits.txt'}",
+                           f"scene={raw}", f"dataset={dataset}", f"sim_id={sim_id}", f"param=[{params}]", *extra)
+
+
+def test_a_generated_run_imported_reads_the_generated_metrics(raw_dataset: Path, tmp_path: Path):
+    """Only the dump, the exit file and the scene: the opening step and sink come from our deck beside the dump,
+    the geometry from the scene and alpha; the run drained long before the 5-s horizon and holds its final
+    state, so residual and drainage time are datagen's, bit for bit."""
+    for sim_id in ("sim_0001", "sim_0007"):
+        rec, proc = _import_generated(raw_dataset, sim_id, tmp_path / "mine")
+        assert proc.returncode == 0, proc.stderr
+        assert "its final state held from" in proc.stdout and "to the horizon 5 s" in proc.stdout
+        mine = Manifest.load(tmp_path / "mine").record(sim_id)
+        assert mine.metrics == rec.metrics and mine.metrics["residual_fraction"] == 0.0
+        assert mine.diagnostics["open_step"] == 3000
+    # scored over the run's own length instead (what a horizon-less import did): residual and t95 are off
+    own = stored_metrics(tmp_path / "mine" / "sims" / "sim_0007.h5", 0.01)
+    assert own["residual_fraction"] > 0.1 and own["drainage_t95"] < 0.9 * rec.metrics["drainage_t95"]
+
+
+def test_evaluate_scores_an_imported_run_as_the_generated_one(raw_dataset: Path, tiny_checkpoint: Path,
+                                                              tmp_path: Path):
+    """The checkpoint's test run evaluated in the generated dataset and imported alone into a dataset of its own:
+    the same numbers in every row (field model, GP, constant), the baselines fitted on the same runs."""
+    from neuraldem.scenes.hopper.analysis.evaluation import evaluate_checkpoint
+
+    datasets = tmp_path / "datasets"  # where the imported evaluation finds the training runs of the baselines
+    datasets.mkdir()
+    (datasets / "hopper_tiny").symlink_to(raw_dataset)
+    generated = evaluate_checkpoint(tiny_checkpoint, tmp_path / "gen", datasets, raw_dataset, vtk=False,
+                                    progress=False)
+    test_id = generated["simulations"][0]["sim_id"]
+    assert [s["sim_id"] for s in generated["simulations"]] == [test_id]
+    _, proc = _import_generated(raw_dataset, test_id, tmp_path / "mine")
+    assert proc.returncode == 0, proc.stderr
+    imported = evaluate_checkpoint(tiny_checkpoint, tmp_path / "imp", datasets, tmp_path / "mine", vtk=False,
+                                   progress=False)
+
+    def errors(agg: dict) -> dict:
+        return {k: v for k, v in agg.items() if k not in ("answer_s", "fit_s")}
+
+    assert errors(imported["aggregate"]) == errors(generated["aggregate"])
+    for kind in ("gp", "constant"):
+        assert errors(imported["baselines"][kind]["aggregate"]) == errors(generated["baselines"][kind]["aggregate"])
+    assert imported["truth"].startswith("every row against the DEM fields")
+
+
+def test_one_dataset_scores_every_run_over_one_horizon(liggghts_run, tmp_path: Path):
+    workdir, res, open_step = liggghts_run
+    assert _import(workdir, tmp_path / "ds", res, open_step).returncode == 0
+    assert Manifest.load(tmp_path / "ds").scene["hopper"]["max_time"] == 5
+    again = _import(workdir, tmp_path / "ds", res, open_step, sim_id="other", max_time=None)  # the dataset's
+    assert again.returncode == 0, again.stderr
+    other = _import(workdir, tmp_path / "ds", res, open_step, sim_id="third", max_time=3)
+    assert other.returncode == 2 and "scores its runs over max_time=5 s, this run would be scored over 3 s" in \
+        other.stderr, other.stderr

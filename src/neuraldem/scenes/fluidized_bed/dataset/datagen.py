@@ -31,7 +31,7 @@ from omegaconf import OmegaConf
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import sha256
-from neuraldem.data.splits import random_split
+from neuraldem.data.splits import random_split, too_few_warning
 from neuraldem.datagen.driver import DataConfigPipeline
 from neuraldem.datagen.sampling import latin_hypercube
 from neuraldem.errors import ConfigError
@@ -302,6 +302,15 @@ class FluidizedBedPipeline(DataConfigPipeline):
         out["long"][self.long_part] = sorted(r.sim_id for r in usable if self.is_long(r))
         m.split_info["velocity"] = {part: [float(v) for v in vs] for part, vs in parts.items()}
         return out
+
+    def split_warning(self, n_sims: int) -> str | None:
+        """One line when the table's velocities are too few for a validation and a test velocity of their own."""
+        s = self.cfg.splits
+        fractions = {k: checks.fraction(f"data.splits.velocity.{k}", float(v)) for k, v in s.velocity.items()}
+        if self.n_velocities == 0:  # long trajectories only: no split of velocities
+            return None
+        return too_few_warning(self.name, self.n_velocities, fractions, "velocities", "data.splits.velocity",
+                               "data.parameters.n_velocities")
 
     def velocity_parts(self, m: Manifest) -> dict[str, list[str]]:
         """Whole velocities per part (keys as in _velocity_key), from the full table, finished or not."""

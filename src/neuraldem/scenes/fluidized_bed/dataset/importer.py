@@ -12,13 +12,20 @@ diameter and density, snapshot interval, field kernels), so that `neuraldem eval
 dataset_dir=DATASET` rolls a bed checkpoint out on these cases when its scene matches (within 1 %, the grid
 exactly) and names the keys that differ when not; one dataset holds one bed.
 
+The scene's settings (field kernels, Lacey sample cell, snapshot interval) come from `scene=` (your scene file
+or name, `neuraldem scene list`, or a generated dataset's folder), else from the dataset the run joins, else from
+the options; an option given always wins. A case neuraldem ran itself (neuraldem_case.json beside its time
+directories, kept by `storage.keep_raw: true`) gives its inlet velocity, its first stored time (after the
+spin-up), its snapshot interval and count, so that it imports as datagen stored it.
+
 CFDEM cases: pass the CFD folder as case= with fluid_fraction=voidfraction fluid_velocity=U, and the
 particles from the LIGGGHTS dump with liggghts_dump= (columns id x y z vx vy vz, radius optional) and
 dem_dt= (see docs/fluidized-bed.md).
 
-Example:
+Examples:
   neuraldem import foam case=~/runs/bed_u16 dataset=~/neuraldem-data/datasets/my_beds \\
       sim_id=bed_u16 inlet_velocity=1.6 t0=0.2 dt_ml=0.01
+  neuraldem import foam case=~/runs/bed_u16 scene=my_bed dataset=~/my_beds sim_id=bed_u16 inlet_velocity=1.6
 """
 
 from __future__ import annotations
@@ -39,6 +46,7 @@ from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.checkpoints import check_import_joins
 from neuraldem.scenes.fluidized_bed.dataset.datagen import FbMetricSettings, FieldSettings, file_metrics
 from neuraldem.scenes.fluidized_bed.dataset.store import KIND, FbFile, write_fb_file
+from neuraldem.scenes.fluidized_bed.solver.case import STAMP as CASE_RECORD
 from neuraldem.scenes.fluidized_bed.solver.reader import read_trajectory
 from neuraldem.sim import openfoam
 from neuraldem.sim.foam_reader import BoxGrid, CloudSnapshot, FoamCase, mesh_bounds, read_dict_entries, resolve
@@ -123,7 +131,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--case", type=Path, required=True, help="OpenFOAM case folder (serial or reconstructed)")
     p.add_argument("--dataset", type=Path, required=True, help="dataset dir (created if new)")
     p.add_argument("--sim-id", required=True)
-    p.add_argument("--inlet-velocity", type=float, required=True, help="superficial inlet velocity [m/s]")
+    p.add_argument("--scene", default=None, metavar="FILE|NAME|DATASET",
+                   help="the bed's scene: your scene file or name (neuraldem scene list) or a generated dataset's "
+                        "folder (default: the dataset's, when it exists)")
+    p.add_argument("--inlet-velocity", type=float, default=None,
+                   help="superficial inlet velocity [m/s] (default: a case neuraldem ran states it)")
     p.add_argument("--t0", type=float, default=None, help="solver time of the first snapshot (default: the "
                    "first time directory with particles)")
     p.add_argument("--dt-ml", type=float, default=None, help="snapshot spacing [s] (default: spacing of the "
@@ -140,16 +152,72 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--liggghts-dump", type=Path, help="CFDEM: particles from this LIGGGHTS text dump")
     p.add_argument("--dem-dt", type=float, help="CFDEM: DEM timestep of the dump [s]")
     p.add_argument("--diameter", type=float, help="CFDEM: particle diameter if the dump has no radius [m]")
-    p.add_argument("--kernel-sigma", type=float, default=FieldSettings.kernel_sigma)
-    p.add_argument("--mixing-sigma", type=float, default=FieldSettings.mixing_sigma)
-    p.add_argument("--lacey-block", type=int, nargs=3, default=list(FbMetricSettings.lacey_block))
+    p.add_argument("--kernel-sigma", type=float, default=None,
+                   help=f"[m] (default: the scene's, else {FieldSettings.kernel_sigma})")
+    p.add_argument("--mixing-sigma", type=float, default=None,
+                   help=f"[m] (default: the scene's, else {FieldSettings.mixing_sigma})")
+    p.add_argument("--lacey-block", type=int, nargs=3, default=None,
+                   help="Lacey sample cell in grid cells (default: the scene's, else "
+                        f"{list(FbMetricSettings.lacey_block)})")
     p.add_argument("--param", action="append", default=[], help="NAME=VALUE recorded with the trajectory")
     return p.parse_args(argv)
+
+
+def our_case(case: Path) -> dict[str, Any]:
+    """What a case neuraldem ran states about itself (neuraldem_case.json): inlet velocity, first stored time,
+    snapshot interval and count, density; empty for another case."""
+    import json
+
+    path = case / CASE_RECORD
+    if not path.is_file():
+        return {}
+    rec = json.loads(path.read_text())
+    scene = rec.get("scene", {})
+    interval = float(scene["snapshot_interval"])
+    return {"inlet_velocity": float(rec["inlet_velocity"]), "t0": float(scene["spinup_time"]), "dt_ml": interval,
+            "snapshots": round(float(rec["duration"]) / interval) + 1, "density": float(scene["density"])}
+
+
+def stated_settings(scene: str | None, dataset: Path) -> dict[str, Any]:
+    """Field kernels, Lacey settings and snapshot interval of the stated scene: `scene=` (a scene file or name,
+    or a dataset folder), else the dataset the run joins; empty when neither states them."""
+    path = Path(scene).expanduser() if scene is not None else dataset
+    if (path / MANIFEST_NAME).is_file():
+        m = Manifest.load(path)
+        if m.kind != KIND:
+            raise ConfigError(f"{path} holds {m.kind} runs", "give a fluidized-bed scene or dataset")
+        fields, metrics = m.scene.get("fields", {}), m.parameters.get("metrics", {})
+        interval = m.scene.get(KIND, {}).get("snapshot_interval")
+    elif scene is not None:
+        from neuraldem.config.user import scene_config
+
+        file, cfg = scene_config(scene)
+        if cfg.get("kind") not in (None, KIND):
+            raise ConfigError(f"scene={scene}: {file} is a {cfg.get('kind')} scene", "give a fluidized-bed scene")
+        fields, metrics = cfg.get("fields") or {}, cfg.get("metrics") or {}
+        interval = (cfg.get("scene") or {}).get("snapshot_interval")
+    else:
+        return {}
+    out = {k: fields[k] for k in ("kernel_sigma", "mixing_sigma") if k in fields}
+    out.update({k: metrics[k] for k in ("lacey_block", "lacey_min_count", "bed_quantile", "bubble_threshold")
+                if k in metrics})
+    if interval is not None:
+        out["dt_ml"] = float(interval)
+    return out
 
 
 @report_user_errors
 def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
+    ours, stated = our_case(a.case), stated_settings(a.scene, a.dataset)
+    for key, default in (("inlet_velocity", None), ("t0", None), ("dt_ml", None), ("snapshots", None),
+                         ("density", None), ("kernel_sigma", FieldSettings.kernel_sigma),
+                         ("mixing_sigma", FieldSettings.mixing_sigma),
+                         ("lacey_block", list(FbMetricSettings.lacey_block))):
+        if getattr(a, key) is None:  # the option, then the stated scene, then the case itself, then the default
+            setattr(a, key, stated.get(key, ours.get(key, default)))
+    if a.inlet_velocity is None:
+        raise ConfigError("inlet_velocity= is needed: the superficial inlet velocity of the case [m/s]")
     if not a.inlet_velocity > 0:
         raise ConfigError(f"inlet_velocity= must be positive, got {a.inlet_velocity}")
     for name in ("dt_ml", "kernel_sigma", "mixing_sigma", "density", "dem_dt", "diameter"):
@@ -182,7 +250,8 @@ def main(argv: list[str] | None = None) -> int:
     density = a.density if a.density is not None else particle_density(a.case, a.cloud)
     traj = read_trajectory(case, grid, t0, dt_ml, a.snapshots, density=density, cloud_reader=reader)
     params = {"inlet_velocity": float(a.inlet_velocity), **parse_assignments(a.param, "param", "packing=0")}
-    metrics = FbMetricSettings(lacey_block=tuple(a.lacey_block))  # type: ignore[arg-type]
+    metrics = FbMetricSettings(**{k: stated[k] for k in ("lacey_min_count", "bed_quantile", "bubble_threshold")
+                                  if k in stated}, lacey_block=tuple(a.lacey_block))  # type: ignore[arg-type]
     # the only writer; nothing changes until the checks pass
     with dataset_lock(a.dataset, command_line("neuraldem.scenes.fluidized_bed.dataset.importer")):
         (a.dataset / "sims").mkdir(exist_ok=True)

@@ -161,7 +161,8 @@ class BedEngine:
 
         a = gp_answers(self.gp, [{KEY: v}])[0]
         return {"mean": a.mean, "low": a.low, "high": a.high, "seconds": a.seconds,
-                "extrapolation": a.extrapolation, "warnings": range_warnings(a.extrapolation, "GP")}
+                "extrapolation": a.extrapolation, "warnings": range_warnings(a.extrapolation, "GP",
+                                                                            self.model.meta.get("asked_range"))}
 
     # ---- rollouts
     def rollout(self, v: float) -> BedRollout | None:

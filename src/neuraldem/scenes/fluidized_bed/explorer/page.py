@@ -24,7 +24,7 @@ from neuraldem import pretrained
 from neuraldem.scenes.fluidized_bed.explorer import views
 from neuraldem.scenes.fluidized_bed.explorer.engine import KEY, STEP, BedEngine, BedRollout
 from neuraldem.scenes.fluidized_bed.explorer.worker import RolloutWorker
-from neuraldem.scenes.parameters import range_warnings
+from neuraldem.scenes.parameters import range_warnings, ranges_line
 from neuraldem.serve.inputs import parameter_value, typed_value
 from neuraldem.serve.markup import CSS
 
@@ -102,7 +102,8 @@ class BedPage:
         w = self.engine.window
         controls = pn.Column(
             pn.pane.Markdown(f"### {TITLE}\nmodel `{self.engine.model.name}`: {meta.get('description', '')}. "
-                             f"Answers over {w.duration:g} s from snapshot 1; Lacey index at {w.lacey_time:g} s.",
+                             f"Answers over {w.duration:g} s from snapshot 1; Lacey index at {w.lacey_time:g} s; "
+                             f"{ranges_line(meta)}.",
                              width=LEFT),
             pn.Row(self.slider, self.typed), self.notes, pn.Row(self.player, self.time_label), self.numbers,
             pn.pane.HTML(views.held_out_table(meta.get("test_errors", {})), stylesheets=[CSS], width=LEFT),
@@ -159,7 +160,7 @@ class BedPage:
         self.numbers.object = views.numbers_table(v, gp, exact, state, self.engine.quantities)
         notes = ([self.clamp_note] if self.clamp_note else []) + gp["warnings"]
         if exact is not None:
-            notes += range_warnings(exact.extrapolation, "field model")
+            notes += range_warnings(exact.extrapolation, "field model", self.engine.model.meta.get("asked_range"))
             if exact.diverged_at is not None:
                 notes.append(f"warning: the rollout diverged at step {exact.diverged_at}: no field-model answers")
             notes.append(f"rollout started from {exact.start}")

@@ -100,8 +100,9 @@ def answer_seconds(model: ScalarBaseline, x: np.ndarray, repeats: int = ANSWER_R
 
 
 def score_baseline(kind: str, train: list[SimRecord], test: list[SimRecord], conditioning: list[str],
-                   mass_flow_threshold: float = 0.5) -> dict[str, Any]:
-    """Fit `kind` on `train`, answer `test`, and score the answers like the field model's (plus cost, coverage)."""
+                   mass_flow_threshold: float = 0.5, truths: list[dict[str, float]] | None = None) -> dict[str, Any]:
+    """Fit `kind` on `train`, answer `test`, and score the answers like the field model's (plus cost, coverage)
+    against `truths` (default: the test runs' stored metrics)."""
     if not test:
         raise DataError("no test runs to score the scalar baseline on", "use a split with a non-empty test part")
     inputs = baseline_inputs(conditioning)
@@ -109,7 +110,7 @@ def score_baseline(kind: str, train: list[SimRecord], test: list[SimRecord], con
     model = fit_baseline(kind, train, inputs)
     fit_s = time.perf_counter() - t0
     answers = baseline_answers(model, test, inputs, mass_flow_threshold)
-    truths = [rec.metrics for rec in test]
+    truths = [rec.metrics for rec in test] if truths is None else truths
     return {"method": kind, "inputs": inputs, "n_train": len(train),
             "aggregate": score_answers(truths, answers),
             "answers": [{"sim_id": rec.sim_id, **a} for rec, a in zip(test, answers, strict=False)],

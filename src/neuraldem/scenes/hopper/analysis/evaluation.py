@@ -58,16 +58,18 @@ TABLE_HEADER = ("| method | mu_s | mu_r | theta | repose (ffc substitute) | drai
                 "|---|---|---|---|---|---|---|---|---|---|---|---|")
 
 
-def baseline_scores(meta: dict[str, Any], m: Manifest, records: list[SimRecord]) -> dict[str, dict[str, Any]]:
+def baseline_scores(meta: dict[str, Any], m: Manifest, records: list[SimRecord],
+                    truths: list[dict[str, float]] | None = None) -> dict[str, dict[str, Any]]:
     """The constant and the Gaussian process fitted on the runs the model trained and validated on, scored on
-    the same runs as the model (every hopper table shows the cheapest honest alternatives beside the model)."""
+    the same runs as the model (every hopper table shows the cheapest honest alternatives beside the model),
+    against `truths` when given (the field model's: imported runs), else the runs' stored metrics."""
     ids = meta.get("split_ids") or {}
     usable = {r.sim_id for r in m.usable()}
     train = [m.record(i) for i in ids.get("train", []) + ids.get("val", []) if i in usable]
     out: dict[str, dict[str, Any]] = {}
     for kind in ("constant", "gp"):
         try:
-            r = score_baseline(kind, train, records, list(meta["conditioning"]))
+            r = score_baseline(kind, train, records, list(meta["conditioning"]), truths=truths)
         except NeuraldemError as err:
             out[kind] = {"skipped": str(err)}
             continue
@@ -107,8 +109,15 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     warn_extrapolation(evals)
     agg = aggregate(evals)
     evaluated = {e.sim_id for e in evals}
+    # imported runs: every row against one truth, the DEM fields over the model's horizon (a run that ended
+    # earlier holds its final state), whatever horizon the import stored its metrics over
+    truths = [e.truth for e in evals] if m.scene.get("imported") else None
+    stored = m.scene.get("hopper", {}).get("max_time") if truths is not None else None
+    if stored is not None and abs(float(stored) - norm.horizon) > 1e-9:
+        print(f"note: {dataset_dir} stores its metrics over {float(stored):g} s; every row here is scored over the "
+              f"model's horizon, {norm.horizon:g} s", file=sys.stderr)
     baselines = baseline_scores(meta, training_manifest(meta, m, datasets_dir),
-                                [r for r in records if r.sim_id in evaluated])
+                                [r for r in records if r.sim_id in evaluated], truths)
     rows = [table_row(meta, agg)] + [table_row(meta, b["aggregate"], kind) for kind, b in baselines.items()
                                      if "aggregate" in b]
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -116,6 +125,8 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
         "checkpoint": str(Path(ckpt).resolve()), "dataset": str(dataset_dir), "split": split, "part": part,
         "fold": meta.get("fold"), "n_folds": meta.get("n_folds"), "split_ids": meta.get("split_ids"),
         "metric_settings": settings.as_dict(),
+        **({"truth": f"every row against the DEM fields over the model's horizon, {norm.horizon:g} s"}
+           if truths is not None else {}),
         "conditioning": meta["conditioning"], "aggregate": agg, "table_row": rows[0], "table_rows": rows,
         "baselines": baselines,
         "simulations": [e.as_dict() for e in evals], "skipped": skipped, "machine": machine_info(),

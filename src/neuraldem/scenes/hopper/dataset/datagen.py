@@ -13,7 +13,7 @@ from tqdm import tqdm
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.data.schema import sha256
-from neuraldem.data.splits import auto_theta_band, band_split, random_split
+from neuraldem.data.splits import auto_theta_band, band_split, random_split, too_few_warning
 from neuraldem.datagen.driver import DataConfigPipeline, fresh_dir, simulation_done
 from neuraldem.datagen.sampling import latin_hypercube
 from neuraldem.errors import ConfigError, SolverError
@@ -221,6 +221,12 @@ class HopperPipeline(DataConfigPipeline):
                 (workdir / name).unlink(missing_ok=True)
 
     # ---- splits
+    def split_warning(self, n_sims: int) -> str | None:
+        """One line when `n_sims` runs are too few for a validation and a test run of their own (random split)."""
+        s = self.cfg.splits
+        fractions = {k: checks.fraction(f"data.splits.random.{k}", float(v)) for k, v in s.random.items()}
+        return too_few_warning(self.name, n_sims, fractions, "runs", "data.splits.random", "n_sims")
+
     def splits(self, m: Manifest) -> dict[str, dict[str, list[str]]]:
         usable = m.usable()
         if not usable:

@@ -154,7 +154,8 @@ class HopperEngine:
         index = (a.mean["mass_flow_index"], a.low["mass_flow_index"], a.high["mass_flow_index"])
         return {"mean": a.mean, "low": a.low, "high": a.high, "seconds": a.seconds,
                 "regime": f"{regime(index[0], self.settings)} ({index[0]:.2f} [{index[1]:.2f}, {index[2]:.2f}])",
-                "extrapolation": a.extrapolation, "warnings": range_warnings(a.extrapolation, "GP")}
+                "extrapolation": a.extrapolation, "warnings": range_warnings(a.extrapolation, "GP",
+                                                                            self.model.meta.get("asked_range"))}
 
     # ---- fields
     def _predictor(self) -> Any:

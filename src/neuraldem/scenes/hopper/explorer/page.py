@@ -27,7 +27,7 @@ from neuraldem.scenes.hopper.explorer import views
 from neuraldem.scenes.hopper.explorer.engine import HopperEngine, Point, gp_discharge_sketch
 from neuraldem.scenes.hopper.explorer.stored_runs import StoredRuns
 from neuraldem.scenes.hopper.explorer.worker import DischargeWorker
-from neuraldem.scenes.parameters import range_warnings
+from neuraldem.scenes.parameters import range_warnings, ranges_line
 from neuraldem.serve.inputs import parameter_value, typed_value
 from neuraldem.serve.markup import CSS
 
@@ -65,12 +65,18 @@ def prepare(model_name: str | None, dataset: Path | None, near: float) -> Hopper
 
 
 def default_values(engine: HopperEngine) -> dict[str, float]:
-    """`predict`'s example point, moved into the trained range when the model's range is another."""
+    """`predict`'s example point, moved onto the sliders (inside the trained range) when the model's range is
+    another: the page opens inside what the model was trained on."""
     out = {}
     for k in engine.inputs:
         lo, hi = engine.trained_range[k]
-        out[k] = parameter_value(min(max(DEFAULT_POINT.get(k, (lo + hi) / 2), lo), hi))
+        slo, shi = slider_range(lo, hi, slider_step(engine, k))
+        out[k] = parameter_value(min(max(DEFAULT_POINT.get(k, (lo + hi) / 2), slo), shi))
     return out
+
+
+def slider_step(engine: HopperEngine, k: str) -> float:
+    return STEPS.get(k, (engine.trained_range[k][1] - engine.trained_range[k][0]) / 100)
 
 
 def slider_range(lo: float, hi: float, step: float) -> tuple[float, float]:
@@ -92,7 +98,7 @@ class HopperPage:
         self._lock = threading.Lock()
         self.sliders, self.typed = {}, {}
         for k in self.engine.inputs:
-            step = STEPS.get(k, (self.engine.trained_range[k][1] - self.engine.trained_range[k][0]) / 100)
+            step = slider_step(self.engine, k)
             lo, hi = slider_range(*self.engine.trained_range[k], step)
             self.sliders[k] = pn.widgets.FloatSlider(name=LABELS.get(k, k), start=lo, end=hi, step=step,
                                                      value=min(max(self.values[k], lo), hi), width=260,
@@ -130,8 +136,8 @@ class HopperPage:
         meta = self.engine.model.meta
         inputs = pn.Column(*[pn.Row(self.sliders[k], self.typed[k]) for k in self.engine.inputs])
         controls = pn.Column(
-            pn.pane.Markdown(f"### {TITLE}\nmodel `{self.engine.model.name}`: {meta.get('description', '')}",
-                             width=LEFT),
+            pn.pane.Markdown(f"### {TITLE}\nmodel `{self.engine.model.name}`: {meta.get('description', '')}; "
+                             f"{ranges_line(meta)}", width=LEFT),
             inputs, self.notes, pn.Row(self.player, self.time_label), pn.Row(self.colour, self.overlay),
             self.numbers, pn.pane.HTML(f"<small>{views.held_out_line(meta.get('test_errors', {}))}</small>",
                                        width=LEFT),
@@ -197,7 +203,8 @@ class HopperPage:
                                                   "computing ..." if done is None else "")
         notes = list(self.clamp_notes.values()) + gp["warnings"]
         if done is not None:
-            notes += range_warnings(done.answer["extrapolation"], "field model")
+            notes += range_warnings(done.answer["extrapolation"], "field model",
+                                    self.engine.model.meta.get("asked_range"))
         notes.append(self._overlay_note(near))
         self.notes.object = views.notes_html(notes)
 
