@@ -32,9 +32,9 @@ def serve_error(capsys, *args: str) -> str:
 
 
 def test_a_missing_model_file_is_one_line_with_the_rebuild_command(model_copy: Path, capsys):
-    (model_copy / "field.pt").unlink()
+    (model_copy / "field.onnx").unlink()  # what the page answers with
     err = serve_error(capsys)
-    assert f"shipped model file {model_copy / 'field.pt'} is missing: rebuild it:" in err
+    assert f"shipped model file {model_copy / 'field.onnx'} is missing: rebuild it:" in err
     assert "neuraldem train" in err and "&& neuraldem release ckpt=<that run>/checkpoints/" in err
 
 

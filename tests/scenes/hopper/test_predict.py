@@ -29,7 +29,10 @@ def test_answers_with_intervals_fields_stripes_and_vtk(tmp_path: Path):
     gp = answer["gp"]
     for key in ("drainage_t95", "residual_fraction", "outflow_rate", "mass_flow_index"):
         assert gp["low"][key] <= gp["mean"][key] <= gp["high"][key], key
-    assert answer["field"]["n_points"] > 1000 and 0.5 < answer["field"]["summary"]["drainage_t95"] < 15
+    from neuraldem.scenes.hopper.whatif import ANSWER_BUDGET
+
+    assert answer["field"]["budget"] == ANSWER_BUDGET.as_dict() and answer["field"]["runtime"] == "onnx"
+    assert answer["field"]["n_points"] > 200 and 0.5 < answer["field"]["summary"]["drainage_t95"] < 15
     assert (tmp_path / "stripes.png").stat().st_size > 0
     assert (tmp_path / "vtk" / "hopper_predicted.pvd").is_file()
     assert not answer["warnings"]
@@ -76,10 +79,12 @@ def test_a_damaged_shipped_file_names_it_and_the_rebuild(tmp_path: Path):
 
     folder = tmp_path / "models"
     shutil.copytree(Path(pretrained.__file__).parent / "hopper_small", folder / "hopper_small")
-    flip_byte(folder / "hopper_small" / "field.pt")
-    out = one_line_error(predict("hopper", "alpha=40", "mu_s=0.3", "mu_r=0.1", f"out={tmp_path / 'o'}",
-                                 env={"NEURALDEM_PRETRAINED_DIR": str(folder)}))
-    assert f"{folder / 'hopper_small' / 'field.pt'} is damaged" in out and "neuraldem release" in out
+    for damaged, runtime in (("field.onnx", "onnx"), ("field.pt", "torch")):  # the file each runtime reads
+        flip_byte(folder / "hopper_small" / damaged)
+        out = one_line_error(predict("hopper", "alpha=40", "mu_s=0.3", "mu_r=0.1", f"runtime={runtime}",
+                                     f"out={tmp_path / 'o'}", env={"NEURALDEM_MODELS": str(folder)}))
+        assert f"{folder / 'hopper_small' / damaged} is damaged" in out and "neuraldem release" in out
+        flip_byte(folder / "hopper_small" / damaged)
 
 
 @pytest.mark.solver

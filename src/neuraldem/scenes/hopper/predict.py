@@ -180,7 +180,7 @@ def predict_hopper(point: dict[str, float], model_name: str, out: Path, fields: 
     settings = HopperMetricSettings.from_config(model.meta.get("metric_settings", {}), f"{model.name} metric_settings")
     a = gp_answers(gp, [point])[0]
     answer: dict[str, Any] = {
-        "scene": "hopper", "model": model.name, "parameters": point,
+        "scene": "hopper", "model": model.name, "model_folder": str(model.folder), "parameters": point,
         "gp": {"mean": a.mean, "low": a.low, "high": a.high, "seconds": a.seconds,
                "regime": f"{regime(a.mean['mass_flow_index'], settings)} "
                          f"({a.mean['mass_flow_index']:.2f} [{a.low['mass_flow_index']:.2f}, "
@@ -218,7 +218,7 @@ def hopper_pictures(answer: dict[str, Any], out: Path, time_stride: int, runtime
     from neuraldem.scenes.hopper.analysis.plots import stripe_panels
     from neuraldem.scenes.hopper.whatif import field_frames
 
-    model = pretrained.load(answer["model"], "hopper")
+    model = pretrained.load(answer["model_folder"], "hopper")
     settings = HopperMetricSettings.from_config(model.meta.get("metric_settings", {}), f"{model.name} metric_settings")
     panels, files = [], []
     if "field" in answer:
