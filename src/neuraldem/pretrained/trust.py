@@ -80,6 +80,13 @@ def as_dict(recs: Mapping[str, Recommendation]) -> dict[str, dict[str, Any]]:
     return {q: {"source": r.source, "reason": r.reason, "warning": r.warning} for q, r in recs.items()}
 
 
+def trusted(meta: Mapping[str, Any], point: Mapping[str, float], extrapolating: bool,
+            error_keys: Mapping[str, ErrorKey], warnings: list[str]) -> tuple[dict[str, dict[str, Any]], list[str]]:
+    """(the recommendations of an answer as answer.json holds them, its warnings with a weak region's added)."""
+    recs = recommend(meta, point, extrapolating, error_keys)
+    return as_dict(recs), [*warnings, *sorted({r.warning for r in recs.values() if r.warning})]
+
+
 def trust_label(rec: dict[str, Any] | None) -> str:
     return "-" if not rec or not rec.get("source") else ("GP" if rec["source"] == "gp" else "field model")
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 from neuraldem.errors import ConfigError
 
@@ -87,6 +88,13 @@ class SceneKey:
     unit: str  # "-" for dimensionless
     meaning: str
     cost: str
+
+
+def load_scene_keys(path: Path) -> tuple[SceneKey, ...]:
+    """A scene's key table from its YAML file (a list of {key, unit, meaning, cost}: data, kept out of code)."""
+    import yaml
+
+    return tuple(SceneKey(**row) for row in yaml.safe_load(Path(path).read_text()))
 
 
 def scene_key_markdown(keys: Iterable[SceneKey]) -> str:

@@ -22,7 +22,7 @@ import numpy as np
 
 from neuraldem import pretrained
 from neuraldem.data.schema import atomic_write_json
-from neuraldem.pretrained.trust import ErrorKey, as_dict, recommend, trust_label, trust_reasons
+from neuraldem.pretrained.trust import ErrorKey, trust_label, trust_reasons, trusted
 from neuraldem.scenes.parameters import range_warnings
 
 # how each answer's validated error is recorded in meta.json `test_errors` (which answer to trust, per quantity)
@@ -84,10 +84,8 @@ def predict_fb(point: dict[str, float], model_name: str, out: Path, fields: bool
 
         plot_curves(series, out / "curves.png",
                     f"{model.name}: inlet velocity {point['inlet_velocity']:g} m/s")
-    trust = recommend(model.meta, point, bool(a.extrapolation), ERROR_KEYS)
-    answer["recommended"] = as_dict(trust)
-    warnings += sorted({r.warning for r in trust.values() if r.warning})
-    answer["warnings"] = warnings
+    answer["recommended"], answer["warnings"] = trusted(model.meta, point, bool(a.extrapolation), ERROR_KEYS,
+                                                        warnings)
     atomic_write_json(out / "answer.json", answer)
     return answer
 

@@ -22,7 +22,7 @@ from neuraldem import pretrained
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError
 from neuraldem.models.onnx_runtime import RUNTIMES, check_threads
-from neuraldem.pretrained.trust import ErrorKey, as_dict, recommend, trust_label, trust_reasons
+from neuraldem.pretrained.trust import ErrorKey, trust_label, trust_reasons, trusted
 from neuraldem.scenes.hopper.whatif import ANSWER_BUDGET
 from neuraldem.scenes.parameters import range_warnings
 
@@ -201,10 +201,8 @@ def predict_hopper(point: dict[str, float], model_name: str, out: Path, fields: 
         warnings += range_warnings(f.extrapolation, "field model", model.meta.get("asked_range"))
     if verify:
         answer["liggghts"], _ = hopper_verify(model.meta["scene"], point, settings, out)
-    trust = recommend(model.meta, point, bool(a.extrapolation), ERROR_KEYS)
-    answer["recommended"] = as_dict(trust)
-    warnings += sorted({r.warning for r in trust.values() if r.warning})
-    answer["warnings"] = warnings
+    answer["recommended"], answer["warnings"] = trusted(model.meta, point, bool(a.extrapolation), ERROR_KEYS,
+                                                        warnings)
     atomic_write_json(out / "answer.json", answer)
     return answer
 
