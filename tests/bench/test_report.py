@@ -63,3 +63,11 @@ def test_busy_machine_warning(capsys):
     assert "quiet machine" in warn_if_busy({"load_average_1_5_15min": [1.9, 1.0, 1.0]})
     assert "load average 1.90" in capsys.readouterr().err
     assert command_line("x", ["a=1", "note=b c"]) == "neuraldem bench x a=1 'note=b c'"
+
+
+def test_machine_at_start_describes_the_machine_and_warns_when_busy(monkeypatch, capsys):
+    import neuraldem.bench.report as report
+
+    monkeypatch.setattr(report, "machine_info", lambda: {"load_average_1_5_15min": [3.0, 1.0, 1.0]})
+    assert report.machine_at_start()["load_average_1_5_15min"][0] == 3.0
+    assert "quiet machine" in capsys.readouterr().err

@@ -107,3 +107,10 @@ def warn_if_busy(machine: dict[str, Any]) -> str | None:
         print(msg, file=sys.stderr)
         return msg
     return None
+
+
+def machine_at_start() -> dict[str, Any]:
+    """The machine as a measurement begins, warning on stderr when it is busy (`warn_if_busy`)."""
+    machine = machine_info()
+    warn_if_busy(machine)
+    return machine

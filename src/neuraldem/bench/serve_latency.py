@@ -34,10 +34,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from neuraldem.bench.report import command_line, resolve_out, warn_if_busy, write_report
+from neuraldem.bench.report import command_line, machine_at_start, resolve_out, write_report
 from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.errors import ConfigError
-from neuraldem.machine import machine_info
 
 TARGETS_MS = {"numbers_ms": 100.0, "fields_ms": 300.0}  # the targets: numbers <= 100 ms, fields <= 300 ms
 
@@ -183,8 +182,7 @@ def bed_main(args: Any, argv: list[str]) -> int:
     from neuraldem.serve.browser import ServerProcess, start_chromium, wait_for
 
     out = resolve_out(args.out, "serve_latency_fb")
-    machine = machine_info()
-    warn_if_busy(machine)
+    machine = machine_at_start()
     with ServerProcess(["page=bed", *([f"model={args.model}"] if args.model else [])]) as server:
         driver = start_chromium()
         try:
@@ -237,8 +235,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.page == "bed":
         return bed_main(args, argv)
     out = resolve_out(args.out, "serve_latency")
-    machine = machine_info()
-    warn_if_busy(machine)
+    machine = machine_at_start()
     with ServerProcess(["page=hopper", *([f"model={args.model}"] if args.model else [])]) as server:
         driver = start_chromium()
         try:

@@ -67,14 +67,14 @@ def test_rollout_options_reach_every_rollout_and_the_record(fb_tiny_flux_checkpo
     results/fluidized_bed/recipe.md) go to
     each rollout's stepper and into the map's record."""
     seen = []
-    real = fb_stability.ModelStepper
+    real = fb_stability.bed_rollout.ModelStepper
 
     def recording(*args, **kwargs):
         stepper = real(*args, **kwargs)
         seen.append((stepper.stability.advection_correction, stepper.stability.mirror_alternate))
         return stepper
 
-    monkeypatch.setattr(fb_stability, "ModelStepper", recording)
+    monkeypatch.setattr(fb_stability.bed_rollout, "ModelStepper", recording)
     out = tmp_path / "map.json"
     assert bench_main(["fb_stability", f"ckpt={fb_tiny_flux_checkpoint}", f"velocities=[{TRAINED_VELOCITY},1.3]",
                        "steps=2", "rollout.advection_correction=1", "rollout.mirror_alternate=true",

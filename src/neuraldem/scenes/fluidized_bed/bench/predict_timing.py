@@ -20,11 +20,10 @@ from pathlib import Path
 from typing import Any
 
 from neuraldem import pretrained
-from neuraldem.bench.report import command_line, resolve_out, warn_if_busy, write_report
+from neuraldem.bench.report import command_line, machine_at_start, resolve_out, write_report
 from neuraldem.bench.timing import time_call
 from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.errors import DataError
-from neuraldem.machine import machine_info
 from neuraldem.paths import data_dir
 
 DEFAULT_VELOCITY = 1.8  # [m/s] `neuraldem predict fluidized_bed`'s example
@@ -105,8 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=None,
                    help="results JSON (default results/fluidized_bed/whatif/whatif_fb.json)")
     args = p.parse_args(argv)
-    machine = machine_info()
-    warn_if_busy(machine)
+    machine = machine_at_start()
     model = pretrained.load(args.model or pretrained.default_for("fluidized_bed"), "fluidized_bed")
     result = {"model": model.name, "command": command_line("whatif_fb", argv),
               "answer_times": answer_times(model, args.repeats), "verified": verified_rows(args.verified)}

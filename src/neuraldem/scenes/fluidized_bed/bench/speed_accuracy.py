@@ -40,7 +40,13 @@ import numpy as np
 
 from neuraldem.bench import plots
 from neuraldem.bench.pareto import pareto_front
-from neuraldem.bench.report import command_line, machine_info, read_results, resolve_out, warn_if_busy, write_results
+from neuraldem.bench.report import (
+    command_line,
+    machine_at_start,
+    read_results,
+    resolve_out,
+    write_results,
+)
 from neuraldem.cli import command_parser, split_kind_factor
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
@@ -449,8 +455,7 @@ def main(argv: list[str]) -> int:
     splits = sorted({r["split"] for r in results_in})
     ref = reference(dataset_dir, splits[0])
     reused = read_results(a.reuse_solver, NAME) if a.reuse_solver else None
-    machine = machine_info()
-    warn_if_busy(machine)
+    machine = machine_at_start()
     points = [surrogate_point(r, ref, a.steps, a.repeats, a.threads) for r in results_in]
     packing = other_packings(ref)
     if packing:

@@ -45,17 +45,9 @@ from neuraldem.paths import data_dir
 from neuraldem.scenes.fluidized_bed.analysis.metrics import bed_height, total_solid_volume
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
 from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.surrogate import rollout as bed_rollout
 from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
 from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions, add_arguments
-from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
-    DEFAULT_INIT_SNAPSHOT,
-    DivergenceLimits,
-    ModelStepper,
-    Rollout,
-    Stepper,
-    initial_state,
-    rollout,
-)
 from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import check_grid, initial_file, load_fb_checkpoint
 
 NAME = "fb_stability"
@@ -70,7 +62,7 @@ DEFAULT_BED_LIMIT_PCT = 10.0
 DEFAULT_SETTLE_FRACTION = 3  # default settle_steps=: a third of the training horizon (1 s of fb_small's 3 s)
 
 # (module, inlet velocity, open file of the initial state) -> stepper; tests inject faulty steppers here
-MakeStepper = Callable[[FluidizedBedModule, float, FbFile], Stepper]
+MakeStepper = Callable[[FluidizedBedModule, float, FbFile], bed_rollout.Stepper]
 
 
 def velocity_grid(lo: float, hi: float, n: int, span: tuple[float, float] = DEFAULT_SPAN,
@@ -87,7 +79,7 @@ def velocity_grid(lo: float, hi: float, n: int, span: tuple[float, float] = DEFA
     return sorted({round(float(v), 6) for v in (*grid, lo, hi)})
 
 
-def assess(r: Rollout, cell_volume: float, drift_limit_pct: float) -> dict[str, Any]:
+def assess(r: bed_rollout.Rollout, cell_volume: float, drift_limit_pct: float) -> dict[str, Any]:
     """Stability of one rollout: steps to divergence, the solid-volume drift (in % of the initial state's)
     at the end or at the last state before divergence, the first step beyond the drift limit, and the
     failure (the earlier of the two)."""
@@ -140,7 +132,7 @@ def mean_bed_height(solid_fraction: np.ndarray, z_edges: np.ndarray, quantile: f
 
 
 def bed_reference(module: FluidizedBedModule, ckpt: Path, dataset_dir: Path | None,
-                  settle_steps: int, init_snapshot: int = DEFAULT_INIT_SNAPSHOT) -> BedReference:
+                  settle_steps: int, init_snapshot: int = bed_rollout.DEFAULT_INIT_SNAPSHOT) -> BedReference:
     """The checkpoint's training trajectories (its recorded `split_ids`, else its split's training part): the
     mean bed height of each after `settle_steps` from the rollouts' initial snapshot."""
     meta = module.metadata
@@ -162,7 +154,7 @@ def bed_reference(module: FluidizedBedModule, ckpt: Path, dataset_dir: Path | No
     return BedReference(v, np.array([np.mean(by_velocity[x]) for x in v]), used, settle_steps, quantile)
 
 
-def assess_bed(r: Rollout, z_edges: np.ndarray, reference: BedReference, velocity: float,
+def assess_bed(r: bed_rollout.Rollout, z_edges: np.ndarray, reference: BedReference, velocity: float,
                limit_pct: float) -> dict[str, Any]:
     """The rollout's time-mean bed height after the start-up against CFD-DEM's at its velocity; judged only
     inside the training velocities (`bed_checked`) and only when frames after the start-up exist."""
@@ -209,7 +201,8 @@ def check_options(ckpts: list[Path], labels: list[str] | None, velocities: list[
 
 def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[float] | None = None,
         n_velocities: int = DEFAULT_N_VELOCITIES, steps: int | None = None, dataset_dir: Path | None = None,
-        drift_limit_pct: float = DEFAULT_DRIFT_LIMIT_PCT, seed: int = 0, limits: DivergenceLimits | None = None,
+        drift_limit_pct: float = DEFAULT_DRIFT_LIMIT_PCT, seed: int = 0,
+        limits: bed_rollout.DivergenceLimits | None = None,
         make_stepper: MakeStepper | None = None, progress: bool = True,
         options: RolloutOptions | None = None, bed_limit_pct: float = DEFAULT_BED_LIMIT_PCT,
         settle_steps: int | None = None, velocity_step: float | None = None) -> dict[str, Any]:
@@ -218,7 +211,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
     labels = check_options(ckpts, labels, velocities, steps, drift_limit_pct, seed, bed_limit_pct, settle_steps,
                            velocity_step)
     checks.positive_int("n_velocities", n_velocities)
-    limits = limits or DivergenceLimits()
+    limits = limits or bed_rollout.DivergenceLimits()
     options = options or RolloutOptions()
     modules = [load_fb_checkpoint(Path(c)) for c in ckpts]  # refuses other kinds before any rollout
     ranges = [(m.norm.velocity_lo, m.norm.velocity_hi) for m in modules]
@@ -227,7 +220,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
     steps = steps or DEFAULT_HORIZON_MULTIPLE * modules[0].norm.horizon_steps
     if settle_steps is None:
         settle_steps = modules[0].norm.horizon_steps // DEFAULT_SETTLE_FRACTION
-    make_stepper = make_stepper or (lambda module, v, f: ModelStepper(module, v, seed, options=options))
+    make_stepper = make_stepper or (lambda module, v, f: bed_rollout.ModelStepper(module, v, seed, options=options))
     series = []
     for label, ckpt, module in zip(labels, ckpts, modules, strict=False):
         norm, points = module.norm, []
@@ -236,7 +229,8 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
             path, source = initial_file(module.metadata, Path(ckpt), v, data_dir() / "datasets", dataset_dir)
             with FbFile(path) as f:
                 check_grid(norm, f)
-                r = rollout(make_stepper(module, v, f), initial_state(f), steps, limits, progress=False)
+                start = bed_rollout.initial_state(f)
+                r = bed_rollout.rollout(make_stepper(module, v, f), start, steps, limits, progress=False)
                 cell_volume, z_edges = f.grid.cell_volume, f.grid.edges(2)
             point = {"inlet_velocity": v, "extrapolation": not norm.in_trained_range(v),
                      "initial_state": f"{source} snapshot 1", **assess(r, cell_volume, drift_limit_pct),

@@ -22,10 +22,9 @@ from typing import Any
 import numpy as np
 
 from neuraldem import pretrained
-from neuraldem.bench.report import command_line, resolve_out, warn_if_busy, write_report
+from neuraldem.bench.report import command_line, machine_at_start, resolve_out, write_report
 from neuraldem.bench.timing import time_call
 from neuraldem.cli import doc_parser, report_user_errors
-from neuraldem.machine import machine_info
 from neuraldem.paths import data_dir
 from neuraldem.scenes.hopper.predict import errors_vs, hopper_gp, hopper_module
 from neuraldem.scenes.hopper.scan import verify_hopper
@@ -128,8 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--out", type=Path, default=None, help="results JSON (default results/bench/whatif.json)")
     args = p.parse_args(argv)
-    machine = machine_info()
-    warn_if_busy(machine)
+    machine = machine_at_start()
     model = pretrained.load(args.model or pretrained.default_for("hopper"), "hopper")
     settings = HopperMetricSettings.from_config(model.meta["metric_settings"], "meta")
     points = random_points(model.meta["trained_range"], args.points, args.seed)

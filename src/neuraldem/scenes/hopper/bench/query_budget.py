@@ -26,12 +26,11 @@ from typing import Any
 import numpy as np
 
 from neuraldem import pretrained
-from neuraldem.bench.report import command_line, default_path, resolve_out, warn_if_busy, write_report
+from neuraldem.bench.report import command_line, default_path, machine_at_start, resolve_out, write_report
 from neuraldem.bench.timing import time_call
 from neuraldem.cli import command_parser, report_user_errors
 from neuraldem.data.manifest import Manifest
 from neuraldem.errors import ConfigError, DataError
-from neuraldem.machine import machine_info
 from neuraldem.paths import data_dir, results_dir
 
 NAME = "query_budget"
@@ -172,8 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.repeats < 1:
         raise ConfigError(f"repeats={args.repeats} is invalid: give at least 1")
-    machine = machine_info()
-    warn_if_busy(machine)
+    machine = machine_at_start()
     result = run(args.model, args.dataset, args.shares, args.strides, args.repeats, args.runtime, args.threads)
     out = resolve_out(args.out, NAME)
     write_report(NAME, result, markdown(result), command=command_line(NAME, argv), path=out, machine=machine)

@@ -21,11 +21,10 @@ from typing import Any
 import numpy as np
 
 from neuraldem import pretrained
-from neuraldem.bench.report import command_line, default_path, resolve_out, warn_if_busy, write_report
+from neuraldem.bench.report import command_line, default_path, machine_at_start, resolve_out, write_report
 from neuraldem.bench.timing import time_call
 from neuraldem.cli import command_parser, report_user_errors
 from neuraldem.errors import ConfigError
-from neuraldem.machine import machine_info
 
 NAME = "runtime"
 IMPORTS = {"torch": "import torch", "lightning": "import lightning", "onnxruntime": "import onnxruntime"}
@@ -157,8 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.repeats < 3:
         raise ConfigError(f"repeats={args.repeats} is invalid: give at least 3 (the median of several runs)")
-    machine = machine_info()
-    warn_if_busy(machine)
+    machine = machine_at_start()
     result = run(args.model, args.repeats, args.compile)
     write_report(NAME, result, markdown(result), command=command_line(NAME, argv or sys.argv[1:]),
                  path=resolve_out(args.out, NAME), machine=machine)
