@@ -114,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     follow_up = getattr(module, "follow_up", None)  # pictures and ParaView files come after the numbers
     if follow_up is not None and args.pictures:
         files = follow_up(answer, out, args)
-        if not args.json:
+        if files and not args.json:
             print(f"{len(files)} picture(s) and ParaView series in {out} ({time.perf_counter() - t0:.2f} s in all)")
     return 0
 

@@ -211,6 +211,8 @@ def hopper_pictures(answer: dict[str, Any], out: Path, time_stride: int, runtime
                     threads: int = 1) -> list[Path]:
     """The stripes plot (field model and LIGGGHTS side by side) and the field model's ParaView series, from the
     whole lattice at every `time_stride`-th time, answered a frame at a time (memory stays at one frame)."""
+    if "field" not in answer and "liggghts" not in answer:
+        return []  # the GP's numbers alone: nothing to draw (and no torch to import)
     from neuraldem.scenes.hopper.analysis.evaluation import predicted_point_series
     from neuraldem.scenes.hopper.analysis.metrics import HopperMetricSettings
     from neuraldem.scenes.hopper.analysis.plots import stripe_panels

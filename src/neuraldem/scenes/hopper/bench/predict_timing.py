@@ -1,20 +1,24 @@
-"""What-if answers vs LIGGGHTS: how fast `neuraldem predict` answers, and how close, at random in-range points.
+"""What-if answers vs LIGGGHTS: how fast `neuraldem predict hopper` answers, and how close, at random in-range points.
 
     neuraldem bench whatif points=5 repeats=5
 
-- answer times (median of repeats=): the GP's answer in the process, the field model's (every 2nd time,
-  as `predict` does), and the whole `neuraldem predict hopper ... fields=false` command (Python start and
-  imports included), the numbers a user waits for;
-- points= random parameter sets inside the shipped model's trained ranges (seeded): the GP and the field
-  model beside LIGGGHTS at the model's scene, each with its time, and LIGGGHTS's time over theirs. The solver
-  runs are kept in <data dir>/bench/whatif/ and reused (resumable).
-Writes results/bench/whatif.json and whatif.md.
+- answer times (median of repeats=): the GP's answer in the process; the field model's numbers as `predict`
+  computes them (the model's ONNX export loaded and queried over the answer budget, results/hopper/speed/
+  query_budget.md) and over every lattice point and time beside it; the whole `neuraldem predict hopper ...`
+  command (Python start and imports included) until its numbers are printed and until its pictures and ParaView
+  files are written, and the GP-only command (`fields=false`);
+- points= random parameter sets inside the model's trained ranges (seeded): the GP and the field model beside
+  LIGGGHTS at the model's scene, each with its time, and LIGGGHTS's time over theirs. The solver runs are kept in
+  <data dir>/bench/whatif/ and reused (resumable).
+Writes results/hopper/whatif/whatif.{json,md}.
 """
 
 from __future__ import annotations
 
+import resource
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -23,13 +27,15 @@ import numpy as np
 
 from neuraldem import pretrained
 from neuraldem.bench.report import command_line, machine_at_start, resolve_out, write_report
-from neuraldem.bench.timing import time_call
+from neuraldem.bench.timing import Sample, Timing, time_call
 from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.paths import data_dir
-from neuraldem.scenes.hopper.predict import errors_vs, hopper_gp, hopper_module
+from neuraldem.scenes.hopper.predict import errors_vs, hopper_gp, hopper_net, predict_hopper
 from neuraldem.scenes.hopper.scan import verify_hopper
+from neuraldem.scenes.hopper.whatif import ANSWER_BUDGET, QueryBudget
 
 DEFAULT_POINT = {"alpha": 45.0, "mu_s": 0.4, "mu_r": 0.1}
+NUMBERS_LINE = "numbers in "  # what `neuraldem predict` prints once its numbers are out
 
 
 def random_points(ranges: dict[str, list[float]], n: int, seed: int) -> list[dict[str, float]]:
@@ -37,37 +43,71 @@ def random_points(ranges: dict[str, list[float]], n: int, seed: int) -> list[dic
     return [{k: round(float(rng.uniform(lo, hi)), 3) for k, (lo, hi) in ranges.items()} for _ in range(n)]
 
 
+def command_times(cmd: list[str], repeats: int) -> tuple[Timing, Timing]:
+    """(until the numbers line is printed, until the command exits) of a `neuraldem predict` command: wall clock
+    from the process start; CPU of the whole run in both (the child's CPU is not split at the numbers line)."""
+    numbers, whole = [], []
+    for i in range(repeats + 1):  # the first run warms the file cache and is not counted
+        cpu0 = children_cpu()
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        seen = None
+        for line in proc.stdout:  # type: ignore[union-attr]
+            if seen is None and line.startswith(NUMBERS_LINE):
+                seen = time.perf_counter() - t0
+        if proc.wait() != 0 or seen is None:
+            raise RuntimeError(f"{' '.join(cmd)} failed (exit {proc.returncode}) or printed no numbers")
+        total, cpu = time.perf_counter() - t0, children_cpu() - cpu0
+        if i:
+            numbers.append(Sample(seen, cpu))
+            whole.append(Sample(total, cpu))
+    return (Timing(numbers, notes={"cpu": "of the whole command"}), Timing(whole))
+
+
+def children_cpu() -> float:
+    """User + system CPU seconds of the finished child processes so far."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
 def answer_times(model: pretrained.Pretrained, repeats: int, settings: Any) -> dict[str, Any]:
     from neuraldem.models.scalar_baselines import gp_answers
     from neuraldem.scenes.hopper.whatif import field_answer
 
-    gp, module = hopper_gp(model), hopper_module(model)
+    gp = hopper_gp(model)
     gp_t, _ = time_call(lambda: gp_answers(gp, [DEFAULT_POINT]), repeats)
-    field_t, _ = time_call(lambda: field_answer(module.net, module.metadata, DEFAULT_POINT, settings,
-                                                time_stride=2), repeats)
-    cmd = [sys.executable, "-m", "neuraldem", "predict", "hopper",
-           *(f"{k}={v:g}" for k, v in DEFAULT_POINT.items()), "fields=false",
-           f"out={data_dir() / 'bench' / 'whatif' / 'command'}"]
-
-    def command() -> None:
-        subprocess.run(cmd, check=True, capture_output=True)
-
-    cmd_t, _ = time_call(command, repeats)
-    return {"point": DEFAULT_POINT, "gp_in_process": gp_t.as_dict(), "field_in_process": field_t.as_dict(),
-            "predict_command_no_fields": {**cmd_t.as_dict(), "command": " ".join(cmd[1:])}}
+    with tempfile.TemporaryDirectory() as tmp:
+        numbers_t, a = time_call(lambda: predict_hopper(DEFAULT_POINT, str(model.folder), Path(tmp), True, False,
+                                                        budget=ANSWER_BUDGET), repeats)
+    net, meta = hopper_net(model, "auto")
+    full_t, _ = time_call(lambda: field_answer(net, meta, DEFAULT_POINT, settings, budget=QueryBudget(1.0, 1)),
+                          repeats)
+    base = [sys.executable, "-m", "neuraldem", "predict", "hopper", *(f"{k}={v:g}" for k, v in DEFAULT_POINT.items()),
+            f"model={model.folder}", f"out={data_dir() / 'bench' / 'whatif' / 'command'}"]
+    to_numbers, with_pictures = command_times(base, repeats)
+    gp_only, _ = command_times([*base, "fields=false"], repeats)
+    return {"point": DEFAULT_POINT, "budget": ANSWER_BUDGET.as_dict(), "runtime": a["field"]["runtime"],
+            "n_points": a["field"]["n_points"], "n_times": a["field"]["n_times"],
+            "gp_in_process": gp_t.as_dict(), "field_numbers_in_process": numbers_t.as_dict(),
+            "field_full_query_in_process": full_t.as_dict(),
+            "predict_command_to_numbers": {**to_numbers.as_dict(), "command": " ".join(base[1:])},
+            "predict_command_with_pictures": with_pictures.as_dict(),
+            "predict_command_gp_only": gp_only.as_dict()}
 
 
 def point_rows(model: pretrained.Pretrained, points: list[dict[str, float]], settings: Any) -> list[dict[str, Any]]:
+    """Each point answered by the GP, by the field model as `predict` answers (its query budget) and by LIGGGHTS."""
     from neuraldem.models.scalar_baselines import gp_answers
     from neuraldem.scenes.hopper.whatif import field_answer
 
-    gp, module = hopper_gp(model), hopper_module(model)
+    gp = hopper_gp(model)
+    net, meta = hopper_net(model, "auto")
     checks = verify_hopper(model, points, data_dir() / "bench" / "whatif" / model.name, settings)
     rows = []
     for point, check in zip(points, checks, strict=True):
         g = gp_answers(gp, [point])[0]
         t0 = time.perf_counter()
-        f = field_answer(module.net, module.metadata, point, settings, time_stride=2)
+        f = field_answer(net, meta, point, settings, budget=ANSWER_BUDGET)
         field_s = time.perf_counter() - t0
         rows.append({"parameters": point, "liggghts": check, "gp": {"mean": g.mean, "low": g.low, "high": g.high,
                                                                    "seconds": g.seconds},
@@ -77,13 +117,28 @@ def point_rows(model: pretrained.Pretrained, points: list[dict[str, float]], set
 
 def markdown(result: dict[str, Any], threshold: float) -> str:
     t = result["answer_times"]
+    budget = t["budget"]
+
+    def med(key: str, digits: int = 2) -> str:
+        return f"{t[key]['median_wall_s']:.{digits}f}"
+
     lines = [f"# What-if answers vs LIGGGHTS (model {result['model']})", "",
-             "Answer time, median of {} (`{}`):".format(t["gp_in_process"]["repeats"], result["command"]), "",
+             "Answer time at {} (`{}`), median of {} wall-clock runs:".format(
+                 ", ".join(f"{k}={v:g}" for k, v in t["point"].items()), result["command"],
+                 t["gp_in_process"]["repeats"]), "",
              "| answer | median wall [s] |", "|---|---|",
-             f"| GP, in the process | {t['gp_in_process']['median_wall_s']:.4f} |",
-             f"| field model (every 0.1 s), in the process | {t['field_in_process']['median_wall_s']:.2f} |",
-             f"| `neuraldem predict hopper ... fields=false`, whole command | "
-             f"{t['predict_command_no_fields']['median_wall_s']:.2f} |", "",
+             f"| GP, in the process | {med('gp_in_process', 4)} |",
+             f"| field model's numbers as `predict` computes them ({t['runtime']}; {t['n_points']} points = "
+             f"{budget['query_points']:g} of the lattice, {t['n_times']} times = every {budget['time_stride']}th; "
+             f"model loading included), in the process | {med('field_numbers_in_process', 3)} |",
+             f"| field model over every lattice point and time, in the process | "
+             f"{med('field_full_query_in_process')} |",
+             f"| `neuraldem predict hopper ...`, whole command until its numbers are printed | "
+             f"{med('predict_command_to_numbers')} |",
+             f"| the same command until its pictures and ParaView files are written | "
+             f"{med('predict_command_with_pictures')} |",
+             f"| `neuraldem predict hopper ... fields=false` (GP only), whole command until its numbers are printed | "
+             f"{med('predict_command_gp_only')} |", "",
              "Random points inside the trained ranges (seeded), each answered three ways:", "",
              "| point | t95 LIGGGHTS [s] | t95 GP [95 %] | t95 field | outflow LIGGGHTS / GP / field [%/s] | "
              "residual LIGGGHTS / GP / field [%] | regime LIGGGHTS / GP / field | LIGGGHTS [s] | GP [s] | "
@@ -107,7 +162,7 @@ def markdown(result: dict[str, Any], threshold: float) -> str:
             f"{100 * m['residual_fraction']:.1f} / {100 * g['mean']['residual_fraction']:.1f} / "
             f"{100 * f['summary']['residual_fraction']:.1f} | {reg(m['mass_flow_index'])} / "
             f"{reg(g['mean']['mass_flow_index'])} / {reg(f['summary']['mass_flow_index'])} | "
-            f"{r['liggghts']['seconds']:.0f} | {g['seconds']:.4f} | {f['seconds']:.1f} | "
+            f"{r['liggghts']['seconds']:.0f} | {g['seconds']:.4f} | {f['seconds']:.3f} | "
             f"{r['liggghts']['seconds'] / g['seconds']:.0f}x | {r['liggghts']['seconds'] / f['seconds']:.0f}x |")
         errs.append((errors_vs(g["mean"], m, threshold), errors_vs(f["summary"], m, threshold)))
     lines += ["", "Errors against LIGGGHTS, point by point (GP; field model):", ""]
@@ -125,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--points", type=int, default=5, help="random in-range points checked with LIGGGHTS")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--out", type=Path, default=None, help="results JSON (default results/bench/whatif.json)")
+    p.add_argument("--out", type=Path, default=None, help="results JSON (default results/hopper/whatif/whatif.json)")
     args = p.parse_args(argv)
     machine = machine_at_start()
     model = pretrained.load(args.model or pretrained.default_for("hopper"), "hopper")
