@@ -1,15 +1,16 @@
 """How many queries the hopper field model's numbers need: accuracy against answer time over the query budget.
 
-    neuraldem bench query_budget [model=hopper_small] [shares=[1,0.5,0.25,0.125,0.0625]] [strides=[1,2,4,8]] [repeats=5]
+    neuraldem bench query_budget [model=hopper_small] [shares=[1,0.5,0.25,0.125,0.0625]] [strides=[1,2,4,8]]
 
 The practitioner's numbers (t95, the 1 % drainage time, residual, outflow, mass-flow index) are fractions and
 times read off a discharge curve: a seeded share of the lattice's material points (`query_points`) and every
-n-th snapshot (`time_stride`) answer them with far fewer decoder queries than one per particle and snapshot.
+n-th snapshot (`time_stride`) answer them with far fewer decoder queries than one per particle and snapshot (the
+share is stratified by height and radius, the order in which the fill drains).
 For every budget the field model answers each of the model's validation runs (its `meta.json` names them; they
 must be in the dataset, default the model's own under the data dir) through the what-if path, and is scored
 against LIGGGHTS with the function every hopper table uses. The answer time is the median of `repeats` answers
-at one thread. The chosen budget is the fastest whose every error stays within 10 % of the full budget's
-(a floor of half a percentage point / 0.05 pp residual / one regime call keeps ties of tiny errors from
+at one thread. The chosen budget is the one with the fewest queries whose every error stays within 10 % of the
+full budget's (a floor of half a percentage point / 0.05 pp residual / one regime call keeps ties of tiny errors from
 deciding). The GP and LIGGGHTS (the manifest's CPU seconds per run; another packing's errors from
 results/hopper/accuracy/seed_floor.json) stand beside the curves. Writes query_budget.{json,md,png} into
 results/hopper/speed/ (out=).
@@ -57,7 +58,7 @@ def validation_runs(model: pretrained.Pretrained, dataset: Path) -> tuple[Manife
 def acceptable(errors: dict[str, float], full: dict[str, float], n_runs: int) -> bool:
     for key, (_, floor) in ERRORS.items():
         if key == "flow_regime_accuracy":
-            if errors[key] < full[key] - 1.0 / n_runs + 1e-9:
+            if errors[key] < full[key] - 1.0 / n_runs - 1e-9:
                 return False
         elif errors[key] > full[key] * (1 + WITHIN) + floor:
             return False
@@ -91,7 +92,8 @@ def run(model_name: str, dataset: Path | None, shares: list[float], strides: lis
               f"times, {rows[-1]['answer_s']:.3f} s", file=sys.stderr)
     full = next(r for r in rows if r["query_points"] == max(shares) and r["time_stride"] == min(strides))
     good = [r for r in rows if acceptable(r["errors"], full["errors"], len(runs))]
-    chosen = min(good, key=lambda r: (r["answer_s"], r["query_points"]))
+    # the fewest decoder queries (what the answer costs on any machine; the times measured here follow it)
+    chosen = min(good, key=lambda r: (r["n_points"] * r["n_times"], r["answer_s"]))
     gp = hopper_gp(model)
     gp_timing, gp_out = time_call(lambda: gp_answers(gp, points), repeats)
     cpu = [r.cost["cpu_s"] for r in runs if "cpu_s" in r.cost]
@@ -123,7 +125,8 @@ def markdown(r: dict[str, Any]) -> str:
     if r["liggghts"]["answer_s"]:
         lines.append(f"| LIGGGHTS (CPU s per run) | - | - | {r['liggghts']['answer_s']:.0f} | "
                      + " | ".join("-" for _ in ERRORS) + " |")
-    lines += ["", f"Chosen: the fastest budget whose every error is within {100 * r['within']:.0f} % of the full "
+    lines += ["", f"Chosen: the budget with the fewest queries whose every error is within {100 * r['within']:.0f} % "
+                  "of the full "
                   f"budget's (points {r['full']['query_points']:g}, stride {r['full']['time_stride']}), plus a "
                   "floor of 0.5 % / 0.05 pp / one regime call. Regenerate: `neuraldem bench query_budget`."]
     return "\n".join(lines) + "\n"
