@@ -111,3 +111,33 @@ def test_cross_validated_points_and_the_seed_floor(tmp_path: Path):
     assert methods["Gaussian process"]["errors"]["drainage_t95_pct_of_mean"] == 10.0
     assert r["floor"]["residual_mae_pp"] == 2.0 and out.with_suffix(".png").is_file()
     assert bench_main(["speed_accuracy", "skip_solver=true", f"out={out}"]) == 2  # nothing to chart
+
+
+def test_the_query_budget_is_a_curve_at_the_chosen_stride(tmp_path: Path):
+    """`query_budget=`: the field model's errors over shares of its query points at the chosen time stride, cheapest
+    first, drawn and tabled beside the points; a file of another benchmark is refused by name."""
+    from neuraldem.bench.report import write_results
+    from neuraldem.errors import DataError
+
+    def row(share: float, stride: int, t: float, err: float) -> dict:
+        return {"query_points": share, "time_stride": stride, "answer_s": t,
+                "errors": {**{k: err for k in HOPPER_ERRORS}, "flow_regime_accuracy": 0.8}}
+
+    budget = write_results("query_budget", {
+        "model": "m", "runs": ["a", "b", "c"], "chosen": {"query_points": 0.5, "time_stride": 4},
+        "budgets": [row(1.0, 1, 4.0, 3.0), row(1.0, 4, 1.0, 3.1), row(0.5, 4, 0.5, 3.2), row(0.25, 8, 0.1, 9.0)]},
+        command="test", path=tmp_path / "query_budget.json")
+    cv = tmp_path / "cv.json"
+    cv.write_text(json.dumps({"dataset": "d", "folds": [], "summary": {"random": {"micro": {"gp": {
+        "n_folds": 5, "answer_s": {"mean": 3e-3}, **{k: {"mean": 10.0, "std": 1.0} for k in HOPPER_ERRORS}}}}}}))
+    out = tmp_path / "sa.json"
+    assert bench_main(["speed_accuracy", f"cv={cv}", f"query_budget={budget}", "skip_solver=true",
+                       f"out={out}"]) == 0
+    curve = json.loads(out.read_text())["results"]["curves"][0]
+    assert [c["query_points"] for c in curve["points"]] == [0.5, 1.0]  # stride 4 only, cheapest first
+    assert curve["points"][0]["errors"]["outflow_rel_err_pct"] == 3.2
+    assert "| 0.5 (chosen) | 0.5 |" in out.with_suffix(".md").read_text()
+    with pytest.raises(DataError, match="holds results of benchmark"):
+        from neuraldem.bench.speed_accuracy import budget_curve
+
+        budget_curve(out)

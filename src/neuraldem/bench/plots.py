@@ -88,6 +88,10 @@ def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path:
                 ax.annotate(p["label"] + (" (diverged)" if p.get("n_diverged") else ""),
                             (p["time_to_answer_s"], p["errors"][key]), fontsize=6, xytext=(3, 3),
                             textcoords="offset points")
+        for i, curve in enumerate(results.get("curves", [])):
+            xy = [(c["time_to_answer_s"], c["errors"][key]) for c in curve["points"] if _finite(c["errors"].get(key))]
+            ax.plot([x for x, _ in xy], [y for _, y in xy], "o-", ms=3, lw=1.2, color=f"C{5 + i}",
+                    label=curve["label"], zorder=2)
         front = [points[i] for i in results["pareto_front"][key]]
         ax.plot([p["time_to_answer_s"] for p in front], [p["errors"][key] for p in front], "k-", lw=1,
                 alpha=0.6, label="Pareto front", zorder=2)

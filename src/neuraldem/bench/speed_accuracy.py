@@ -10,6 +10,9 @@ out over whole test trajectories (`gns.bench.points`). One panel per quantity (d
 Pareto front of each panel is what users should choose from. With `cv=FILE.json` (the cross-validated table
 of `neuraldem report hopper-cv`) the chart also holds the constant and Gaussian-process baselines and the field
 model at their cross-validated errors, and LIGGGHTS rerun with another packing seed, drawn as the floor line.
+With `query_budget=FILE.json` (`neuraldem bench query_budget`) the field model's errors over its query budget
+(shares of the query points and time strides, on the released model's validation runs) are drawn as a curve:
+what each decimal of accuracy costs in answer time.
 """
 
 from __future__ import annotations
@@ -127,6 +130,19 @@ def cv_points(cv: dict[str, Any], split: str, row: str, scene: str) -> tuple[lis
     return points, {k: floor[k]["mean"] for k in HOPPER_ERRORS if k in floor}
 
 
+def budget_curve(path: Path) -> dict[str, Any]:
+    """The field model's accuracy against answer time over its query budget (one time stride: the chosen one),
+    as a curve of the chart: a `neuraldem bench query_budget` results file."""
+    r = read_results(path, "query_budget")["results"]
+    stride = r["chosen"]["time_stride"]
+    rows = sorted((b for b in r["budgets"] if b["time_stride"] == stride), key=lambda b: b["answer_s"])
+    return {"label": f"field model {r['model']}, share of query points at every {stride}th time "
+                     f"({len(r['runs'])} validation runs)",
+            "points": [{"query_points": b["query_points"], "time_to_answer_s": b["answer_s"],
+                        "errors": {k: b["errors"][k] for k in HOPPER_ERRORS if k in b["errors"]}} for b in rows],
+            "chosen": r["chosen"], "source": str(path)}
+
+
 def chart(points: list[dict[str, Any]]) -> dict[str, list[int]]:
     """Pareto front (indices into `points`) per quantity, over the points with a time and that error."""
     fronts = {}
@@ -160,6 +176,14 @@ def render_markdown(results: dict[str, Any]) -> str:
     lines += ["", "`*` = on the Pareto front of that quantity (no point is both faster and more accurate)."]
     if ref:
         lines.append(f"LIGGGHTS reference: {ref['time_to_answer_s']:.3g} s per trajectory ({ref['source']}).")
+    for curve in results.get("curves", []):
+        lines += ["", f"Curve: {curve['label']} ({curve['source']}):", "",
+                  "| query points (share) | time to answer [s] | " + " | ".join(HOPPER_ERRORS[k] for k in keys) + " |",
+                  "|---|---|" + "---|" * len(keys)]
+        for c in curve["points"]:
+            chosen = " (chosen)" if c["query_points"] == curve["chosen"]["query_points"] else ""
+            lines.append(f"| {c['query_points']:g}{chosen} | {c['time_to_answer_s']:.3g} | "
+                         + " | ".join(f"{_num(c['errors'].get(k)):.2f}" for k in keys) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -185,6 +209,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--gns-ckpt", type=Path, nargs="+", default=[],
                    help="GNS checkpoints of the same scene (experiment=gns_hopper): rolled out as chart points")
     p.add_argument("--gns-sims", type=int, default=3, help="test simulations each GNS is rolled out on")
+    p.add_argument("--query-budget", type=Path, default=None,
+                   help="a query_budget.json (neuraldem bench query_budget): the field model's errors over its "
+                        "query budget, drawn as a curve")
     p.add_argument("--workdir", type=Path, default=None, help=f"solver runs (default <data dir>/bench/{NAME})")
     p.add_argument("--out", type=Path, default=None, help=f"default results/speed_accuracy/{NAME}.json (+ .png, .md)")
     a = p.parse_args(argv)
@@ -194,6 +221,7 @@ def main(argv: list[str]) -> int:
     if not a.runs and a.cv is None:
         raise ConfigError("nothing to chart: pass runs=[FOLDER,...] (evaluated training runs) and/or cv=FILE.json")
     cv = read_cv(a.cv) if a.cv is not None else None
+    curves = [budget_curve(a.query_budget)] if a.query_budget is not None else []
     runs, notes = collect_runs(a.runs, a.skip_unevaluated) if a.runs else ([], [])
     runs = runs_of_one_scene(runs, a.scene) if runs else []
     dataset = a.dataset or next((r.dataset for r in runs if (r.dataset / "manifest.json").is_file()),
@@ -237,6 +265,7 @@ def main(argv: list[str]) -> int:
     points += solver
     results = {"scene": scene, "dataset": str(dataset), "quantities": HOPPER_ERRORS,
                "points": points, "pareto_front": chart(points), "reference": reference, "floor": floor,
+               "curves": curves,
                "threads": {"surrogate_torch_threads": a.threads, "solver_threads": 1}, "notes": notes,
                "warning": warning}
     path = write_results(NAME, results, command=command_line(NAME, argv), path=a.out or default_path(NAME),
