@@ -1,10 +1,10 @@
 """Nets exported to ONNX and answered by ONNX Runtime: a what-if without importing torch.
 
-Why: on a 2-core CPU, importing torch takes ~1.3 s and Lightning another ~1.2 s, longer than the hopper field
-model's whole right-sized answer; ONNX Runtime imports in ~0.2 s and ran the hopper decoder 3-4x faster than
-eager torch at one thread (results/hopper/speed/runtime.md, `neuraldem bench runtime`). A released model
-carries `field.onnx` beside `field.pt`; the answer path loads the first when the runtime is installed and the
-second otherwise, and a test checks both give the same answers.
+Why: on a 2-core CPU, importing torch takes ~1.3 s (with Lightning ~4.5 s), many times the hopper field model's
+whole right-sized answer (0.08 s); ONNX Runtime imports in ~0.1 s and answers within 1.2x of eager torch at one
+thread, 2x at two (results/hopper/speed/runtime.md, `neuraldem bench runtime`). A released model carries
+`field.onnx` beside `field.pt`; the answer path loads the first when the runtime is installed and the second
+otherwise, and a test checks both give the same answers (tests/models/test_onnx_runtime.py).
 """
 
 from __future__ import annotations
