@@ -21,7 +21,7 @@ import torch
 
 from neuraldem.cli import CommandParser
 from neuraldem.models.modules.conservative_advection import consistent_faces, face_fluxes
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, initial_state
 from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import load_fb_checkpoint
 
@@ -69,7 +69,7 @@ def main() -> None:
              "CFD-DEM | lag-5 autocorr. model / CFD-DEM | correction / flux model / CFD-DEM |",
              "|---|---|---|---|---|---|"]
     for sim in args.sims:
-        with FbFile(args.dataset / "sims" / f"{sim}.h5") as f:
+        with BedFile(args.dataset / "sims" / f"{sim}.h5") as f:
             n, spacing = args.steps, [float(h) for h in f.grid.spacing]
             stepper, state = ModelStepper(module, f.inlet_velocity), initial_state(f, 1)
             alpha, flux = [state.solid_fraction], []

@@ -107,14 +107,14 @@ def fb_tiny_case(fb_tiny_dataset: Path) -> Path:
 
 @pytest.fixture(scope="session")
 def fb_tiny_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A FluidizedBedModule trained for 3 steps on fb_tiny (for rollout/evaluation plumbing, not accuracy)."""
+    """A BedModule trained for 3 steps on fb_tiny (for rollout/evaluation plumbing, not accuracy)."""
     from neuraldem.models.registry import net_config
-    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
-    from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
+    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import BedDataModule
+    from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule
 
     torch.manual_seed(0)
-    dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2)
-    return train_briefly(FluidizedBedModule(net_config("fb_tiny"), datamodule=dm), dm,
+    dm = BedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2)
+    return train_briefly(BedModule(net_config("fb_tiny"), datamodule=dm), dm,
                          tmp_path_factory.mktemp("ckpt") / "fb_tiny.ckpt")
 
 
@@ -123,15 +123,15 @@ def fb_tiny_flux_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.Temp
     """Like fb_tiny_checkpoint, with the recipe's stability options: solids-flux channels, mixing advected by the
     predicted flux, volume projection, unroll 1-2 steps, auto noise, and a stochastic net (2 CRPS members)."""
     from neuraldem.models.registry import net_config
-    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
-    from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
+    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import BedDataModule
+    from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule
 
     torch.manual_seed(0)
-    dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2, push_forward_steps=2,
+    dm = BedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2, push_forward_steps=2,
                                 solids_flux=True)
     stability = {"unroll": [0.5, 0.5], "input_noise": "auto", "conserve_volume": True, "mixing": "advect",
                  "ensemble": 2}
-    module = FluidizedBedModule(net_config("fb_tiny", noise_dim=4), datamodule=dm, stability=stability)
+    module = BedModule(net_config("fb_tiny", noise_dim=4), datamodule=dm, stability=stability)
     return train_briefly(module, dm, tmp_path_factory.mktemp("ckpt") / "fb_tiny_flux.ckpt")
 
 
@@ -214,8 +214,8 @@ def fb_tiny_pretrained(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathF
 
     from neuraldem.models.registry import net_config
     from neuraldem.scenes.fluidized_bed.release import build_fluidized_bed
-    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
-    from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
+    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import BedDataModule
+    from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule
     from tests.helpers import copy_dataset
 
     data = copy_dataset(fb_tiny_dataset, tmp_path_factory.mktemp("fb_whatif") / "fb_tiny")
@@ -224,9 +224,9 @@ def fb_tiny_pretrained(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathF
     m["splits"]["velocity"] = {"train": ids, "val": [], "test": ids[-1:]}
     (data / "manifest.json").write_text(json.dumps(m))
     torch.manual_seed(0)
-    dm = FluidizedBedDataModule(str(data), "fb_tiny", batch_size=2, push_forward_steps=2, solids_flux=True)
+    dm = BedDataModule(str(data), "fb_tiny", batch_size=2, push_forward_steps=2, solids_flux=True)
     stability = {"unroll": [0.5, 0.5], "conserve_volume": True, "mixing": "advect"}
-    ckpt = train_briefly(FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, stability=stability), dm,
+    ckpt = train_briefly(BedModule(net_config("fb_tiny"), datamodule=dm, stability=stability), dm,
                          tmp_path_factory.mktemp("ckpt") / "fb_whatif.ckpt")
     out = tmp_path_factory.mktemp("pretrained_fb")
     build_fluidized_bed(ckpt, "fb_tiny_test", out, data, lacey_time=0.1, progress=False)

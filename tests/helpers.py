@@ -56,13 +56,13 @@ def generate_fb_tiny(root: Path, n_sims: int = FB_TINY_SIMS) -> Path:
     from omegaconf import open_dict
 
     from neuraldem.datagen.driver import DatagenOptions, generate
-    from neuraldem.scenes.fluidized_bed.dataset.datagen import FluidizedBedPipeline
+    from neuraldem.scenes.fluidized_bed.dataset.datagen import BedPipeline
 
     os.environ["NEURALDEM_DATA"] = str(root)
     cfg = compose_cfg("datagen", ["data=fb_tiny"], output_dir=root / "runs")
     with open_dict(cfg):
         cfg.data.dataset_dir = str(root / "datasets" / "fb_tiny")
-    pipe = FluidizedBedPipeline(cfg.data)
+    pipe = BedPipeline(cfg.data)
     m = generate(pipe, DatagenOptions(n_sims=n_sims, workers=1, progress=False))
     first = m.simulations[:n_sims]
     assert all(r.status == "ok" for r in first), [(r.sim_id, r.status, r.reason) for r in first]

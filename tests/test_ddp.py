@@ -28,7 +28,7 @@ STEPS = 4
 COMMON = (f"trainer.max_steps={STEPS}", "trainer.log_every_n_steps=1", f"trainer.val_check_interval={STEPS}",
           "evaluate=false", "logger=csv", "callbacks.progress=null", "trainer.enable_model_summary=false")
 SCENES = {"hopper": ("hopper_tiny_dataset", "experiment=hopper_quickstart", "HopperModule"),
-          "bed": ("fb_tiny_dataset", "experiment=fb_quick", "FluidizedBedModule")}
+          "bed": ("fb_tiny_dataset", "experiment=fb_quick", "BedModule")}
 
 
 @pytest.mark.parametrize("scene", list(SCENES))

@@ -21,13 +21,13 @@ def ema_checkpoint(fb_tiny_dataset: Path, tmp_path_factory: pytest.TempPathFacto
     from lightning.pytorch.callbacks import EMAWeightAveraging, ModelCheckpoint
 
     from neuraldem.models.registry import net_config
-    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
-    from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
+    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import BedDataModule
+    from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule
 
     torch.manual_seed(0)
     folder = tmp_path_factory.mktemp("ema")
-    dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2)
-    module = FluidizedBedModule(net_config("fb_tiny"), datamodule=dm)
+    dm = BedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2)
+    module = BedModule(net_config("fb_tiny"), datamodule=dm)
     save = ModelCheckpoint(dirpath=folder, filename="ema", every_n_train_steps=4, save_top_k=-1, monitor=None)
     trainer = L.Trainer(max_steps=4, accelerator="cpu", logger=False, enable_progress_bar=False,
                         enable_model_summary=False, limit_val_batches=0,

@@ -26,12 +26,12 @@ def _train(dataset: Path, folder: Path, ema: bool) -> dict:
     from lightning.pytorch.callbacks import ModelCheckpoint
 
     from neuraldem.models.registry import net_config
-    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
-    from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
+    from neuraldem.scenes.fluidized_bed.surrogate.datamodule import BedDataModule
+    from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule
 
     L.seed_everything(0)
-    dm = FluidizedBedDataModule(str(dataset), "fb_tiny", batch_size=2)
-    module = FluidizedBedModule(net_config("fb_tiny"), datamodule=dm)
+    dm = BedDataModule(str(dataset), "fb_tiny", batch_size=2)
+    module = BedModule(net_config("fb_tiny"), datamodule=dm)
     save = ModelCheckpoint(dirpath=folder, filename="step", every_n_train_steps=4, save_top_k=-1, monitor=None)
     callbacks = [Ema(decay=0.5, update_starting_at_step=1), save] if ema else [save]
     trainer = L.Trainer(max_steps=4, accelerator="cpu", logger=False, enable_progress_bar=False,

@@ -126,9 +126,11 @@ def test_training_killed_at_random_points_equals_an_uninterrupted_run(hopper_tin
 
 
 @pytest.mark.solver
-def test_a_killed_bed_training_resumes_exactly(fb_tiny_dataset: Path, tmp_path: Path):
+@pytest.mark.parametrize("written_as", ["BedDataModule", "FluidizedBedDataModule"])
+def test_a_killed_bed_training_resumes_exactly(fb_tiny_dataset: Path, tmp_path: Path, written_as: str):
     """The bed's training steps draw (unroll lengths, input noise, supernodes): killed at step 5 and resumed
-    from its step-4 checkpoint, it ends with the uninterrupted run's weights."""
+    from its step-4 checkpoint, it ends with the uninterrupted run's weights; also from a checkpoint that stored
+    the data module's place under the class's name before 0.7 (`written_as`)."""
     args = ("experiment=fb_quick", "logger=none", "evaluate=false", "trainer.max_steps=8", "callbacks.progress=null",
             "+callbacks.latest.every_n_train_steps=2", f"data.dataset_dir={fb_tiny_dataset}")
     env = {"NEURALDEM_DATA": str(tmp_path)}
@@ -139,6 +141,9 @@ def test_a_killed_bed_training_resumes_exactly(fb_tiny_dataset: Path, tmp_path: 
     killed = run_module("neuraldem", "train", *args, f"hydra.run.dir={run}", *kill, env=env)
     assert killed.returncode == -signal.SIGKILL
     assert final_state(run)["global_step"] == 4
+    ckpt = torch.load(run / "checkpoints" / "latest.ckpt", weights_only=False)
+    ckpt[written_as] = ckpt.pop("BedDataModule")
+    torch.save(ckpt, run / "checkpoints" / "latest.ckpt")
     resumed = run_module("neuraldem", "train", *args, f"hydra.run.dir={run}",
                          f"ckpt_path={run}/checkpoints/latest.ckpt", env={**env, "NEURALDEM_TEST_NO_KILL": "1"})
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr

@@ -1,6 +1,6 @@
 """GnsDataModule: one-step samples for the particle-based baseline (`models.gns`), from either scene's files.
 
-A sample is one stored snapshot t of one run (hopper: `HopperFile`, fluidized bed: `FbFile`; positions are
+A sample is one stored snapshot t of one run (hopper: `HopperFile`, fluidized bed: `BedFile`; positions are
 NaN where a particle has left, i.e. crossed the hopper's sink or been lost by DPMFoam):
 - nodes: the particles present at t (they are present at every earlier snapshot: none reappears);
 - inputs: the last H + 1 positions t - H .. t as H finite-difference velocities (v_k = (x_k - x_{k-1}) / dt),
@@ -38,7 +38,7 @@ from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
 from neuraldem.data.normalization import DictStats, scaled_scalar
 from neuraldem.data.part_loaders import PartLoaders
 from neuraldem.errors import ConfigError, DataError
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.scenes.hopper.dataset.store import HopperFile
 from neuraldem.scenes.hopper.solver import HopperGeometry
 
@@ -62,7 +62,7 @@ class ParticleRun:
         self.kind = checks.one_of("scene kind", kind, SCENES)
         self.path = Path(path)
         if kind == "hopper":
-            self.f: HopperFile | FbFile = HopperFile(path, validate=validate)
+            self.f: HopperFile | BedFile = HopperFile(path, validate=validate)
             g = self.f.geometry
             self.geometry: HopperGeometry | None = g
             self.diameters = np.full(self.f.n_particles, float(scene["hopper"]["material"]["diameter"]))
@@ -70,7 +70,7 @@ class ParticleRun:
             self.exit_z: float | None = g.sink_z  # below the sink plane a particle has left (as in the data)
             self.labels: np.ndarray | None = None
         else:
-            self.f = FbFile(path, validate=validate)
+            self.f = BedFile(path, validate=validate)
             self.geometry = None
             self.diameters = np.asarray(self.f.diameters, dtype=np.float64)
             self.box_lo, self.box_hi = np.asarray(self.f.grid.lo), np.asarray(self.f.grid.hi)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from neuraldem.errors import DataError
-from neuraldem.scenes.fluidized_bed.dataset.datagen import FbMetricSettings
+from neuraldem.scenes.fluidized_bed.dataset.datagen import BedMetricSettings
 from neuraldem.scenes.fluidized_bed.whatif import AnswerWindow, BedCurves, InitialStates, bed_answers, bed_curves
 from neuraldem.sim.foam_reader import BoxGrid
 
@@ -22,7 +22,7 @@ def test_a_settled_unmixed_bed_has_its_known_height_no_bubbles_and_lacey_zero():
     mix = np.zeros_like(sf)
     mix[:, 2:] = 1.0  # the right half is tagged, nothing mixed
     c = bed_curves(times, sf, mix, grid, particle_volume=4e-9,
-                   settings=FbMetricSettings(lacey_block=(2, 1, 1), lacey_min_count=1.0))
+                   settings=BedMetricSettings(lacey_block=(2, 1, 1), lacey_min_count=1.0))
     a = bed_answers(c, AnswerWindow(duration=1.0, lacey_time=0.5, dt=0.1))
     assert a["bed_height"] == pytest.approx(0.95 * 0.04)  # 95 % of the volume lies below 0.95 of the depth
     assert a["bubble_fraction"] == pytest.approx(0.0)

@@ -16,9 +16,9 @@ if TYPE_CHECKING:
 
 
 def pipeline(data_cfg: DictConfig) -> Any:
-    from neuraldem.scenes.fluidized_bed.dataset.datagen import FluidizedBedPipeline
+    from neuraldem.scenes.fluidized_bed.dataset.datagen import BedPipeline
 
-    return FluidizedBedPipeline(data_cfg)
+    return BedPipeline(data_cfg)
 
 
 def evaluate(cfg: DictConfig) -> None:
@@ -64,7 +64,7 @@ SCENE = Scene(
     kind="fluidized_bed", description="OpenFOAM DPMFoam fluidized bed (CFD-DEM)", experiment="experiment=fb",
     renamed_keys=RENAMED_OVERRIDES,  # the rollout options' old keys (surrogate/option_aliases.py)
     parameters=PARAMETERS, pipeline=pipeline, evaluate=evaluate, evaluate_run=evaluate_run, rollout=rollout,
-    module="neuraldem.scenes.fluidized_bed.surrogate.module:FluidizedBedModule", aliases=("bed", "fb"),
+    module="neuraldem.scenes.fluidized_bed.surrogate.module:BedModule", aliases=("bed", "fb"),
     whatif="neuraldem.scenes.fluidized_bed.predict", page="neuraldem.scenes.fluidized_bed.explorer.page",
     release="neuraldem.scenes.fluidized_bed.release", scene_keys="neuraldem.scenes.fluidized_bed.scene_keys:SCENE_KEYS",
     benchmarks={

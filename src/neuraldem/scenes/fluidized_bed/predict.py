@@ -46,9 +46,9 @@ def fb_window(model: pretrained.Pretrained) -> Any:
 
 
 def fb_settings(model: pretrained.Pretrained) -> Any:
-    from neuraldem.scenes.fluidized_bed.dataset.datagen import FbMetricSettings
+    from neuraldem.scenes.fluidized_bed.dataset.datagen import BedMetricSettings
 
-    return FbMetricSettings.from_config(model.meta["metric_settings"], f"{model.name} metric_settings")
+    return BedMetricSettings.from_config(model.meta["metric_settings"], f"{model.name} metric_settings")
 
 
 def predict_fb(point: dict[str, float], model_name: str, out: Path, fields: bool, verify: bool,

@@ -74,7 +74,7 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
     from neuraldem.eval.checkpoints import read_checkpoint
     from neuraldem.models.scalar_baselines import ArrayGaussianProcess, ConstantBaseline, GaussianProcessBaseline
     from neuraldem.pretrained.building import build_record, read_test_split, strip_checkpoint, training_inputs
-    from neuraldem.scenes.fluidized_bed.dataset.datagen import FbMetricSettings
+    from neuraldem.scenes.fluidized_bed.dataset.datagen import BedMetricSettings
     from neuraldem.scenes.fluidized_bed.whatif import (
         TARGET_RANGE,
         TARGETS,
@@ -97,7 +97,7 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
     strip_checkpoint(ckpt, folder / "field.pt")
     module = read_checkpoint(folder / "field.pt").module("fluidized_bed", "cpu", "build")
     window = AnswerWindow(duration, float(lacey_time), module.norm.dt)
-    settings = FbMetricSettings.from_config(m.parameters.get("metrics"), f"{dataset} metrics")
+    settings = BedMetricSettings.from_config(m.parameters.get("metrics"), f"{dataset} metrics")
 
     truth = {r.sim_id: file_answers(dataset / str(r.file), settings, window)[0] for r in fit_runs + test}
     x = np.array([[float(r.params["inlet_velocity"])] for r in fit_runs])
@@ -169,7 +169,7 @@ def set_rollout_options(field: Path, options: dict[str, float]) -> dict[str, flo
     import torch
 
     from neuraldem.eval.checkpoints import read_checkpoint
-    from neuraldem.scenes.fluidized_bed.surrogate.options import FbStability, RolloutOptions
+    from neuraldem.scenes.fluidized_bed.surrogate.options import BedStability, RolloutOptions
     from neuraldem.scenes.fluidized_bed.surrogate.rollout import perturbation_std
 
     unknown = sorted(set(options) - set(ROLLOUT_OPTIONS))
@@ -180,7 +180,7 @@ def set_rollout_options(field: Path, options: dict[str, float]) -> dict[str, flo
     hp = checkpoint.hyper_parameters  # a copy: the read is shared within the process
     stability = dict(hp.get("stability") or {})
     stability.update({k: float(v) for k, v in options.items()})
-    checked = FbStability.from_config(stability)
+    checked = BedStability.from_config(stability)
     module = checkpoint.module("fluidized_bed", "cpu", "setting rollout options")
     perturbation_std(module, checked.rollout_noise, "cpu")
     hp["stability"] = stability
@@ -205,7 +205,7 @@ def refresh_field_answers(folder: Path, progress: bool = True,
     from neuraldem.data.schema import atomic_write_json
     from neuraldem.eval.checkpoints import read_checkpoint
     from neuraldem.pretrained.building import commit
-    from neuraldem.scenes.fluidized_bed.dataset.datagen import FbMetricSettings
+    from neuraldem.scenes.fluidized_bed.dataset.datagen import BedMetricSettings
     from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions
     from neuraldem.scenes.fluidized_bed.whatif import AnswerWindow, InitialStates, field_answer
 
@@ -226,7 +226,7 @@ def refresh_field_answers(folder: Path, progress: bool = True,
         meta["rebuild"] = [*kept, f"neuraldem release fluidized_bed name={meta['name']} refresh_field=true {keys}"]
     module = read_checkpoint(field).module("fluidized_bed", "cpu", "refresh")
     states = InitialStates.load_npz(folder / meta["files"]["states"]["file"])
-    settings = FbMetricSettings.from_config(meta["metric_settings"], f"{path} metric_settings")
+    settings = BedMetricSettings.from_config(meta["metric_settings"], f"{path} metric_settings")
     window = AnswerWindow.from_dict(meta["answer_window"])
     before = dict(meta["test_errors"]["field model"])
     rows = meta["test_errors"]["runs"]

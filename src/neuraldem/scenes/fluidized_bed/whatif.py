@@ -30,8 +30,8 @@ from neuraldem.scenes.fluidized_bed.analysis.metrics import bed_height, bubble_f
 from neuraldem.sim.foam_reader import BoxGrid
 
 if TYPE_CHECKING:  # torch (rollout) and scipy (datagen) load only when fields are asked for: the GP answers fast
-    from neuraldem.scenes.fluidized_bed.dataset.datagen import FbMetricSettings
-    from neuraldem.scenes.fluidized_bed.surrogate.rollout import FbState
+    from neuraldem.scenes.fluidized_bed.dataset.datagen import BedMetricSettings
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout import BedState
 
 START_SNAPSHOT = 1
 TARGETS = ("bed_height", "bubble_fraction", "lacey")
@@ -59,9 +59,9 @@ def load_gp(path: Path) -> Any:
 def check_fluidized(scene_record: dict[str, Any], velocity: float, key: str = "inlet_velocity") -> None:
     """Below the minimum fluidization velocity the bed stays a fixed packing, which no bed model was trained on
     and the answers (bubbles, mixing) do not describe: refused with the velocity to ask at instead."""
-    from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
+    from neuraldem.scenes.fluidized_bed.solver.scene import BedScene
 
-    u_mf = FluidizedBedScene.from_config(scene_record["fluidized_bed"], "model scene").minimum_fluidization_velocity
+    u_mf = BedScene.from_config(scene_record["fluidized_bed"], "model scene").minimum_fluidization_velocity
     if velocity < u_mf:
         raise ConfigError(f"{key}={velocity:g} m/s is below this bed's minimum fluidization velocity "
                           f"({u_mf:.2f} m/s, Wen & Yu): the bed stays a fixed packing, with no bubbles and no "
@@ -120,7 +120,7 @@ class BedCurves:
 
 
 def bed_curves(times: np.ndarray, solid_fraction: np.ndarray, mixing: np.ndarray, grid: BoxGrid,
-               particle_volume: float, settings: FbMetricSettings) -> BedCurves:
+               particle_volume: float, settings: BedMetricSettings) -> BedCurves:
     h = bed_height(solid_fraction, grid.edges(2), settings.bed_quantile)
     return BedCurves(
         times=np.asarray(times, dtype=np.float64), bed_height=h,
@@ -140,11 +140,11 @@ def bed_answers(c: BedCurves, window: AnswerWindow) -> dict[str, float]:
             "lacey": float(np.interp(window.lacey_time, c.times[keep], c.lacey[keep]))}
 
 
-def file_answers(path: Path, settings: FbMetricSettings, window: AnswerWindow) -> tuple[dict[str, float], BedCurves]:
+def file_answers(path: Path, settings: BedMetricSettings, window: AnswerWindow) -> tuple[dict[str, float], BedCurves]:
     """CFD-DEM's answers: a stored trajectory's fields from snapshot START_SNAPSHOT on."""
-    from neuraldem.scenes.fluidized_bed.dataset.store import FbFile  # scipy: not on the GP's path
+    from neuraldem.scenes.fluidized_bed.dataset.store import BedFile  # scipy: not on the GP's path
 
-    with FbFile(path) as f:
+    with BedFile(path) as f:
         sl = slice(START_SNAPSHOT, None)
         c = bed_curves(f.times[sl], f.solid_fraction(sl), f.mixing(sl), f.grid, float(np.mean(f.particle_volumes)),
                        settings)
@@ -169,12 +169,12 @@ class InitialStates:
 
     @classmethod
     def from_files(cls, paths: list[Path]) -> InitialStates:
-        from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+        from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
         from neuraldem.scenes.fluidized_bed.surrogate.rollout import initial_state
 
         states, vols, velocities, ids, grid = [], [], [], [], None
         for p in paths:
-            with FbFile(p) as f:
+            with BedFile(p) as f:
                 s = initial_state(f, START_SNAPSHOT)
                 present = np.isfinite(f.positions(START_SNAPSHOT)).all(axis=1)
                 vols.append(f.particle_volumes[present])
@@ -218,14 +218,14 @@ class InitialStates:
             raise DataError(f"initial-state file {path} is damaged or not a saved set of bed states "
                             f"({type(e).__name__})", "rebuild it (neuraldem release)") from None
 
-    def nearest(self, velocity: float) -> tuple[FbState, float, str]:
+    def nearest(self, velocity: float) -> tuple[BedState, float, str]:
         """The state nearest in inlet velocity (padding dropped), its particles' mean volume and its name."""
-        from neuraldem.scenes.fluidized_bed.surrogate.rollout import FbState
+        from neuraldem.scenes.fluidized_bed.surrogate.rollout import BedState
 
         k = int(np.argmin(np.abs(self.velocities - velocity)))
         ok = np.isfinite(self.arrays["positions"][k]).all(axis=1)
         a = {name: self.arrays[name][k].astype(np.float64) for name in STATE_FIELDS}
-        state = FbState(time=float(self.times[k]), positions=a["positions"][ok], displacement=a["displacement"][ok],
+        state = BedState(time=float(self.times[k]), positions=a["positions"][ok], displacement=a["displacement"][ok],
                         fluid_velocity=a["fluid_velocity"], solid_fraction=a["solid_fraction"], mixing=a["mixing"],
                         solids_flux=a["solids_flux"])
         vols = self.particle_volumes[k][np.isfinite(self.particle_volumes[k])]
@@ -243,7 +243,7 @@ class FieldAnswer:
     extrapolation: dict[str, list[float]]
 
 
-def field_answer(module: Any, states: InitialStates, velocity: float, settings: FbMetricSettings,
+def field_answer(module: Any, states: InitialStates, velocity: float, settings: BedMetricSettings,
                  window: AnswerWindow, seed: int = 0, particles_every: int = 10) -> FieldAnswer:
     """Roll the model out over the answer window from the shipped state nearest in velocity; read the answers."""
     from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, rollout  # torch: only for fields
@@ -274,16 +274,16 @@ class SolverAnswer:
     file: Path | None
 
 
-def dpmfoam_answer(scene_record: dict[str, Any], velocity: float, workdir: Path, settings: FbMetricSettings,
+def dpmfoam_answer(scene_record: dict[str, Any], velocity: float, workdir: Path, settings: BedMetricSettings,
                    window: AnswerWindow, seed: int = 0) -> SolverAnswer:
     """DPMFoam at `velocity` for the window's duration, stored and scored like every dataset run."""
     from neuraldem.scenes.fluidized_bed.dataset.datagen import FieldSettings
     from neuraldem.scenes.fluidized_bed.dataset.store import write_fb_file
     from neuraldem.scenes.fluidized_bed.solver.runner import run_fluidized_bed
-    from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
+    from neuraldem.scenes.fluidized_bed.solver.scene import BedScene
     from neuraldem.sim import openfoam
 
-    scene = FluidizedBedScene.from_config(scene_record["fluidized_bed"], "model scene")
+    scene = BedScene.from_config(scene_record["fluidized_bed"], "model scene")
     fields = FieldSettings.from_config(scene_record.get("fields"), "model scene fields")
     t0 = time.perf_counter()
     result = run_fluidized_bed(scene, velocity, window.duration, workdir / "case", seed)

@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 
 from neuraldem.scenes.fluidized_bed.analysis.advection_oracle import advected_mixing
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from tests.helpers import run_module
 
 pytestmark = pytest.mark.solver
 
 
 def test_oracle_advection_stays_bounded_and_starts_from_the_data(fb_tiny_dataset: Path):
-    with FbFile(fb_tiny_dataset / "sims" / "sim_0000.h5") as f:
+    with BedFile(fb_tiny_dataset / "sims" / "sim_0000.h5") as f:
         for c in (0.0, 1.0):
             mix = advected_mixing(f, "fct", c)
             assert mix.shape == f.mixing().shape

@@ -24,7 +24,7 @@ from neuraldem.scenes.fluidized_bed.analysis.evaluation import (
     pooled_reference,
 )
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import DataStepper, ModelStepper
 from tests.helpers import run_module
 from tests.scenes.fluidized_bed.surrogate.test_rollout import Inject, _nan
@@ -38,7 +38,7 @@ def test_ground_truth_through_the_prediction_path_gives_its_own_metrics(fb_tiny_
     m = Manifest.load(fb_tiny_dataset)
     rec, settings = m.record(sim), metric_settings(m)
     path = fb_tiny_dataset / str(rec.file)
-    with FbFile(path) as f:
+    with BedFile(path) as f:
         steps, truth_alpha = f.n_snapshots - 1, f.solid_fraction()
         truth_volume = fm.total_solid_volume(truth_alpha, f.grid.cell_volume)
         e = evaluate_trajectory(path, sim, rec.params["inlet_velocity"], DataStepper(f), steps, horizon_steps=steps,
@@ -96,7 +96,7 @@ def test_a_mirrored_bed_is_scored_as_all_lateral_error_with_the_lean_reversed(fb
     """Known answer on real CFD-DEM fields: the bed's mirror image in x has the same height profile (all of its
     time-mean error is lateral), the same asymmetry and the opposite lean."""
     m = Manifest.load(fb_tiny_dataset)
-    with FbFile(fb_tiny_dataset / str(m.record("sim_0000").file)) as f:
+    with BedFile(fb_tiny_dataset / str(m.record("sim_0000").file)) as f:
         truth = FieldSeries.from_dataset_file(f)
     mirrored = FieldSeries(truth.times, truth.solid_fraction[:, ::-1], truth.fluid_velocity[:, ::-1],
                            truth.mixing[:, ::-1], truth.grid, truth.particle_volume, truth.total_particle_volume)

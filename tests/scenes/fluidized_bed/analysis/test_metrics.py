@@ -11,7 +11,7 @@ import pytest
 
 from neuraldem.scenes.fluidized_bed.analysis import metrics as fm
 from neuraldem.scenes.fluidized_bed.dataset.fields import initial_labels, mixing_concentration, solid_fraction
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.sim.foam_reader import BoxGrid
 from tests.helpers import run_module
 
@@ -101,7 +101,7 @@ def test_volume_statistics_and_blocks():
 def test_lacey_starts_near_zero_and_rises_on_real_data(fb_tiny_dataset: Path):
     """Requirement, on the real solver: the initial left/right split scores ~0, then mixing rises."""
     for path in sorted((fb_tiny_dataset / "sims").glob("*.h5")):
-        with FbFile(path) as f:
+        with BedFile(path) as f:
             pos, alpha, mix = f.positions(), f.solid_fraction(), f.mixing()
             lp = fm.lacey_from_particles(pos, f.labels, f.grid.lo, f.grid.hi, f.grid.shape, (1, 1, 2))
             lf = fm.lacey_from_fields(alpha, mix, f.grid.cell_volume, float(f.particle_volumes.mean()), (1, 1, 2))

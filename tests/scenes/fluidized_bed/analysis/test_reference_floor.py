@@ -11,7 +11,7 @@ import pytest
 
 from neuraldem.errors import DataError
 from neuraldem.scenes.fluidized_bed.analysis.reference_floor import main, measure, spread, windows
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 
 pytestmark = pytest.mark.solver
 
@@ -28,7 +28,7 @@ def test_spread_takes_the_first_last_and_evenly_between():
 def test_windows_and_the_pooled_floor_match_numpy(fb_tiny_dataset: Path):
     doc = measure(fb_tiny_dataset, window=5, pool=2, sims=("sim_0000",))
     (r,) = doc["trajectories"]
-    with FbFile(fb_tiny_dataset / "sims" / "sim_0000.h5") as f:
+    with BedFile(fb_tiny_dataset / "sims" / "sim_0000.h5") as f:
         alpha = f.solid_fraction()[1:]  # from snapshot 1, as a rollout is compared
     assert r["snapshots"] == len(alpha) == 20 and r["n_windows"] == 4 and r["pooled_windows"] == [0, 3]
     whole_mean, whole_std = alpha.mean(0), alpha.std(0)
@@ -49,7 +49,7 @@ def test_windows_and_the_pooled_floor_match_numpy(fb_tiny_dataset: Path):
 def test_windows_drop_a_short_rest(fb_tiny_dataset: Path):
     from neuraldem.scenes.fluidized_bed.analysis.evaluation import FieldSeries
 
-    with FbFile(fb_tiny_dataset / "sims" / "sim_0000.h5") as f:
+    with BedFile(fb_tiny_dataset / "sims" / "sim_0000.h5") as f:
         s = FieldSeries.from_dataset_file(f)
     parts = windows(s, 6)
     assert len(parts) == 3 and all(len(p.times) == 6 for p in parts) and parts[2].times[-1] == s.times[17]

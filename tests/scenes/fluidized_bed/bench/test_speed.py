@@ -15,7 +15,7 @@ import torch
 from neuraldem.bench.__main__ import main as bench_main
 from neuraldem.bench.timing import Sample, Timing
 from neuraldem.scenes.fluidized_bed.bench import speed as fb_speed
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.sim.foam_reader import FoamCase
 from tests.bench.test_timing import FakeClock
 
@@ -135,7 +135,7 @@ def test_fresh_dpmfoam_run_of_the_same_trajectory(fb_tiny_checkpoint: Path, fb_t
     _check_rows(r)
     case = FoamCase(work / "repeat_0")
     name = next(n for v, n in case.times() if abs(v - 0.05) < 1e-9)
-    with FbFile(fb_tiny_dataset / "sims" / "sim_0000.h5") as f:
+    with BedFile(fb_tiny_dataset / "sims" / "sim_0000.h5") as f:
         np.testing.assert_allclose(case.cloud(name).positions, f.positions(0), atol=1e-6)
 
 

@@ -15,8 +15,8 @@ from neuraldem.errors import ConfigError
 from neuraldem.scenes.fluidized_bed.analysis.evaluation import FieldSeries, compare, evaluate_checkpoint
 from neuraldem.scenes.fluidized_bed.bench import speed_accuracy as fsa
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
+from neuraldem.scenes.fluidized_bed.solver.scene import BedScene
 from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
 from tests.helpers import with_split
 
@@ -111,7 +111,7 @@ def test_a_diverged_run_is_shown_but_never_picked_nor_on_a_front(tmp_path: Path)
 
 
 def test_solver_variants_parse_and_apply():
-    scene = FluidizedBedScene()
+    scene = BedScene()
     assert fsa.SolverVariant.parse("dt:2").apply(scene).dt == pytest.approx(2e-4)
     assert fsa.SolverVariant.parse("substeps:0.5").apply(scene).collision_resolution_steps == 3
     for bad in ("dt", "dt:-1", "dt:x", "speed:2"):
@@ -151,7 +151,8 @@ def test_chart_on_real_data(fb_tiny_checkpoint: Path, packings_as_test: Path, tm
         {"input_noise": 0.0, "push_forward_steps": 1, "solids_flux": False, "conserve_volume": False}
     assert training["trained_stability"]["unroll"] == [1.0]
     m = Manifest.load(packings_as_test)
-    with FbFile(packings_as_test / "sims" / "sim_0001.h5") as a, FbFile(packings_as_test / "sims" / "sim_0000.h5") as b:
+    sims = packings_as_test / "sims"
+    with BedFile(sims / "sim_0001.h5") as a, BedFile(sims / "sim_0000.h5") as b:
         expected = compare(FieldSeries.from_dataset_file(a), FieldSeries.from_dataset_file(b), metric_settings(m))
     assert packing["method"] == fsa.OTHER_PACKING and packing["sims"] == ["sim_0001"]
     assert packing["errors"]["solid_fraction_mean_rel_l2"] == expected["rel_l2"]["solid_fraction_mean"] > 0

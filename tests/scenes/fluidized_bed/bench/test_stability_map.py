@@ -15,7 +15,7 @@ from neuraldem.bench.__main__ import main as bench_main
 from neuraldem.errors import DataError
 from neuraldem.scenes.fluidized_bed.bench import stability_map as fb_stability
 from neuraldem.scenes.fluidized_bed.bench.stability_map import BedReference, merge_maps
-from neuraldem.scenes.fluidized_bed.surrogate.rollout import DataStepper, FbState
+from neuraldem.scenes.fluidized_bed.surrogate.rollout import BedState, DataStepper
 from tests.scenes.fluidized_bed.surrogate.test_rollout import TRAINED_VELOCITY, Inject, _nan
 
 
@@ -106,7 +106,7 @@ class Drifting:
     def __init__(self, inner: DataStepper, factor: float):
         self.inner, self.factor, self.dt, self.calls = inner, factor, inner.dt, 0
 
-    def step(self, state: FbState) -> FbState:
+    def step(self, state: BedState) -> BedState:
         self.calls += 1
         nxt = self.inner.step(state)
         nxt.solid_fraction = nxt.solid_fraction * self.factor**self.calls
@@ -143,7 +143,7 @@ class Collapsing:
     def __init__(self, inner: DataStepper, packing: float = 0.72):
         self.inner, self.packing, self.dt = inner, packing, inner.dt
 
-    def step(self, state: FbState) -> FbState:
+    def step(self, state: BedState) -> BedState:
         nxt = self.inner.step(state)
         a = nxt.solid_fraction
         layers = a.sum(axis=-1, keepdims=True) / self.packing  # column volume in layers' worth

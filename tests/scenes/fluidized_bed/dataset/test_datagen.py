@@ -17,8 +17,8 @@ from omegaconf import open_dict
 
 from neuraldem.data.manifest import Manifest, SimRecord
 from neuraldem.errors import ConfigError
-from neuraldem.scenes.fluidized_bed.dataset.datagen import FluidizedBedPipeline
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.datagen import BedPipeline
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from tests.helpers import REPO, compose_cfg, run_module
 
 FAST = ["data=fb_tiny", "progress=false"]
@@ -32,11 +32,11 @@ def manifest(root: Path) -> Manifest:
     return Manifest.load(root / "datasets" / "fb_tiny")
 
 
-def pipeline(tmp_path: Path, *overrides: str) -> FluidizedBedPipeline:
+def pipeline(tmp_path: Path, *overrides: str) -> BedPipeline:
     cfg = compose_cfg("datagen", ["data=fb_small", *overrides], output_dir=tmp_path)
     with open_dict(cfg):
         cfg.data.dataset_dir = str(tmp_path / "ds")
-    return FluidizedBedPipeline(cfg.data)
+    return BedPipeline(cfg.data)
 
 
 def test_parameter_table_is_deterministic_and_extends(tmp_path: Path):
@@ -136,7 +136,7 @@ def test_kill_mid_trajectory_and_resume(tmp_path: Path):
     killed = [a for a in attempts if a.get("killed")]
     assert len(killed) == 1 and killed[0]["cpu_s"] > 0  # the killed run's CPU, from its log
     assert rec.cost["attempts"] == 2 and rec.cost["solver_cpu_s"] > killed[0]["cpu_s"]
-    with FbFile(ds / str(rec.file)) as f:
+    with BedFile(ds / str(rec.file)) as f:
         assert f.n_snapshots == 21 and f.n_particles == 300
     assert not list(ds.rglob("*.partial"))
 
@@ -199,7 +199,7 @@ def test_new_metric_settings_rescore_without_rerunning(fb_tiny_dataset: Path, tm
     cfg = compose_cfg("datagen", ["data=fb_tiny", "data.metrics.bubble_threshold=0.3"], output_dir=tmp_path)
     with open_dict(cfg):
         cfg.data.dataset_dir = str(ds)
-    m = generate(FluidizedBedPipeline(cfg.data), DatagenOptions(n_sims=3, workers=1, progress=False))
+    m = generate(BedPipeline(cfg.data), DatagenOptions(n_sims=3, workers=1, progress=False))
     assert m.parameters["metrics"]["bubble_threshold"] == 0.3
     for old, new in zip(before.simulations, m.simulations, strict=False):
         assert new.sha256 == old.sha256 and new.cost == old.cost  # not rerun
@@ -213,7 +213,7 @@ def test_a_long_validation_table_holds_its_long_trajectories_only(tmp_path: Path
     cfg = compose_cfg("datagen", ["data=fb_small_longval"], output_dir=tmp_path)
     with open_dict(cfg):
         cfg.data.dataset_dir = str(tmp_path / "ds")
-    pipe = FluidizedBedPipeline(cfg.data)
+    pipe = BedPipeline(cfg.data)
     small = pipeline(tmp_path)
     assert pipe.scene.as_dict() == small.scene.as_dict()  # a model trained on fb_small is scored on it
     (only,) = pipe.parameter_sequence(1)

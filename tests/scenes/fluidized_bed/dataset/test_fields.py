@@ -18,7 +18,7 @@ from neuraldem.scenes.fluidized_bed.dataset.fields import (
     solids_flux,
     trajectory_fields,
 )
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.sim.foam_reader import BoxGrid
 
 GRID = BoxGrid((0.0, 0.0, 0.0), (0.048, 0.006, 0.12), (12, 1, 30))
@@ -112,7 +112,7 @@ def test_real_kernel_field_holds_the_particle_volume(fb_tiny_dataset: Path):
     """Requirement: solid volume of the kernel field = the particles' total volume within 1 %
     (it is exact up to float32 storage), at every snapshot of every trajectory."""
     for path in sorted((fb_tiny_dataset / "sims").glob("*.h5")):
-        with FbFile(path) as f:
+        with BedFile(path) as f:
             alpha = f.solid_fraction()
             total = alpha.sum(axis=(1, 2, 3)) * f.grid.cell_volume
             particles = f.particle_volumes.sum()

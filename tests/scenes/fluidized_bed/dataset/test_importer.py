@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from neuraldem.data.manifest import Manifest
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.sim.foam_reader import FoamCase, time_dirs
 from tests.helpers import run_module
 
@@ -35,7 +35,7 @@ def test_import_matches_datagen_conversion(fb_tiny_dataset: Path, fb_tiny_case: 
     rec = Manifest.load(tmp_path / "ds").record("mine")
     ours = Manifest.load(fb_tiny_dataset).record("sim_0000")
     assert _finite(rec.metrics) == _finite(ours.metrics)
-    with FbFile(tmp_path / "ds" / str(rec.file)) as a, FbFile(fb_tiny_dataset / str(ours.file)) as b:
+    with BedFile(tmp_path / "ds" / str(rec.file)) as a, BedFile(fb_tiny_dataset / str(ours.file)) as b:
         for name in ("position", "displacement", "solid_fraction", "mixing", "fluid_velocity", "pressure"):
             np.testing.assert_array_equal(a._ds[name][()], b._ds[name][()])
         assert a.inlet_velocity == 1.5 and a.density == 2526.0
@@ -72,7 +72,7 @@ def test_cfdem_style_case_with_liggghts_dump(fb_tiny_case: Path, tmp_path: Path)
     assert proc.returncode == 0, proc.stderr
     direct = _import(fb_tiny_case, tmp_path / "ref")
     assert direct.returncode == 0, direct.stderr
-    with FbFile(tmp_path / "ds" / "sims" / "cfdem.h5") as a, FbFile(tmp_path / "ref" / "sims" / "mine.h5") as b:
+    with BedFile(tmp_path / "ds" / "sims" / "cfdem.h5") as a, BedFile(tmp_path / "ref" / "sims" / "mine.h5") as b:
         np.testing.assert_array_equal(a.positions(), b.positions())
         np.testing.assert_array_equal(a.solid_fraction(), b.solid_fraction())
         np.testing.assert_array_equal(a.fluid_velocity(), b.fluid_velocity())

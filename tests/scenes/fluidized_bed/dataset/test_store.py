@@ -12,20 +12,20 @@ import pytest
 
 from neuraldem.errors import DataError
 from neuraldem.scenes.fluidized_bed.dataset.fields import solid_fraction
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile, write_fb_file
-from neuraldem.scenes.fluidized_bed.solver.reader import FbTrajectory
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile, write_fb_file
+from neuraldem.scenes.fluidized_bed.solver.reader import BedTrajectory
 from neuraldem.sim.foam_reader import BoxGrid
 
 GRID = BoxGrid((0.0, 0.0, 0.0), (0.024, 0.006, 0.06), (6, 1, 15))
 
 
-def make_trajectory(T: int = 5, N: int = 40, seed: int = 0) -> FbTrajectory:
+def make_trajectory(T: int = 5, N: int = 40, seed: int = 0) -> BedTrajectory:
     rng = np.random.default_rng(seed)
     pos = np.empty((T, N, 3))
     pos[0] = rng.uniform([0.001, 0.001, 0.001], [0.023, 0.005, 0.02], size=(N, 3))
     for t in range(1, T):
         pos[t] = np.clip(pos[t - 1] + rng.normal(0, 5e-4, size=(N, 3)), 0.001, [0.023, 0.005, 0.059])
-    return FbTrajectory(
+    return BedTrajectory(
         times=np.round(np.arange(T) * 0.01, 9), t0=0.2, orig_proc=np.zeros(N, np.int64),
         orig_id=np.arange(N, dtype=np.int64), diameters=np.full(N, 0.002), density=2526.0, positions=pos,
         velocities=rng.normal(size=(T, N, 3)), lost_time=np.full(N, np.nan), grid=GRID,
@@ -34,7 +34,7 @@ def make_trajectory(T: int = 5, N: int = 40, seed: int = 0) -> FbTrajectory:
 
 
 @pytest.fixture
-def stored(tmp_path: Path) -> tuple[Path, FbTrajectory]:
+def stored(tmp_path: Path) -> tuple[Path, BedTrajectory]:
     traj = make_trajectory()
     path = tmp_path / "sim.h5"
     write_fb_file(path, "sim_x", traj, {"inlet_velocity": 1.5}, "test", 0.002, 0.001)
@@ -43,7 +43,7 @@ def stored(tmp_path: Path) -> tuple[Path, FbTrajectory]:
 
 def test_round_trip_and_pairs(stored):
     path, traj = stored
-    with FbFile(path) as f:
+    with BedFile(path) as f:
         assert (f.n_snapshots, f.n_particles, f.grid) == (5, 40, GRID)
         assert f.inlet_velocity == 1.5 and f.t0 == 0.2 and f.density == 2526.0
         assert (f.kernel_sigma, f.mixing_sigma) == (0.002, 0.001) and f.dt == pytest.approx(0.01)
@@ -69,7 +69,7 @@ def test_lost_particles_are_nan_after_their_lost_time(tmp_path: Path):
     traj.velocities[3:, 7] = np.nan
     traj.lost_time[7] = 0.03
     write_fb_file(tmp_path / "lost.h5", "lost", traj, {}, "test", 0.002)
-    with FbFile(tmp_path / "lost.h5") as f:
+    with BedFile(tmp_path / "lost.h5") as f:
         assert np.isnan(f.positions(3)[7]).all() and np.isnan(f.displacement(2)[7]).all()
         total = f.solid_fraction().sum(axis=(1, 2, 3)) * GRID.cell_volume
         assert total[4] == pytest.approx(total[0] * 39 / 40, rel=1e-5)
@@ -105,7 +105,7 @@ def test_damage_is_named(stored, tmp_path: Path, edit, message: str):
     path, _ = stored
     bad = _tamper(path, tmp_path / "bad.h5", edit)
     with pytest.raises(DataError, match=message) as err:
-        FbFile(bad)
+        BedFile(bad)
     assert str(bad) in str(err.value)
 
 
@@ -116,15 +116,15 @@ def test_displacement_must_match_positions(stored, tmp_path: Path):
         f["snapshots/displacement"][1, 3, 0] += 1e-3
 
     with pytest.raises(DataError, match="/snapshots/displacement is not position"):
-        FbFile(_tamper(path, tmp_path / "bad.h5", edit))
+        BedFile(_tamper(path, tmp_path / "bad.h5", edit))
 
 
 def test_not_hdf5_and_missing(tmp_path: Path):
     (tmp_path / "x.h5").write_bytes(b"not hdf5")
     with pytest.raises(DataError, match="not a readable HDF5 file"):
-        FbFile(tmp_path / "x.h5")
+        BedFile(tmp_path / "x.h5")
     with pytest.raises(DataError, match="does not exist"):
-        FbFile(tmp_path / "y.h5")
+        BedFile(tmp_path / "y.h5")
 
 
 @pytest.mark.solver
@@ -132,7 +132,7 @@ def test_generated_files_validate(fb_tiny_dataset: Path):
     files = sorted((fb_tiny_dataset / "sims").glob("*.h5"))
     assert len(files) == 3
     for path in files:
-        with FbFile(path) as f:
+        with BedFile(path) as f:
             assert f.n_snapshots == 21 and f.n_particles == 300 and f.grid.shape == (6, 1, 15)
             inflow, outflow = f.fluxes()
             np.testing.assert_allclose(outflow, inflow, rtol=1e-5)

@@ -12,7 +12,7 @@ import pytest
 from neuraldem.errors import DataError, SolverError
 from neuraldem.scenes.fluidized_bed.solver.reader import latest_complete_time, read_trajectory
 from neuraldem.scenes.fluidized_bed.solver.runner import finish, run_fluidized_bed
-from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
+from neuraldem.scenes.fluidized_bed.solver.scene import BedScene
 from neuraldem.sim import openfoam
 from neuraldem.sim.foam_reader import FoamCase
 
@@ -55,7 +55,7 @@ def test_truncated_time_directory_is_read_as_error_and_resumed(fb_tiny_case: Pat
 
 @pytest.mark.solver
 def test_diverging_case_is_failed_with_reason(tmp_path: Path):
-    scene = FluidizedBedScene(width=0.024, height=0.06, cells=(6, 1, 15), n_particles=300, spinup_time=0.01)
+    scene = BedScene(width=0.024, height=0.06, cells=(6, 1, 15), n_particles=300, spinup_time=0.01)
     res = run_fluidized_bed(scene, 60.0, 0.02, tmp_path / "case", seed=1)  # 56 x Umf: the flow blows up
     assert res.status == "failed" and res.reason.startswith("diverged: fluid speed")
 
@@ -89,7 +89,7 @@ def test_lost_particles_are_counted_not_dropped(fb_tiny_case: Path, tiny_scene, 
     gone = traj.orig_id >= 298
     assert np.isnan(traj.positions[10:, gone]).all() and np.isfinite(traj.positions[:10]).all()
     np.testing.assert_allclose(traj.lost_time[gone], 0.1)
-    loose = FluidizedBedScene(**{**tiny_scene.as_dict(), "cells": tiny_scene.cells, "max_lost_particles": 2})
+    loose = BedScene(**{**tiny_scene.as_dict(), "cells": tiny_scene.cells, "max_lost_particles": 2})
     assert finish(loose, FoamCase(case_dir), 0.2, {}, {}).status == "ok"
 
 

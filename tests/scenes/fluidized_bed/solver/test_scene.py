@@ -7,13 +7,13 @@ import pytest
 from omegaconf import OmegaConf
 
 from neuraldem.errors import ConfigError
-from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene, random_packing
+from neuraldem.scenes.fluidized_bed.solver.scene import BedScene, random_packing
 from tests.helpers import REPO
 
 
 def test_scene_defaults_match_the_canonical_config():
-    scene = FluidizedBedScene.from_config(OmegaConf.load(REPO / "conf/data/fb_small.yaml").scene, "data.scene")
-    assert scene == FluidizedBedScene()
+    scene = BedScene.from_config(OmegaConf.load(REPO / "conf/data/fb_small.yaml").scene, "data.scene")
+    assert scene == BedScene()
     assert scene.minimum_fluidization_velocity == pytest.approx(1.07, abs=0.01)
     assert scene.grid.shape == (12, 1, 30) and scene.grid.cell_volume == pytest.approx(0.004 * 0.006 * 0.004)
 
@@ -29,7 +29,7 @@ def test_scene_defaults_match_the_canonical_config():
 ])
 def test_bad_scene_values_name_the_key(override: dict, message: str):
     with pytest.raises(ConfigError, match=message):
-        FluidizedBedScene.from_config(override, "data.scene")
+        BedScene.from_config(override, "data.scene")
 
 
 def test_random_packing_has_no_overlaps_and_differs_by_seed(tiny_scene):

@@ -1,4 +1,4 @@
-"""FluidizedBedDataModule on the real fb_tiny DPMFoam dataset: samples against the files, normalisation from
+"""BedDataModule on the real fb_tiny DPMFoam dataset: samples against the files, normalisation from
 the training split only, push-forward / noise options, and bad input in one clear error."""
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ import torch
 
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.scenes.fluidized_bed.dataset.fields import solids_flux
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
-from neuraldem.scenes.fluidized_bed.surrogate.normalization import FbNormalizer
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
+from neuraldem.scenes.fluidized_bed.surrogate.datamodule import BedDataModule
+from neuraldem.scenes.fluidized_bed.surrogate.normalization import BedNormalizer
 from tests.helpers import copy_dataset, rerecord_checksum
 
 pytestmark = pytest.mark.solver
@@ -23,13 +23,13 @@ pytestmark = pytest.mark.solver
 
 def _read(path: Path, what: str):
     """An attribute of a trajectory file, or the result of calling it (e.g. a whole field)."""
-    with FbFile(path) as f:
+    with BedFile(path) as f:
         value = getattr(f, what)
         return value() if callable(value) else value
 
 
-def _dm(dataset: Path, **kwargs) -> FluidizedBedDataModule:
-    dm = FluidizedBedDataModule(str(dataset), "fb_tiny", **({"batch_size": 2} | kwargs))
+def _dm(dataset: Path, **kwargs) -> BedDataModule:
+    dm = BedDataModule(str(dataset), "fb_tiny", **({"batch_size": 2} | kwargs))
     dm.setup("fit")
     return dm
 
@@ -42,7 +42,7 @@ def test_samples_are_the_files_states_and_targets(fb_tiny_dataset: Path, k: int)
     channels = 7 if k == 3 else 4
     for i in (0, 1, len(ds) - 1):  # t = 0 (no previous displacement), t = 1, the last sample
         item, (s, t) = ds[i], ds.items[i]
-        with FbFile(dm.paths("train")[s]) as f:
+        with BedFile(dm.paths("train")[s]) as f:
             pos, disp_in = f.positions(t), (f.displacement(t - 1) if t > 0 else np.zeros((f.n_particles, 3)))
             np.testing.assert_allclose(norm.positions_back(item["particle_pos"].double().numpy()), pos, atol=1e-7)
             np.testing.assert_allclose(norm.field_back("displacement", item["particle_features"].double().numpy()),
@@ -95,7 +95,7 @@ def test_normalisation_comes_from_the_training_split_only(fb_tiny_dataset: Path)
     mean, std = alpha_stats(train)
     assert norm.mean["solid_fraction"][0] == pytest.approx(mean, rel=1e-9)
     assert norm.std["solid_fraction"][0] == pytest.approx(std, rel=1e-6)
-    everything = FbNormalizer.fit(train + test)  # what leaking the held-out velocity would give
+    everything = BedNormalizer.fit(train + test)  # what leaking the held-out velocity would give
     assert everything.mean["fluid_velocity"][2] != pytest.approx(norm.mean["fluid_velocity"][2], rel=1e-3)
     assert everything.velocity_hi > norm.velocity_hi
     assert dm.checkpoint_metadata()["normalizer"] == norm.to_dict()
@@ -111,7 +111,7 @@ def test_one_step_change_statistics(fb_tiny_dataset: Path):
     assert 0 < scale < 1  # the solid fraction changes by a fraction of its spread per step
     velocity = norm.step_scale("fluid_velocity")
     assert velocity[1] == 0.01  # the y velocity of the pseudo-2D bed never changes: the floor, not 0
-    old = FbNormalizer.from_dict({k: v for k, v in norm.to_dict().items() if k != "step_rms"})
+    old = BedNormalizer.from_dict({k: v for k, v in norm.to_dict().items() if k != "step_rms"})
     with pytest.raises(DataError, match="no one-step statistics.*model.residual"):
         old.step_scale("mixing")
 
@@ -141,24 +141,24 @@ def test_solids_flux_needs_its_statistics(fb_tiny_dataset: Path):
     with pytest.raises(DataError, match="no statistics for 'solids_flux'.*solids_flux=true"):
         norm.field("solids_flux", np.zeros((2, 3)))
     with pytest.raises(ConfigError, match=r"data\.datamodule\.solids_flux='yes' is invalid"):
-        FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", solids_flux="yes")
+        BedDataModule(str(fb_tiny_dataset), "fb_tiny", solids_flux="yes")
 
 
 def test_bad_config_values(fb_tiny_dataset: Path):
     with pytest.raises(ConfigError, match=r"data\.datamodule\.input_noise=-0\.1 is invalid"):
-        FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", input_noise=-0.1)
+        BedDataModule(str(fb_tiny_dataset), "fb_tiny", input_noise=-0.1)
     with pytest.raises(ConfigError, match=r"data\.datamodule\.push_forward_steps=0 is invalid"):
-        FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", push_forward_steps=0)
+        BedDataModule(str(fb_tiny_dataset), "fb_tiny", push_forward_steps=0)
     with pytest.raises(ConfigError, match=r"push_forward_steps=100 is invalid: must be <= 64"):
-        FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", push_forward_steps=100)
+        BedDataModule(str(fb_tiny_dataset), "fb_tiny", push_forward_steps=100)
     with pytest.raises(ConfigError, match=r"push_forward_steps=25 is invalid: the shortest training trajectory"):
         _dm(fb_tiny_dataset, push_forward_steps=25)
     with pytest.raises(ConfigError, match=r"unknown name\(s\) \['packing'\]"):
-        FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", conditioning=["packing"])
+        BedDataModule(str(fb_tiny_dataset), "fb_tiny", conditioning=["packing"])
     with pytest.raises(ConfigError, match=r"data\.split='random' is invalid"):
-        FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", split="random")
+        BedDataModule(str(fb_tiny_dataset), "fb_tiny", split="random")
     with pytest.raises(ConfigError, match=r"particles_per_sample=0 is invalid"):
-        FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", particles_per_sample=0)
+        BedDataModule(str(fb_tiny_dataset), "fb_tiny", particles_per_sample=0)
 
 
 def test_dataset_of_another_kind(fb_tiny_dataset: Path, tmp_path: Path):

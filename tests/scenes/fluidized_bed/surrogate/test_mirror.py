@@ -11,8 +11,8 @@ import pytest
 
 from neuraldem.errors import ConfigError
 from neuraldem.scenes.fluidized_bed.dataset.fields import mixing_concentration, solid_fraction, solids_flux
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
+from neuraldem.scenes.fluidized_bed.surrogate.datamodule import BedDataModule
 from neuraldem.scenes.fluidized_bed.surrogate.mirror import mirror_grid, mirror_points, mirror_vectors
 
 
@@ -32,14 +32,14 @@ def test_mirroring_twice_is_the_identity_and_flips_only_x():
 
 @pytest.mark.solver
 def test_a_mirrored_sample_is_the_fields_of_the_mirrored_particles(fb_tiny_dataset: Path):
-    dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2, solids_flux=True, mirror=True)
+    dm = BedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2, solids_flux=True, mirror=True)
     dm.setup("fit")
     ds, norm = dm.datasets["train"], dm.norm
     seed = next(s for s in range(100) if np.random.default_rng(s).random() < 0.5)  # a first draw that flips
     i = next(k for k in range(len(ds) // 2, len(ds)) if ds.items[k][1] > 0)  # a step with a displacement
     s, t = ds.items[i]
     item = ds.sample(i, np.random.default_rng(seed))  # every particle: no further draws
-    with FbFile(dm.paths("train")[s]) as f:
+    with BedFile(dm.paths("train")[s]) as f:
         lo, hi = f.grid.lo[0], f.grid.hi[0]
         pos, disp = mirror_points(f.positions(t), lo, hi), mirror_vectors(f.displacement(t - 1))
         np.testing.assert_allclose(norm.positions_back(item["particle_pos"].double().numpy()), pos, atol=1e-7)
@@ -67,12 +67,12 @@ def test_a_mirrored_sample_is_the_fields_of_the_mirrored_particles(fb_tiny_datas
 
 @pytest.mark.solver
 def test_half_the_training_samples_are_mirrored_and_evaluation_never(fb_tiny_dataset: Path):
-    dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2, mirror=True)
+    dm = BedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=2, mirror=True)
     dm.setup("fit")
     train = dm.datasets["train"]
     i = len(train) // 2
     s, t = train.items[i]
-    with FbFile(dm.paths("train")[s]) as f:
+    with BedFile(dm.paths("train")[s]) as f:
         x = dm.norm.positions(f.positions(t))[:, 0]
     flipped = [not np.allclose(train.sample(i, np.random.default_rng(k))["particle_pos"][:, 0].numpy(), x,
                                atol=1e-6) for k in range(200)]
@@ -83,4 +83,4 @@ def test_half_the_training_samples_are_mirrored_and_evaluation_never(fb_tiny_dat
 
 def test_a_mirror_option_that_is_not_a_boolean_is_refused(tmp_path: Path):
     with pytest.raises(ConfigError, match="data.datamodule.mirror"):
-        FluidizedBedDataModule(str(tmp_path), "fb_tiny", mirror="sometimes")
+        BedDataModule(str(tmp_path), "fb_tiny", mirror="sometimes")

@@ -1,4 +1,4 @@
-"""FluidizedBedModule on the real fb_tiny dataset: a tiny model learns, push-forward unrolls the rollout step,
+"""BedModule on the real fb_tiny dataset: a tiny model learns, push-forward unrolls the rollout step,
 checkpoints carry the data's metadata, and configs that cannot fit the data fail before training."""
 
 from __future__ import annotations
@@ -12,21 +12,21 @@ import torch
 from neuraldem.errors import ConfigError
 from neuraldem.models.registry import net_config
 from neuraldem.scenes.fluidized_bed.surrogate import module as fb_module
-from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
-from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
+from neuraldem.scenes.fluidized_bed.surrogate.datamodule import BedDataModule
+from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule
 
 pytestmark = pytest.mark.solver
 
 
 def _module(dataset: Path, net_overrides: dict | None = None, stability: dict | None = None,
-            **dm_kwargs) -> tuple[FluidizedBedModule, FluidizedBedDataModule]:
-    dm = FluidizedBedDataModule(str(dataset), "fb_tiny", **({"batch_size": 4} | dm_kwargs))
-    module = FluidizedBedModule(net_config("fb_tiny", **(net_overrides or {})), datamodule=dm,
+            **dm_kwargs) -> tuple[BedModule, BedDataModule]:
+    dm = BedDataModule(str(dataset), "fb_tiny", **({"batch_size": 4} | dm_kwargs))
+    module = BedModule(net_config("fb_tiny", **(net_overrides or {})), datamodule=dm,
                                 optimizer={"lr": 1e-3}, scheduler={"warmup_steps": 5}, stability=stability)
     return module, dm
 
 
-def _fit(module: FluidizedBedModule, dm: FluidizedBedDataModule, steps: int) -> L.Trainer:
+def _fit(module: BedModule, dm: BedDataModule, steps: int) -> L.Trainer:
     trainer = L.Trainer(max_steps=steps, accelerator="cpu", logger=False, enable_checkpointing=False,
                         enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0)
     trainer.fit(module, datamodule=dm)
@@ -50,7 +50,7 @@ def test_tiny_model_learns_and_checkpoint_round_trips(fb_tiny_dataset: Path, tmp
     assert after["loss"] == pytest.approx(sum(after[b] for b in ("particles", "fluid", "mixing")))
     path = tmp_path / "fb.ckpt"
     trainer.save_checkpoint(path)
-    back = FluidizedBedModule.load_from_checkpoint(path).eval()
+    back = BedModule.load_from_checkpoint(path).eval()
     assert back.metadata == module.metadata
     assert back.metadata["train_velocities"] == [pytest.approx(1.228531)]
     with torch.no_grad():
@@ -60,7 +60,7 @@ def test_tiny_model_learns_and_checkpoint_round_trips(fb_tiny_dataset: Path, tmp
     for key in [k for k in raw["state_dict"] if k.startswith("step_error_")]:
         del raw["state_dict"][key]
     torch.save(raw, tmp_path / "old.ckpt")
-    old = FluidizedBedModule.load_from_checkpoint(tmp_path / "old.ckpt")
+    old = BedModule.load_from_checkpoint(tmp_path / "old.ckpt")
     assert int(old.step_error_count) == 0 and not old.step_error_fluid.any()
 
 
@@ -84,8 +84,8 @@ def test_residual_model_adds_scaled_changes_to_its_input(fb_tiny_dataset: Path, 
     from neuraldem.scenes.fluidized_bed.surrogate.autoregressive import advance, grid_cells
 
     torch.manual_seed(0)
-    dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=4, push_forward_steps=2)
-    module = FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, residual=True,
+    dm = BedDataModule(str(fb_tiny_dataset), "fb_tiny", batch_size=4, push_forward_steps=2)
+    module = BedModule(net_config("fb_tiny"), datamodule=dm, residual=True,
                                 stability={"unroll": [0.0, 1.0]})
     trainer = _fit(module, dm, 3)  # trains, unrolled through the residual step
     batch = next(iter(dm.test_dataloader()))
@@ -109,10 +109,10 @@ def test_residual_model_adds_scaled_changes_to_its_input(fb_tiny_dataset: Path, 
     monkeypatch.undo()
     path = tmp_path / "residual.ckpt"
     trainer.save_checkpoint(path)
-    back = FluidizedBedModule.load_from_checkpoint(path)
+    back = BedModule.load_from_checkpoint(path)
     assert back.residual and torch.equal(back.step_scales["fluid"], scales["fluid"])
     with pytest.raises(ConfigError, match="model.residual"):
-        FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, residual="yes")
+        BedModule(net_config("fb_tiny"), datamodule=dm, residual="yes")
 
 
 @pytest.mark.parametrize("unroll,loss_on,steps", [([0.0, 0.0, 1.0], "every", 3), ([0.0, 0.0, 1.0], "last", 3),
@@ -124,7 +124,7 @@ def test_training_unrolls_the_drawn_steps_and_scores_them(fb_tiny_dataset: Path,
             _module(fb_tiny_dataset, stability={"unroll": unroll, "loss_on": loss_on}, push_forward_steps=3)
         return
     calls, scored = [], []
-    real_next, real_loss = fb_module.next_inputs, FluidizedBedModule.branch_loss
+    real_next, real_loss = fb_module.next_inputs, BedModule.branch_loss
 
     def counting_next(net, tokens, cond, fields, x, norm, n_particles, **kwargs):
         calls.append((torch.is_grad_enabled(), n_particles))
@@ -138,7 +138,7 @@ def test_training_unrolls_the_drawn_steps_and_scores_them(fb_tiny_dataset: Path,
         return real_loss(self, pred, target, members)
 
     monkeypatch.setattr(fb_module, "next_inputs", counting_next)
-    monkeypatch.setattr(FluidizedBedModule, "branch_loss", counting_loss)
+    monkeypatch.setattr(BedModule, "branch_loss", counting_loss)
     torch.manual_seed(0)
     module, dm = _module(fb_tiny_dataset, stability={"unroll": unroll, "loss_on": loss_on}, push_forward_steps=3)
     assert module.push_forward_steps == 3 and module.metadata["push_forward_steps"] == 3
@@ -202,15 +202,15 @@ def test_config_that_cannot_fit_the_data(fb_tiny_dataset: Path):
 
 
 def test_bad_optimisation_values(fb_tiny_dataset: Path):
-    dm = FluidizedBedDataModule(str(fb_tiny_dataset), "fb_tiny")
+    dm = BedDataModule(str(fb_tiny_dataset), "fb_tiny")
     with pytest.raises(ConfigError, match=r"model\.optimizer\.lr=-1"):
-        FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, optimizer={"lr": -1})
+        BedModule(net_config("fb_tiny"), datamodule=dm, optimizer={"lr": -1})
     with pytest.raises(ConfigError, match=r"unknown key\(s\) \['warmup'\] in model\.scheduler"):
-        FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, scheduler={"warmup": 3})
+        BedModule(net_config("fb_tiny"), datamodule=dm, scheduler={"warmup": 3})
     with pytest.raises(ConfigError, match=r"model\.loss_weights key='pressure' is invalid"):
-        FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, loss_weights={"pressure": 1.0})
+        BedModule(net_config("fb_tiny"), datamodule=dm, loss_weights={"pressure": 1.0})
     with pytest.raises(ConfigError, match=r"model\.optimizer\.betas=\[0\.9\] is invalid: must be a pair"):
-        FluidizedBedModule(net_config("fb_tiny"), datamodule=dm, optimizer={"betas": [0.9]})
+        BedModule(net_config("fb_tiny"), datamodule=dm, optimizer={"betas": [0.9]})
 
 
 def test_flux_consistency_adds_the_continuity_loss(fb_tiny_dataset: Path):

@@ -14,7 +14,7 @@ import pytest
 from neuraldem.cli import CommandParser, renamed_overrides
 from neuraldem.scenes.fluidized_bed.surrogate.options import (
     OPTION_NAMES,
-    FbStability,
+    BedStability,
     RolloutOptions,
     add_arguments,
     training_stability,
@@ -75,7 +75,7 @@ def test_an_old_training_key_in_a_config_file_still_counts(capsys):
     err = capsys.readouterr().err
     assert "model.stability.mixing in a config is the old spelling (kept for one release): write rollout.mixing" in err
     assert "rollout.rollout_noise (its value 3.0 is used, not 2.0)" in err
-    assert FbStability.from_config(merged).mixing == "advect"
+    assert BedStability.from_config(merged).mixing == "advect"
 
 
 def test_the_tools_old_flags_give_the_same_options_and_print_the_new_form(capsys):

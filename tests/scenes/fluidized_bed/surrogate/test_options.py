@@ -14,7 +14,7 @@ from neuraldem.paths import config_dir
 from neuraldem.scenes.fluidized_bed.surrogate.options import (
     OPTION_NAMES,
     ROLLOUT_RANGES,
-    FbStability,
+    BedStability,
     RolloutOptions,
     add_arguments,
     check_option,
@@ -25,14 +25,14 @@ FB_EXPERIMENTS = sorted(p.stem for p in (config_dir() / "experiment").glob("fb*.
 FB_MODELS = sorted(p.stem for p in (config_dir() / "model").glob("fb_*.yaml"))
 
 
-def _one_step_supervised(s: FbStability) -> bool:
+def _one_step_supervised(s: BedStability) -> bool:
     """A batch scores step 1 (from data) whenever it unrolls one step, or on every step it takes."""
     return s.loss_on == "every" or s.unroll[0] > 0
 
 
-def trained_with(cfg) -> FbStability:
+def trained_with(cfg) -> BedStability:
     """The options a model of a composed training config trains with (`model.stability` + the `rollout` group)."""
-    return FbStability.from_config(model_kwargs(cfg)["stability"])
+    return BedStability.from_config(model_kwargs(cfg)["stability"])
 
 
 @pytest.mark.parametrize("experiment", FB_EXPERIMENTS)
@@ -53,7 +53,7 @@ def test_the_fb_experiment_uses_the_recipe_options(compose_train_cfg):
     s = trained_with(compose_train_cfg("experiment=fb"))
     assert s.unroll == (0.5, 0.3, 0.2) and s.loss_on == "every" and s.input_noise == "auto"
     assert s.conserve_volume and s.mixing == "advect" and s.advection_flux == "consistent"
-    # the rollout options are set in the rollout group, the others are FbStability's defaults, as before
+    # the rollout options are set in the rollout group, the others are BedStability's defaults, as before
     assert (s.advection_correction, s.mirror_alternate, s.rollout_noise) == (0.75, False, 0.0)
     noisy = trained_with(compose_train_cfg("experiment=fb", "rollout.rollout_noise=3", "rollout.mixing=absolute"))
     assert noisy.rollout_noise == 3 and noisy.mixing == "absolute" and noisy.unroll == s.unroll
@@ -84,24 +84,24 @@ def test_the_fb_experiment_uses_the_recipe_options(compose_train_cfg):
 ])
 def test_bad_stability_options_end_in_one_line(cfg: dict, message: str):
     with pytest.raises(ConfigError, match=message) as err:
-        FbStability.from_config(cfg)
+        BedStability.from_config(cfg)
     assert "\n" not in str(err.value)
 
 
 def test_options_must_fit_the_data_and_the_net():
     with pytest.raises(ConfigError, match=r"serves 1 target step.*push_forward_steps=3"):
-        FbStability(unroll=(0.5, 0.3, 0.2)).check_fits(1, True, 0)
+        BedStability(unroll=(0.5, 0.3, 0.2)).check_fits(1, True, 0)
     with pytest.raises(ConfigError, match=r"mixing=advect needs the solids flux.*solids_flux=true"):
-        FbStability(mixing="advect").check_fits(1, False, 0)
+        BedStability(mixing="advect").check_fits(1, False, 0)
     with pytest.raises(ConfigError, match=r"ensemble=2 needs a stochastic net.*noise_dim"):
-        FbStability(ensemble=2).check_fits(1, False, 0)
+        BedStability(ensemble=2).check_fits(1, False, 0)
     with pytest.raises(ConfigError, match=r"flux_consistency=0\.5 needs the solids flux.*solids_flux=true"):
-        FbStability(flux_consistency=0.5).check_fits(1, False, 0)
-    FbStability(unroll=(0.5, 0.5), mixing="advect", ensemble=2).check_fits(2, True, 8)  # fits
+        BedStability(flux_consistency=0.5).check_fits(1, False, 0)
+    BedStability(unroll=(0.5, 0.5), mixing="advect", ensemble=2).check_fits(2, True, 8)  # fits
 
 
 def test_rollout_options_replace_the_checkpoint_s_and_keep_the_rest():
-    base = FbStability(unroll=(0.5, 0.5), input_noise="auto", conserve_volume=True)
+    base = BedStability(unroll=(0.5, 0.5), input_noise="auto", conserve_volume=True)
     r = RolloutOptions(mixing="advect", conserve_volume=False).apply(base)
     assert (r.mixing, r.conserve_volume, r.unroll, r.input_noise) == ("advect", False, (0.5, 0.5), "auto")
     assert RolloutOptions().apply(base) == base
@@ -136,7 +136,7 @@ def test_a_bad_rollout_option_is_one_line_naming_its_key(name: str):
         assert message.startswith(f"rollout.{name}={value} is invalid: must be {requirement}"), message
         assert "\n" not in message and f"(e.g. rollout.{name}=" in message  # the fix
     with pytest.raises(ConfigError, match=rf"rollout\.{name}=.* is invalid"):  # what a checkpoint stores too
-        FbStability.from_config({name: value})
+        BedStability.from_config({name: value})
 
 
 def test_an_unknown_rollout_option_lists_the_six():
@@ -170,11 +170,11 @@ def test_tag_and_overrides_round_trip(given: dict, tag: str, overrides: list[str
 
 @pytest.mark.parametrize("option", sorted(ROLLOUT_RANGES))
 def test_every_spelling_of_a_rollout_option_has_one_range(option):
-    """RolloutOptions, FbStability (what a checkpoint stores) and the tools' options take the same bounds."""
+    """RolloutOptions, BedStability (what a checkpoint stores) and the tools' options take the same bounds."""
     lo, hi = ROLLOUT_RANGES[option]
     assert check_option(option, hi) == hi and check_option(option, lo) == lo
     above = hi + 0.5
-    for make in (lambda: FbStability.from_config({option: above}), lambda: RolloutOptions(**{option: above})):
+    for make in (lambda: BedStability.from_config({option: above}), lambda: RolloutOptions(**{option: above})):
         with pytest.raises(ConfigError, match=rf"rollout\.{option}={above:g} is invalid"):
             make()
 
@@ -182,4 +182,4 @@ def test_every_spelling_of_a_rollout_option_has_one_range(option):
 def test_the_option_table_is_the_object():
     """One declaration: the specs (checks, help, tags, keys) list RolloutOptions' fields in their order."""
     assert [f.name for f in fields(RolloutOptions)] == list(OPTION_NAMES)
-    assert set(OPTION_NAMES) <= {f.name for f in fields(FbStability)}  # what a checkpoint stores
+    assert set(OPTION_NAMES) <= {f.name for f in fields(BedStability)}  # what a checkpoint stores

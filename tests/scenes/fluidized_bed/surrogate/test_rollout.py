@@ -15,15 +15,15 @@ import pytest
 import torch
 
 from neuraldem.errors import ConfigError, DataError
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.scenes.fluidized_bed.surrogate.datamodule import grid_input
 from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
 from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
+    BedState,
     DataStepper,
     DivergenceLimits,
     ExtrapolationWarning,
-    FbState,
     ModelStepper,
     initial_state,
     rollout,
@@ -49,7 +49,7 @@ def test_rollout_of_50_steps_writes_hdf5_json_and_vtk(fb_tiny_checkpoint: Path, 
     assert summary["initial_state"] == "fb_tiny/sim_0000 snapshot 1"  # closest velocity, first by id; snapshot 1
     # (the first with a real last displacement)
     assert json.loads((tmp_path / "rollout.json").read_text())["steps_done"] == 50
-    with RolloutFile(tmp_path / "rollout.h5") as r, FbFile(fb_tiny_dataset / "sims" / "sim_0000.h5") as f:
+    with RolloutFile(tmp_path / "rollout.h5") as r, BedFile(fb_tiny_dataset / "sims" / "sim_0000.h5") as f:
         alpha, u = r.grid_field("solid_fraction"), r.grid_field("fluid_velocity")
         assert alpha.shape == (51, 6, 1, 15) and u.shape == (51, 6, 1, 15, 3)
         np.testing.assert_allclose(r.times, np.round(np.arange(1, 52) * 0.01, 9), atol=1e-9)
@@ -77,7 +77,7 @@ class Inject:
     def __init__(self, inner, at: int, spoil):
         self.inner, self.at, self.spoil, self.dt, self.calls = inner, at, spoil, inner.dt, 0
 
-    def step(self, state: FbState) -> FbState:
+    def step(self, state: BedState) -> BedState:
         self.calls += 1
         nxt = self.inner.step(state)
         if self.calls == self.at:
@@ -85,15 +85,15 @@ class Inject:
         return nxt
 
 
-def _nan(s: FbState) -> None:
+def _nan(s: BedState) -> None:
     s.fluid_velocity[2, 0, 7, 1] = np.nan
 
 
-def _too_dense(s: FbState) -> None:
+def _too_dense(s: BedState) -> None:
     s.solid_fraction[3, 0, 1] = 0.9
 
 
-def _negative(s: FbState) -> None:
+def _negative(s: BedState) -> None:
     s.solid_fraction[0, 0, 14] = -0.2
 
 
@@ -107,7 +107,7 @@ def test_divergence_detector_stops_at_the_step(fb_tiny_checkpoint: Path, fb_tiny
                                                caplog: pytest.LogCaptureFixture):
     module = load_fb_checkpoint(fb_tiny_checkpoint)
     stepper = Inject(ModelStepper(module, TRAINED_VELOCITY), at=7, spoil=spoil)
-    with FbFile(fb_tiny_dataset / "sims" / "sim_0000.h5") as f:
+    with BedFile(fb_tiny_dataset / "sims" / "sim_0000.h5") as f:
         r = rollout(stepper, initial_state(f, 0), 50, progress=False)
     assert r.diverged_at == 7 and r.steps_done == 6 and stepper.calls == 7  # stopped, states 0..6 kept
     assert np.isfinite(r.solid_fraction).all()
@@ -117,7 +117,7 @@ def test_divergence_detector_stops_at_the_step(fb_tiny_checkpoint: Path, fb_tiny
 
 def test_ground_truth_never_trips_the_detector(fb_tiny_dataset: Path):
     for sim in ("sim_0000", "sim_0001", "sim_0002"):
-        with FbFile(fb_tiny_dataset / "sims" / f"{sim}.h5") as f:
+        with BedFile(fb_tiny_dataset / "sims" / f"{sim}.h5") as f:
             r = rollout(DataStepper(f), initial_state(f, 0), f.n_snapshots - 1, DivergenceLimits(), progress=False)
             assert r.diverged_at is None, (sim, r.message())
             np.testing.assert_array_equal(r.solid_fraction, f.solid_fraction())
@@ -195,13 +195,13 @@ def test_solid_volume_projection_holds_the_first_states_volume(fb_tiny_checkpoin
 
 def test_the_recipe_options_conserve_to_round_off_and_keep_mixing_bounded(fb_tiny_flux_checkpoint: Path,
                                                                        fb_tiny_dataset: Path):
-    from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+    from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
     from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, initial_state, rollout
     from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import load_fb_checkpoint
 
     module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
     assert module.stability.mixing == "advect" and module.stability.conserve_volume and module.net.noise_dim == 4
-    with FbFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
+    with BedFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
         state = initial_state(f)
         runs = [rollout(ModelStepper(module, TRAINED_VELOCITY, seed), state, 40, progress=False) for seed in (0, 1)]
     for r in runs:
@@ -220,12 +220,12 @@ def test_a_projection_short_of_the_volume_is_named(fb_tiny_flux_checkpoint: Path
     """The rollout restores the volume after the (float32) projection; more than round-off to restore means the
     projection fell short, and the rescale then moves capped cells past the cap: the step says so."""
     import neuraldem.scenes.fluidized_bed.surrogate.autoregressive as ar
-    from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+    from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
     from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, initial_state
     from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import load_fb_checkpoint
 
     module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
-    with FbFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
+    with BedFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
         state = initial_state(f)
     with caplog.at_level(logging.WARNING, logger="neuraldem.scenes.fluidized_bed.surrogate.rollout"):
         ModelStepper(module, TRAINED_VELOCITY, 0).step(state)
@@ -282,7 +282,7 @@ def test_mirror_alternation_steps_every_second_state_in_the_mirror_image(fb_tiny
 
     module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
     lo_x, hi_x = module.norm.box_lo[0], module.norm.box_hi[0]
-    with FbFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
+    with BedFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
         state = initial_state(f)
     twice = mirror_state(mirror_state(state, lo_x, hi_x), lo_x, hi_x)
     for name in ("positions", "displacement", "fluid_velocity", "solid_fraction", "mixing", "solids_flux"):
@@ -311,7 +311,7 @@ def test_rollout_noise_perturbs_what_the_net_reads_and_nothing_else(fb_tiny_flux
     cap and the mixing in [0, 1]. A seed reproduces its rollout; 0 is the plain rollout."""
     module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
     assert float(module.step_error_fluid.abs().sum()) > 0  # trained: the running error exists
-    with FbFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
+    with BedFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
         state = initial_state(f)
     plain = rollout(ModelStepper(module, TRAINED_VELOCITY, 0), state, 30, progress=False)
     off = rollout(ModelStepper(module, TRAINED_VELOCITY, 0, options=RolloutOptions(rollout_noise=0.0)), state, 30,

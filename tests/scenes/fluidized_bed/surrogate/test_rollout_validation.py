@@ -16,9 +16,9 @@ from neuraldem.errors import ConfigError
 from neuraldem.models.registry import net_config
 from neuraldem.scenes.fluidized_bed.analysis.evaluation import FieldSeries
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
-from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
+from neuraldem.scenes.fluidized_bed.surrogate.datamodule import BedDataModule
+from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule
 from neuraldem.scenes.fluidized_bed.surrogate.rollout_validation import (
     DIVERGENCE_PENALTY,
     RolloutValidation,
@@ -32,7 +32,7 @@ pytestmark = pytest.mark.solver
 
 def test_ground_truth_scores_zero_and_a_changed_field_does_not(fb_tiny_dataset: Path):
     m = Manifest.load(fb_tiny_dataset)
-    with FbFile(fb_tiny_dataset / str(m.record("sim_0000").file)) as f:
+    with BedFile(fb_tiny_dataset / str(m.record("sim_0000").file)) as f:
         truth = FieldSeries.from_dataset_file(f)
     settings = metric_settings(m)
     exact = score_rollout(truth, truth, settings, diverged=False)
@@ -49,7 +49,7 @@ def test_ground_truth_scores_zero_and_a_changed_field_does_not(fb_tiny_dataset: 
     assert score_rollout(truth, truth, settings, diverged=True)["score"] >= DIVERGENCE_PENALTY
     # the pooled reference of one run is that run; of both packings it differs from either
     assert score_pooled(truth, [truth], settings, ["sim_0000"], diverged=False) == exact
-    with FbFile(fb_tiny_dataset / str(m.record("sim_0001").file)) as f:
+    with BedFile(fb_tiny_dataset / str(m.record("sim_0001").file)) as f:
         twin = FieldSeries.from_dataset_file(f)
     both = score_pooled(truth, [truth, twin], settings, ["sim_0000", "sim_0001"], diverged=False)
     assert both["sf_std_rel_l2"] > 0 and both["mass_drift"] == exact["mass_drift"]
@@ -63,8 +63,8 @@ def fb_tiny_with_val(fb_tiny_dataset: Path, tmp_path: Path) -> Path:
 
 def test_callback_logs_at_every_validation_and_picks_the_checkpoint(fb_tiny_with_val: Path, tmp_path: Path):
     torch.manual_seed(0)
-    dm = FluidizedBedDataModule(str(fb_tiny_with_val), "fb_tiny", batch_size=2)
-    module = FluidizedBedModule(net_config("fb_tiny"), datamodule=dm)
+    dm = BedDataModule(str(fb_tiny_with_val), "fb_tiny", batch_size=2)
+    module = BedModule(net_config("fb_tiny"), datamodule=dm)
     seen: list[float] = []
 
     class Record(L.Callback):
@@ -87,8 +87,8 @@ def test_callback_logs_at_every_validation_and_picks_the_checkpoint(fb_tiny_with
 def test_pooled_reference_rolls_out_beyond_the_trajectory(fb_tiny_with_val: Path, caplog):
     """reference=pooled: 30 steps from an fb_tiny trajectory of 20, scored against the velocity's runs."""
     torch.manual_seed(0)
-    dm = FluidizedBedDataModule(str(fb_tiny_with_val), "fb_tiny", batch_size=2)
-    module = FluidizedBedModule(net_config("fb_tiny"), datamodule=dm)
+    dm = BedDataModule(str(fb_tiny_with_val), "fb_tiny", batch_size=2)
+    module = BedModule(net_config("fb_tiny"), datamodule=dm)
     trainer = L.Trainer(max_steps=2, val_check_interval=2, check_val_every_n_epoch=None, accelerator="cpu",
                         logger=False, enable_progress_bar=False, enable_model_summary=False, num_sanity_val_steps=0,
                         enable_checkpointing=False, callbacks=[RolloutValidation(steps=30, reference="pooled")])

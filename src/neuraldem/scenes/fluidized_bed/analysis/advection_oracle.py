@@ -35,11 +35,11 @@ from neuraldem.models.modules.conservative_advection import advect_tagged, tagge
 from neuraldem.paths import module_command
 from neuraldem.scenes.fluidized_bed.analysis.metrics import lacey_from_fields
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.scenes.fluidized_bed.surrogate.options import ADVECTION_FLUXES, RolloutOptions
 
 
-def advected_mixing(f: FbFile, scheme: str, correction: float = 1.0, flux_mode: str = "predicted") -> np.ndarray:
+def advected_mixing(f: BedFile, scheme: str, correction: float = 1.0, flux_mode: str = "predicted") -> np.ndarray:
     """(T, nx, ny, nz) concentration advected with the stored fields (module docstring); `flux_mode`
     "consistent": the flux corrected to carry the solid fraction at t to the stored one at t + 1."""
     spacing = [float(h) for h in f.grid.spacing]
@@ -66,7 +66,7 @@ def tagged_swing(solid_fraction: np.ndarray, mixing: np.ndarray) -> float:
 def oracle(path: Path, settings: dict[str, Any], corrections: list[float],
            flux_mode: str = "predicted") -> dict[str, Any]:
     block, min_count = tuple(settings["lacey_block"]), float(settings["lacey_min_count"])
-    with FbFile(path) as f:
+    with BedFile(path) as f:
         alpha, vp = f.solid_fraction(), float(np.mean(f.particle_volumes))
         truth = lacey_from_fields(alpha, f.mixing(), f.grid.cell_volume, vp, block, min_count)
         row: dict[str, Any] = {"sim_id": f.sim_id, "inlet_velocity": f.inlet_velocity, "lacey_truth": truth.tolist()}
@@ -94,7 +94,7 @@ def model_rows(ckpt: Path, paths: list[Path], settings: dict[str, Any], correcti
     block, min_count = tuple(settings["lacey_block"]), float(settings["lacey_min_count"])
     rows = []
     for path in paths:
-        with FbFile(path) as f:
+        with BedFile(path) as f:
             truth = FieldSeries.from_dataset_file(f).since(DEFAULT_INIT_SNAPSHOT)
             n = min(steps, len(truth.times) - 1)
             vp = truth.particle_volume

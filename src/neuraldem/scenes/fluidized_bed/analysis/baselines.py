@@ -55,7 +55,7 @@ from neuraldem.scenes.fluidized_bed.analysis.evaluation import (
     pooled_reference,
 )
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings, resolve_dataset
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import DEFAULT_INIT_SNAPSHOT
 
 BASELINES = ("nearest", "interpolated", "constant", "other_packing")
@@ -72,7 +72,7 @@ def velocity(rec: SimRecord) -> float:
 
 
 def load_series(path: Path) -> FieldSeries:
-    with FbFile(path) as f:
+    with BedFile(path) as f:
         return FieldSeries.from_dataset_file(f)
 
 

@@ -37,7 +37,7 @@ from neuraldem.paths import invocation
 from neuraldem.scenes.fluidized_bed.analysis import metrics as fm
 from neuraldem.scenes.fluidized_bed.analysis import plots as fb_plots
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
 from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
@@ -77,7 +77,7 @@ class FieldSeries:
     total_particle_volume: float  # what the solid fraction should integrate to [m^3]
 
     @classmethod
-    def from_dataset_file(cls, f: FbFile) -> FieldSeries:
+    def from_dataset_file(cls, f: BedFile) -> FieldSeries:
         return cls(f.times, f.solid_fraction(), f.fluid_velocity(), f.mixing(), f.grid,
                    float(np.mean(f.particle_volumes)), float(f.particle_volumes.sum()))
 
@@ -223,7 +223,7 @@ def pooled_reference(m: Manifest, dataset_dir: Path, rec: SimRecord, init_snapsh
     for r in velocity_twins(m, rec):
         if r.sim_id == leave_out:
             continue
-        with FbFile(dataset_dir / str(r.file)) as f:
+        with BedFile(dataset_dir / str(r.file)) as f:
             series.append(FieldSeries.from_dataset_file(f).since(init_snapshot))
         ids.append(r.sim_id)
     return ids, series
@@ -257,7 +257,7 @@ def evaluate_trajectory(path: Path, sim_id: str, velocity: float, stepper: Stepp
 
     The rollout goes through its file (`rollout_path`) when given, so the numbers are those of the file a
     user gets from `neuraldem.rollout`."""
-    with FbFile(path) as f:
+    with BedFile(path) as f:
         state = initial_state(f, init_snapshot)
         truth = FieldSeries.from_dataset_file(f).since(init_snapshot)
         r = rollout(stepper, state, steps, limits, progress=progress)
@@ -320,7 +320,7 @@ def evaluate_checkpoint(ckpt: Path, out_dir: Path, datasets_dir: Path, dataset_d
     for rec in records:  # one trajectory in memory at a time: figures and VTK are written as we go
         v = float(rec.params["inlet_velocity"])
         path = dataset_dir / str(rec.file)
-        with FbFile(path) as f:
+        with BedFile(path) as f:
             check_grid(norm, f)
         attrs = {"extrapolation": check_velocity(norm, v), "checkpoint": str(Path(ckpt).resolve()),
                  "initial_state": f"{m.name}/{rec.sim_id} snapshot {init_snapshot}", "seed": seed,

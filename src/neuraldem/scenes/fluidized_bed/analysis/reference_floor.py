@@ -44,7 +44,7 @@ from neuraldem.scenes.fluidized_bed.analysis.evaluation import (
     time_statistics,
 )
 from neuraldem.scenes.fluidized_bed.dataset.report import resolve_dataset
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import DEFAULT_INIT_SNAPSHOT
 
 FIELDS = ("solid_fraction_mean", "solid_fraction_std", "fluid_speed_mean")
@@ -121,7 +121,7 @@ def measure(dataset_dir: Path, window: int | None = None, pool: int = 3, sims: t
                         "sim_0092: neuraldem datagen data=fb_small first=[sim_0090]) or name sims=")
     rows = []
     for rec in records:
-        with FbFile(dataset_dir / str(rec.file)) as f:
+        with BedFile(dataset_dir / str(rec.file)) as f:
             s = FieldSeries.from_dataset_file(f).since(init_snapshot)
         rows.append({"sim_id": rec.sim_id, "inlet_velocity": float(rec.params["inlet_velocity"]),
                      **trajectory_floor(s, window, pool)})

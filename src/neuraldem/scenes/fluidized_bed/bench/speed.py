@@ -38,14 +38,14 @@ from neuraldem.errors import ConfigError, DataError, SolverError
 from neuraldem.eval.checkpoints import checkpoint_dataset
 from neuraldem.paths import data_dir
 from neuraldem.scenes.fluidized_bed.dataset.datagen import packing_seed
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.scenes.fluidized_bed.solver.runner import STATUS_OK, run_fluidized_bed
-from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
-from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
+from neuraldem.scenes.fluidized_bed.solver.scene import BedScene
+from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule
 from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions, add_arguments
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
+    BedState,
     DivergenceLimits,
-    FbState,
     ModelStepper,
     initial_state,
     rollout,
@@ -66,12 +66,12 @@ def usable_cpus() -> int:
 
 
 @dataclass
-class FbCase:
+class BedCase:
     """The trajectory both sides answer: the dataset's scene, one record's inlet velocity and packing."""
 
     dataset_dir: Path
     manifest: Manifest
-    scene: FluidizedBedScene
+    scene: BedScene
     record: SimRecord
 
     @property
@@ -87,7 +87,7 @@ class FbCase:
         return self.dataset_dir / str(self.record.file)
 
 
-def bench_case(module: FluidizedBedModule, ckpt: Path, dataset_dir: Path | None, sim_id: str | None) -> FbCase:
+def bench_case(module: BedModule, ckpt: Path, dataset_dir: Path | None, sim_id: str | None) -> BedCase:
     """The checkpoint's dataset (checked to be of its scene) and the trajectory to time: `sim_id`, else the
     first test trajectory of the checkpoint's split, else the first usable one."""
     meta = module.metadata
@@ -95,15 +95,15 @@ def bench_case(module: FluidizedBedModule, ckpt: Path, dataset_dir: Path | None,
     if m.kind != "fluidized_bed" or "fluidized_bed" not in m.scene:
         raise DataError(f"{dataset_dir}/manifest.json: kind={m.kind!r}, not a fluidized-bed dataset: pass the "
                         "dataset the checkpoint was trained on (dataset=)")
-    scene = FluidizedBedScene.from_config(m.scene["fluidized_bed"], f"{dataset_dir}/manifest.json scene.fluidized_bed")
+    scene = BedScene.from_config(m.scene["fluidized_bed"], f"{dataset_dir}/manifest.json scene.fluidized_bed")
     rec = pick_record(m, meta["split"], sim_id)
     if not rec.usable:
         raise DataError(f"simulation {rec.sim_id} of {dataset_dir} is not finished (status {rec.status}): pick "
                         "another with sim=")
-    return FbCase(dataset_dir, m, scene, rec)
+    return BedCase(dataset_dir, m, scene, rec)
 
 
-def check_sim_seconds(scene: FluidizedBedScene, sim_seconds: float) -> float:
+def check_sim_seconds(scene: BedScene, sim_seconds: float) -> float:
     """Stored seconds of the timed run: a positive multiple of the scene's snapshot interval."""
     checks.positive("sim_seconds", sim_seconds)
     steps = sim_seconds / scene.snapshot_interval
@@ -116,7 +116,7 @@ def check_sim_seconds(scene: FluidizedBedScene, sim_seconds: float) -> float:
 
 # ---- the solver
 
-def solver_measured(case: FbCase, sim_seconds: float, repeats: int, workdir: Path,
+def solver_measured(case: BedCase, sim_seconds: float, repeats: int, workdir: Path,
                     keep: bool = False) -> Timing:
     """Fresh DPMFoam runs of the case (spin-up + `sim_seconds`), each in a new folder: wall and CPU time of
     the DPMFoam process per simulated second (spin-up included). Meshing (once per case) and reading the
@@ -169,7 +169,7 @@ def solver_recorded(m: Manifest, dataset_dir: Path) -> Timing:
 
 # ---- the surrogate
 
-def surrogate_timing(module: FluidizedBedModule, velocity: float, state: FbState, steps: int, repeats: int,
+def surrogate_timing(module: BedModule, velocity: float, state: BedState, steps: int, repeats: int,
                      threads: int, seed: int = 0, limits: DivergenceLimits | None = None,
                      clock: Clock = SYSTEM_CLOCK, options: RolloutOptions | None = None) -> Timing:
     """Median over `repeats` (after one untimed warm-up) of a `steps`-step rollout from `state` on `threads`
@@ -249,10 +249,10 @@ class Plan:
     """Everything fb_speed measures, checked and loaded (nothing timed yet)."""
 
     ckpt: Path
-    module: FluidizedBedModule
+    module: BedModule
     load_s: float  # wall seconds to load the checkpoint (once per session: reported, not in the ratios)
-    case: FbCase
-    state: FbState
+    case: BedCase
+    state: BedState
     steps: int
     threads: list[int]
     repeats: int
@@ -286,7 +286,7 @@ def prepare(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: i
     load_s = time.perf_counter() - t0
     case = bench_case(module, Path(ckpt), dataset_dir, sim_id)
     sim_seconds = check_sim_seconds(case.scene, sim_seconds)
-    with FbFile(case.file) as f:
+    with BedFile(case.file) as f:
         check_grid(module.norm, f)
         state = initial_state(f)
     try:

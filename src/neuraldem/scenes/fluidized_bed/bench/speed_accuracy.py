@@ -57,9 +57,9 @@ from neuraldem.scenes.fluidized_bed.analysis.evaluation import FieldSeries, comp
 from neuraldem.scenes.fluidized_bed.bench.speed import surrogate_timing
 from neuraldem.scenes.fluidized_bed.dataset.datagen import packing_seed
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile, write_fb_file
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile, write_fb_file
 from neuraldem.scenes.fluidized_bed.solver.runner import STATUS_OK, run_fluidized_bed
-from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
+from neuraldem.scenes.fluidized_bed.solver.scene import BedScene
 from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import initial_state
 from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import load_fb_checkpoint
@@ -119,7 +119,7 @@ def reference(dataset_dir: Path, split: str) -> Reference:
 
 
 def truth_series(ref: Reference, rec: SimRecord) -> FieldSeries:
-    with FbFile(ref.path(rec)) as f:
+    with BedFile(ref.path(rec)) as f:
         return FieldSeries.from_dataset_file(f)
 
 
@@ -135,7 +135,7 @@ def surrogate_point(result: dict[str, Any], ref: Reference, steps: int, repeats:
                         "dataset (neuraldem evaluate ckpt=...)")
     module = load_fb_checkpoint(Path(result["checkpoint"]))
     first = ref.records[0]
-    with FbFile(ref.path(first)) as f:
+    with BedFile(ref.path(first)) as f:
         state = initial_state(f)
     timing = surrogate_timing(module, float(first.params["inlet_velocity"]), state, steps, repeats, threads).as_dict()
     net = module.hparams["net"]
@@ -207,7 +207,7 @@ class SolverVariant:
                               f"{sorted(VARIANT_KINDS)} and FACTOR > 0 (e.g. dt:2 or substeps:0.5)")
         return cls(kind, factor)
 
-    def apply(self, scene: FluidizedBedScene) -> FluidizedBedScene:
+    def apply(self, scene: BedScene) -> BedScene:
         if self.kind == "dt":
             dt = scene.dt * self.factor
             ratio = scene.snapshot_interval / dt
@@ -223,7 +223,7 @@ def solver_variant_point(variant: SolverVariant, ref: Reference, n_velocities: i
     """DPMFoam at the variant's settings for the first `n_velocities` reference trajectories (same velocity,
     same packing seed, same stored duration), scored against them; failed runs are listed, not scored."""
     m, settings = ref.manifest, metric_settings(ref.manifest)
-    base = FluidizedBedScene.from_config(m.scene["fluidized_bed"], f"{ref.dataset_dir}/manifest.json scene")
+    base = BedScene.from_config(m.scene["fluidized_bed"], f"{ref.dataset_dir}/manifest.json scene")
     scene = variant.apply(base)
     fields = m.scene.get("fields", {})
     rows, costs, failures = [], [], []
@@ -242,7 +242,7 @@ def solver_variant_point(variant: SolverVariant, ref: Reference, n_velocities: i
         write_fb_file(path, rec.sim_id, result.trajectory, dict(rec.params), m.solver.get("version", ""),
                       fields.get("kernel_sigma", 0.002), fields.get("mixing_sigma", 0.001),
                       fields.get("prior_solid_fraction", 1e-3))
-        with FbFile(path) as f:
+        with BedFile(path) as f:
             pred = FieldSeries.from_dataset_file(f)
         rows.append({"sim_id": rec.sim_id, **trajectory_errors(compare(pred, truth_series(ref, rec), settings))})
         if not keep:

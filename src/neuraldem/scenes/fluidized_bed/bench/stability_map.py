@@ -44,9 +44,9 @@ from neuraldem.eval.checkpoints import checkpoint_dataset
 from neuraldem.paths import data_dir
 from neuraldem.scenes.fluidized_bed.analysis.metrics import bed_height, total_solid_volume
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.scenes.fluidized_bed.surrogate import rollout as bed_rollout
-from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
+from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule
 from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions, add_arguments
 from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import check_grid, initial_file, load_fb_checkpoint
 
@@ -62,7 +62,7 @@ DEFAULT_BED_LIMIT_PCT = 10.0
 DEFAULT_SETTLE_FRACTION = 3  # default settle_steps=: a third of the training horizon (1 s of fb_small's 3 s)
 
 # (module, inlet velocity, open file of the initial state) -> stepper; tests inject faulty steppers here
-MakeStepper = Callable[[FluidizedBedModule, float, FbFile], bed_rollout.Stepper]
+MakeStepper = Callable[[BedModule, float, BedFile], bed_rollout.Stepper]
 
 
 def velocity_grid(lo: float, hi: float, n: int, span: tuple[float, float] = DEFAULT_SPAN,
@@ -131,7 +131,7 @@ def mean_bed_height(solid_fraction: np.ndarray, z_edges: np.ndarray, quantile: f
     return float(np.nanmean(h)) if np.isfinite(h).any() else None
 
 
-def bed_reference(module: FluidizedBedModule, ckpt: Path, dataset_dir: Path | None,
+def bed_reference(module: BedModule, ckpt: Path, dataset_dir: Path | None,
                   settle_steps: int, init_snapshot: int = bed_rollout.DEFAULT_INIT_SNAPSHOT) -> BedReference:
     """The checkpoint's training trajectories (its recorded `split_ids`, else its split's training part): the
     mean bed height of each after `settle_steps` from the rollouts' initial snapshot."""
@@ -145,7 +145,7 @@ def bed_reference(module: FluidizedBedModule, ckpt: Path, dataset_dir: Path | No
         rec = m.record(sim_id)
         if not rec.usable:
             continue
-        with FbFile(ds / str(rec.file)) as f:
+        with BedFile(ds / str(rec.file)) as f:
             h = mean_bed_height(f.solid_fraction()[init_snapshot + settle_steps:], f.grid.edges(2), quantile)
         if h is not None:
             by_velocity.setdefault(round(float(rec.params["inlet_velocity"]), 6), []).append(h)
@@ -227,7 +227,7 @@ def run(ckpts: list[Path], labels: list[str] | None = None, velocities: list[flo
         reference = bed_reference(module, Path(ckpt), dataset_dir, settle_steps)
         for v in grid:
             path, source = initial_file(module.metadata, Path(ckpt), v, data_dir() / "datasets", dataset_dir)
-            with FbFile(path) as f:
+            with BedFile(path) as f:
                 check_grid(norm, f)
                 start = bed_rollout.initial_state(f)
                 r = bed_rollout.rollout(make_stepper(module, v, f), start, steps, limits, progress=False)

@@ -36,10 +36,10 @@ from neuraldem.datagen.driver import DataConfigPipeline
 from neuraldem.datagen.sampling import latin_hypercube
 from neuraldem.errors import ConfigError
 from neuraldem.scenes.fluidized_bed.analysis.metrics import bed_height_particles, fb_summary, lacey_from_particles
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile, write_fb_file
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile, write_fb_file
 from neuraldem.scenes.fluidized_bed.parameters import PARAMETERS
 from neuraldem.scenes.fluidized_bed.solver.runner import STATUS_FAILED, STATUS_OK, remove_time_dirs, run_fluidized_bed
-from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
+from neuraldem.scenes.fluidized_bed.solver.scene import BedScene
 from neuraldem.sim import openfoam
 
 FAILED_MARKER = "FAILED"
@@ -62,14 +62,14 @@ class FieldSettings:
 
 
 @dataclass
-class FbMetricSettings:
+class BedMetricSettings:
     lacey_block: tuple[int, int, int] = (2, 1, 2)  # sample cell = this many grid cells per axis
     lacey_min_count: float = 5.0  # sample cells with fewer particles are skipped
     bed_quantile: float = 0.95
     bubble_threshold: float = 0.15  # solid fraction below which a bed cell is a void
 
     @classmethod
-    def from_config(cls, cfg: Any, key: str) -> FbMetricSettings:
+    def from_config(cls, cfg: Any, key: str) -> BedMetricSettings:
         s = _settings(cls, cfg, key)
         block = list(s.lacey_block)
         if len(block) != 3:
@@ -102,10 +102,10 @@ def coarse_to_fine_rank(i: int, n: int) -> int:
     return order.index(i)
 
 
-def file_metrics(path: Path, settings: FbMetricSettings) -> dict[str, float]:
+def file_metrics(path: Path, settings: BedMetricSettings) -> dict[str, float]:
     """Ground-truth metrics of a stored trajectory: the field metrics (as for predictions) plus
     particle-based references (Lacey from the particles, bed height from particle heights)."""
-    with FbFile(path) as f:
+    with BedFile(path) as f:
         alpha, mix, u = f.solid_fraction(), f.mixing(), f.fluid_velocity()
         pos = f.positions()
         vp = float(np.mean(f.particle_volumes))
@@ -124,13 +124,13 @@ def file_metrics(path: Path, settings: FbMetricSettings) -> dict[str, float]:
 
 
 @dataclass
-class FluidizedBedPipeline(DataConfigPipeline):
+class BedPipeline(DataConfigPipeline):
     kind: str = "fluidized_bed"
 
     def __post_init__(self) -> None:
         super().__post_init__()
         c = self.cfg
-        self.scene = FluidizedBedScene.from_config(c.scene, "data.scene")
+        self.scene = BedScene.from_config(c.scene, "data.scene")
         p = c.parameters
         self.seed = checks.positive_int("data.parameters.seed", p.seed, allow_zero=True)
         lo, hi = checks.interval("data.parameters.inlet_velocity", list(p.inlet_velocity))
@@ -156,7 +156,7 @@ class FluidizedBedPipeline(DataConfigPipeline):
                               "velocities needs long trajectories (set data.parameters.long.inlet_velocities, "
                               "or n_velocities >= 1)")
         self.fields = FieldSettings.from_config(c.get("fields"), "data.fields")
-        self.metrics = FbMetricSettings.from_config(c.get("metrics"), "data.metrics")
+        self.metrics = BedMetricSettings.from_config(c.get("metrics"), "data.metrics")
         half, bx = self.scene.cells[0] / 2, self.metrics.lacey_block[0]
         if half != int(half) or int(half) % bx:
             raise ConfigError(f"config value data.metrics.lacey_block[0]={bx} is invalid: Lacey sample cells must "

@@ -44,8 +44,8 @@ from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import TMP_SUFFIX, sha256
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.checkpoints import check_import_joins
-from neuraldem.scenes.fluidized_bed.dataset.datagen import FbMetricSettings, FieldSettings, file_metrics
-from neuraldem.scenes.fluidized_bed.dataset.store import KIND, FbFile, write_fb_file
+from neuraldem.scenes.fluidized_bed.dataset.datagen import BedMetricSettings, FieldSettings, file_metrics
+from neuraldem.scenes.fluidized_bed.dataset.store import KIND, BedFile, write_fb_file
 from neuraldem.scenes.fluidized_bed.solver.case import STAMP as CASE_RECORD
 from neuraldem.scenes.fluidized_bed.solver.reader import read_trajectory
 from neuraldem.sim import openfoam
@@ -77,7 +77,7 @@ def imported_scene(path: Path, grid: BoxGrid, dt_ml: float, kernel_sigma: float,
     """The bed's scene as read from the case, under the keys a generated bed scene uses, so that a checkpoint's
     scene can be compared with it (`eval.checkpoints.check_scene`): box, grid, mean particle diameter and
     density, snapshot interval and the kernels of the stored fields."""
-    with FbFile(path) as f:
+    with BedFile(path) as f:
         diameter, density = float(np.mean(f.diameters)), float(f.density)
     size = np.asarray(grid.hi) - np.asarray(grid.lo)
     return {"imported": True,
@@ -158,7 +158,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help=f"[m] (default: the scene's, else {FieldSettings.mixing_sigma})")
     p.add_argument("--lacey-block", type=int, nargs=3, default=None,
                    help="Lacey sample cell in grid cells (default: the scene's, else "
-                        f"{list(FbMetricSettings.lacey_block)})")
+                        f"{list(BedMetricSettings.lacey_block)})")
     p.add_argument("--param", action="append", default=[], help="NAME=VALUE recorded with the trajectory")
     return p.parse_args(argv)
 
@@ -213,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
     for key, default in (("inlet_velocity", None), ("t0", None), ("dt_ml", None), ("snapshots", None),
                          ("density", None), ("kernel_sigma", FieldSettings.kernel_sigma),
                          ("mixing_sigma", FieldSettings.mixing_sigma),
-                         ("lacey_block", list(FbMetricSettings.lacey_block))):
+                         ("lacey_block", list(BedMetricSettings.lacey_block))):
         if getattr(a, key) is None:  # the option, then the stated scene, then the case itself, then the default
             setattr(a, key, stated.get(key, ours.get(key, default)))
     if a.inlet_velocity is None:
@@ -250,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     density = a.density if a.density is not None else particle_density(a.case, a.cloud)
     traj = read_trajectory(case, grid, t0, dt_ml, a.snapshots, density=density, cloud_reader=reader)
     params = {"inlet_velocity": float(a.inlet_velocity), **parse_assignments(a.param, "param", "packing=0")}
-    metrics = FbMetricSettings(**{k: stated[k] for k in ("lacey_min_count", "bed_quantile", "bubble_threshold")
+    metrics = BedMetricSettings(**{k: stated[k] for k in ("lacey_min_count", "bed_quantile", "bubble_threshold")
                                   if k in stated}, lacey_block=tuple(a.lacey_block))  # type: ignore[arg-type]
     # the only writer; nothing changes until the checks pass
     with dataset_lock(a.dataset, command_line("neuraldem.scenes.fluidized_bed.dataset.importer")):

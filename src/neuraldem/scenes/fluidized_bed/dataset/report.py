@@ -28,7 +28,7 @@ from neuraldem.machine import machine_info
 from neuraldem.paths import data_dir
 from neuraldem.scenes.fluidized_bed.analysis import metrics as fm
 from neuraldem.scenes.fluidized_bed.analysis import plots as fb_plots
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 
 DEFAULT_METRICS = {"lacey_block": [2, 1, 2], "lacey_min_count": 5.0, "bed_quantile": 0.95, "bubble_threshold": 0.15}
 
@@ -49,7 +49,7 @@ def metric_settings(m: Manifest) -> dict[str, Any]:
 def trajectory_series(path: Path, settings: dict[str, Any]) -> dict[str, Any]:
     """Every metric over time for one stored trajectory, plus its per-cell time statistics."""
     block, min_count = tuple(settings["lacey_block"]), float(settings["lacey_min_count"])
-    with FbFile(path) as f:
+    with BedFile(path) as f:
         alpha, mix, u, pos = f.solid_fraction(), f.mixing(), f.fluid_velocity(), f.positions()
         z = f.grid.edges(2)
         vp = f.particle_volumes

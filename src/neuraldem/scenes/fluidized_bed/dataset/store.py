@@ -52,7 +52,7 @@ from neuraldem.scenes.fluidized_bed.dataset.fields import (
     solids_flux,
     trajectory_fields,
 )
-from neuraldem.scenes.fluidized_bed.solver.reader import FbTrajectory
+from neuraldem.scenes.fluidized_bed.solver.reader import BedTrajectory
 from neuraldem.sim.foam_reader import BoxGrid
 
 KIND = "fluidized_bed"
@@ -60,7 +60,7 @@ GRID_FIELDS = ("fluid_velocity", "solid_fraction", "mixing", "solver_fluid_fract
 SOLID_VOLUME_RTOL = 1e-4  # kernel field vs particle volume, float32 storage
 
 
-def write_fb_file(path: Path, sim_id: str, traj: FbTrajectory, params: dict[str, float], solver_version: str,
+def write_fb_file(path: Path, sim_id: str, traj: BedTrajectory, params: dict[str, float], solver_version: str,
                   kernel_sigma: float, mixing_sigma: float | None = None, prior: float = DEFAULT_PRIOR,
                   solver: str = "OpenFOAM DPMFoam") -> None:
     """Store a trajectory with its kernel fields (computed here from the float32 positions)."""
@@ -110,7 +110,7 @@ def write_fb_file(path: Path, sim_id: str, traj: FbTrajectory, params: dict[str,
     atomic_write_h5(path, fill)
 
 
-class FbFile(ValidatedH5File):
+class BedFile(ValidatedH5File):
     """Validating reader of one trajectory. Use as a context manager or call `close()`.
 
     Per-snapshot access (`positions(t)`, `solid_fraction(t)`, ..., `pair(t)` for a next-step sample) reads

@@ -12,14 +12,14 @@ import numpy as np
 
 from neuraldem.scenes.fluidized_bed.solver.attempts import record_killed_attempts
 from neuraldem.scenes.fluidized_bed.solver.reader import latest_complete_time
-from neuraldem.scenes.fluidized_bed.solver.scene import GRAVITY, FluidizedBedScene, random_packing
+from neuraldem.scenes.fluidized_bed.solver.scene import GRAVITY, BedScene, random_packing
 from neuraldem.sim.foam_reader import FoamCase
 from neuraldem.sim.openfoam import write_foam_file
 
 STAMP = "neuraldem_case.json"
 
 
-def write_case(scene: FluidizedBedScene, case: Path, inlet_velocity: float, positions: np.ndarray,
+def write_case(scene: BedScene, case: Path, inlet_velocity: float, positions: np.ndarray,
                end_time: float) -> None:
     """All files of a DPMFoam case in `case` (created)."""
     W, T, H = scene.width, scene.thickness, scene.height
@@ -85,7 +85,7 @@ boundaryField
     _write_system(scene, case, end_time)
 
 
-def _write_cloud_properties(scene: FluidizedBedScene, case: Path) -> None:
+def _write_cloud_properties(scene: BedScene, case: Path) -> None:
     rebound = "".join(f"        {p} {{ type rebound; e {scene.patch_restitution!r}; mu {scene.friction!r}; }}\n"
                       for p in ("bottom", "top", "walls", "frontAndBack"))
     contact = (f"alpha {scene.damping!r}; b 1.5; mu {scene.friction!r}; cohesionEnergyDensity 0; "
@@ -165,7 +165,7 @@ cloudFunctions {{}}
 """, location="constant")
 
 
-def _write_system(scene: FluidizedBedScene, case: Path, end_time: float) -> None:
+def _write_system(scene: BedScene, case: Path, end_time: float) -> None:
     # Air volume flow through bottom and top in every step: sum over the patch faces of
     # alpha.air * phi.air (fluid fraction times the interstitial flux, both after the pressure correction).
     # The solver's own alphaPhi.air field is not used: it is set before the pressure correction.
@@ -238,12 +238,12 @@ relaxationFactors {}
 """, location="system")
 
 
-def case_stamp(scene: FluidizedBedScene, inlet_velocity: float, duration: float, seed: int) -> dict[str, Any]:
+def case_stamp(scene: BedScene, inlet_velocity: float, duration: float, seed: int) -> dict[str, Any]:
     return {"scene": scene.as_dict(), "inlet_velocity": float(inlet_velocity), "duration": float(duration),
             "seed": int(seed)}
 
 
-def prepare_case(scene: FluidizedBedScene, workdir: Path, inlet_velocity: float, duration: float,
+def prepare_case(scene: BedScene, workdir: Path, inlet_velocity: float, duration: float,
                  seed: int) -> tuple[bool, str | None]:
     """Write a fresh case, or keep a started one with the same settings. Returns (resumed, restart time)."""
     stamp = case_stamp(scene, inlet_velocity, duration, seed)

@@ -1,4 +1,4 @@
-"""A fluidized-bed run read back from its DPMFoam case: the stored snapshots as dense arrays (`FbTrajectory`),
+"""A fluidized-bed run read back from its DPMFoam case: the stored snapshots as dense arrays (`BedTrajectory`),
 the flux monitors, and the latest complete time directory a killed run resumes from."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from neuraldem.sim.foam_reader import BoxGrid, CloudSnapshot, FoamCase, cells_to
 
 
 @dataclass
-class FbTrajectory:
+class BedTrajectory:
     """Stored snapshots of one run; t = 0 is the end of the spin-up (solver time `t0`)."""
 
     times: np.ndarray  # (T,) [s]
@@ -67,7 +67,7 @@ def read_flux_monitor(case: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 def read_trajectory(case: FoamCase, grid: BoxGrid, t0: float, snapshot_interval: float,
                     n_snapshots: int | None = None, density: float = float("nan"),
-                    cloud_reader: Callable[[str], CloudSnapshot] | None = None) -> FbTrajectory:
+                    cloud_reader: Callable[[str], CloudSnapshot] | None = None) -> BedTrajectory:
     """Snapshots from solver time `t0` on (every `snapshot_interval`; time directories in between are
     skipped) into dense arrays. The particles present at t0 define the particle set; particles missing
     later are lost (NaN from then on, `lost_time` set), particles that appear later are an error; an
@@ -124,7 +124,7 @@ def read_trajectory(case: FoamCase, grid: BoxGrid, t0: float, snapshot_interval:
     ft_in, f_in = read_flux_monitor(case.path, "flux_bottom")
     ft_out, f_out = read_flux_monitor(case.path, "flux_top")
     solver_times = np.array([t0 + t for t in times])
-    return FbTrajectory(
+    return BedTrajectory(
         times=np.asarray(times), t0=t0, orig_proc=first.orig_proc, orig_id=first.orig_id,
         diameters=first.diameters, density=density, positions=pos, velocities=vel, lost_time=lost, grid=grid,
         fluid_velocity=U, fluid_fraction=alpha, pressure=p,

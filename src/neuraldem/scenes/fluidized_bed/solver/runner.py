@@ -1,7 +1,7 @@
 """Running one fluidized-bed trajectory in DPMFoam (`run_fluidized_bed`).
 
 A run writes the case, runs blockMesh, writeCellCentres and DPMFoam serially, and reads every time directory
-from the spin-up on into an `FbTrajectory`. It never raises for solver trouble: a crash, a time-out, NaNs, a
+from the spin-up on into an `BedTrajectory`. It never raises for solver trouble: a crash, a time-out, NaNs, a
 fluid speed beyond `max_fluid_speed` (divergence) or more lost particles than `max_lost_particles` give
 status `failed` with the reason. Killed mid-run and started again, it resumes DPMFoam from the latest
 complete time directory (incomplete ones are deleted first) and adds up the CPU time of all attempts.
@@ -21,8 +21,8 @@ import numpy as np
 from neuraldem.errors import DataError, SolverError
 from neuraldem.scenes.fluidized_bed.solver.attempts import record_attempt, run_cost
 from neuraldem.scenes.fluidized_bed.solver.case import prepare_case
-from neuraldem.scenes.fluidized_bed.solver.reader import FbTrajectory, read_trajectory
-from neuraldem.scenes.fluidized_bed.solver.scene import FluidizedBedScene
+from neuraldem.scenes.fluidized_bed.solver.reader import BedTrajectory, read_trajectory
+from neuraldem.scenes.fluidized_bed.solver.scene import BedScene
 from neuraldem.sim import openfoam
 from neuraldem.sim.foam_reader import FoamCase, time_dirs
 from neuraldem.sim.openfoam import run_app
@@ -31,10 +31,10 @@ STATUS_OK, STATUS_FAILED = "ok", "failed"
 
 
 @dataclass
-class FbRunResult:
+class BedRunResult:
     status: str
     reason: str
-    trajectory: FbTrajectory | None
+    trajectory: BedTrajectory | None
     cost: dict[str, float] = field(default_factory=dict)
     diagnostics: dict[str, Any] = field(default_factory=dict)
 
@@ -55,8 +55,8 @@ _SUBCYCLES = re.compile(r"^\s*(\d+)\s+move-collide subCycles", re.MULTILINE)
 _STEP = re.compile(r"^Time = ", re.MULTILINE)
 
 
-def run_fluidized_bed(scene: FluidizedBedScene, inlet_velocity: float, duration: float, workdir: Path,
-                      seed: int) -> FbRunResult:
+def run_fluidized_bed(scene: BedScene, inlet_velocity: float, duration: float, workdir: Path,
+                      seed: int) -> BedRunResult:
     """Run (or resume) one trajectory of `duration` stored seconds after the spin-up; never raises for
     solver trouble (status failed + reason), only for a missing OpenFOAM or bad settings."""
     openfoam.find_apps()
@@ -67,7 +67,7 @@ def run_fluidized_bed(scene: FluidizedBedScene, inlet_velocity: float, duration:
     try:
         _mesh(workdir, timeout)
     except SolverError as err:
-        return FbRunResult(STATUS_FAILED, str(err), None, run_cost(workdir, sim_time))
+        return BedRunResult(STATUS_FAILED, str(err), None, run_cost(workdir, sim_time))
     load0 = os.getloadavg()[0]
     n_logs = len(list(workdir.glob("log.DPMFoam*")))
     run = run_app("DPMFoam", workdir, timeout_s=timeout,
@@ -84,7 +84,7 @@ def run_fluidized_bed(scene: FluidizedBedScene, inlet_velocity: float, duration:
         # particle-steps of the whole run at this attempt's mean substep count (the hopper's cost unit)
         cost["particle_steps"] = scene.n_particles * round(sim_time / scene.dt) * substeps
     if run.error:
-        return FbRunResult(STATUS_FAILED, f"DPMFoam: {run.error}", None, cost, diagnostics)
+        return BedRunResult(STATUS_FAILED, f"DPMFoam: {run.error}", None, cost, diagnostics)
     result = finish(scene, FoamCase(workdir), duration, cost, diagnostics)
     if result.status == STATUS_OK:
         compress_logs(workdir)
@@ -103,8 +103,8 @@ def compress_logs(workdir: Path) -> None:
         log.unlink()
 
 
-def finish(scene: FluidizedBedScene, case: FoamCase, duration: float, cost: dict[str, float],
-           diagnostics: dict[str, Any]) -> FbRunResult:
+def finish(scene: BedScene, case: FoamCase, duration: float, cost: dict[str, float],
+           diagnostics: dict[str, Any]) -> BedRunResult:
     """Read the finished case and classify it: ok, or failed (incomplete, diverged, particles lost)."""
     n_snap = round(duration / scene.snapshot_interval) + 1
     try:
@@ -114,12 +114,12 @@ def finish(scene: FluidizedBedScene, case: FoamCase, duration: float, cost: dict
         reason = str(err)
         if "NaN" in reason:
             reason = f"diverged: {reason}"
-        return FbRunResult(STATUS_FAILED, reason, None, cost, diagnostics)
+        return BedRunResult(STATUS_FAILED, reason, None, cost, diagnostics)
     if len(traj.times) < n_snap:
-        return FbRunResult(STATUS_FAILED, f"{case.path}: only {len(traj.times)} of {n_snap} snapshots written",
+        return BedRunResult(STATUS_FAILED, f"{case.path}: only {len(traj.times)} of {n_snap} snapshots written",
                            None, cost, diagnostics)
     if traj.grid_mapping != "exact":
-        return FbRunResult(STATUS_FAILED, f"{case.path}: mesh cell centres do not match the scene grid", None,
+        return BedRunResult(STATUS_FAILED, f"{case.path}: mesh cell centres do not match the scene grid", None,
                            cost, diagnostics)
     n_lost = int(np.isfinite(traj.lost_time).sum())
     escaped = case.escaped_parcels(case.times()[-1][1])
@@ -135,13 +135,13 @@ def finish(scene: FluidizedBedScene, case: FoamCase, duration: float, cost: dict
         diagnostics["n_lost_in_spinup"] = lost_in_spinup
         n_lost += lost_in_spinup
     if speed > scene.max_fluid_speed:
-        return FbRunResult(STATUS_FAILED, f"diverged: fluid speed {speed:.3g} m/s > max_fluid_speed "
+        return BedRunResult(STATUS_FAILED, f"diverged: fluid speed {speed:.3g} m/s > max_fluid_speed "
                            f"{scene.max_fluid_speed} m/s", traj, cost, diagnostics)
     if n_lost > scene.max_lost_particles:
         first = float(np.nanmin(traj.lost_time)) if np.isfinite(traj.lost_time).any() else -scene.spinup_time
-        return FbRunResult(STATUS_FAILED, f"{n_lost} particle(s) left the domain (first at t = {first:g} s; "
+        return BedRunResult(STATUS_FAILED, f"{n_lost} particle(s) left the domain (first at t = {first:g} s; "
                            f"max_lost_particles = {scene.max_lost_particles})", traj, cost, diagnostics)
-    return FbRunResult(STATUS_OK, "", traj, cost, diagnostics)
+    return BedRunResult(STATUS_OK, "", traj, cost, diagnostics)
 
 
 def remove_time_dirs(case: Path) -> None:

@@ -28,7 +28,7 @@ GRAVITY = 9.81
 
 
 @dataclass(frozen=True)
-class FluidizedBedScene:
+class BedScene:
     """Everything about a fluidized-bed run except the inlet velocity and the packing seed."""
 
     width: float = 0.048  # x [m]
@@ -60,7 +60,7 @@ class FluidizedBedScene:
     timeout_per_simulated_s: float = 3600.0  # wall-clock limit per simulated second
 
     @classmethod
-    def from_config(cls, cfg: Any, key: str) -> FluidizedBedScene:
+    def from_config(cls, cfg: Any, key: str) -> BedScene:
         values = dict(cfg)
         checks.known_keys(key, values, cls.__dataclass_fields__)
         if "cells" in values:
@@ -135,7 +135,7 @@ class FluidizedBedScene:
         return out
 
 
-def random_packing(scene: FluidizedBedScene, rng: np.random.Generator, gap: float = 0.02,
+def random_packing(scene: BedScene, rng: np.random.Generator, gap: float = 0.02,
                    max_tries: int = 500) -> np.ndarray:
     """(N, 3) non-overlapping sphere centres, placed one by one uniformly at random (random sequential
     addition) in a bottom slab of the box sized for `initial_packing_fraction`; where the slab is full

@@ -5,7 +5,7 @@ the grid fields come from the decoded fluid and mixing branches; particles are n
 positions are sampled anew from the predicted solid fraction (density proportional to it, uniform inside a
 cell), and their input displacement is the particle branch decoded at those positions. A residual model
 (`model.residual=true`) predicts the grid fields' change over the step, scaled per channel by the training
-data's typical one-step change (`FbNormalizer.step_scale`); the next state is the input plus that change.
+data's typical one-step change (`BedNormalizer.step_scale`); the next state is the input plus that change.
 
 The stability options (`neuraldem.scenes.fluidized_bed.surrogate.options`) act inside this step, so training and
 rollouts see
@@ -24,14 +24,14 @@ import torch
 from neuraldem.models.modules.conservative_advection import advect_tagged, face_fluxes, net_outflow
 from neuraldem.models.modules.patch_embedding import cell_centres
 from neuraldem.models.multi_branch_operator import MultiBranchOperator, OperatorInputs
-from neuraldem.scenes.fluidized_bed.surrogate.normalization import FbNormalizer
-from neuraldem.scenes.fluidized_bed.surrogate.options import FbStability
+from neuraldem.scenes.fluidized_bed.surrogate.normalization import BedNormalizer
+from neuraldem.scenes.fluidized_bed.surrogate.options import BedStability
 
 SOLID_FRACTION_CHANNEL = 3  # fluid branch channels: fluid velocity (3), solid fraction (1)[, solids flux (3)]
 FLUX_CHANNELS = slice(4, 7)
 
 
-def _stats(norm: FbNormalizer, name: str, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def _stats(norm: BedNormalizer, name: str, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return (torch.tensor(norm.mean[name], dtype=like.dtype, device=like.device),
             torch.tensor(norm.std[name], dtype=like.dtype, device=like.device))
 
@@ -67,7 +67,7 @@ def water_fill(alpha: torch.Tensor, volume: torch.Tensor, cap: float) -> torch.T
     return torch.where(found, filled, fallback).to(alpha.dtype)
 
 
-def project_volume(fluid: torch.Tensor, norm: FbNormalizer, volume: torch.Tensor) -> torch.Tensor:
+def project_volume(fluid: torch.Tensor, norm: BedNormalizer, volume: torch.Tensor) -> torch.Tensor:
     """fluid (B, cells, C) model units with its solid fraction projected onto the physical set: 0 <= alpha <=
     the densest value of the training data (`norm.solid_fraction_max`; 0.74 if unknown) and sum over the cells =
     `volume` (B,) (the input state's: the bed is closed). Clamped at 0, then `water_fill`. Differentiable, so
@@ -81,14 +81,14 @@ def project_volume(fluid: torch.Tensor, norm: FbNormalizer, volume: torch.Tensor
     return out
 
 
-def solid_volume(grid: torch.Tensor, norm: FbNormalizer) -> torch.Tensor:
+def solid_volume(grid: torch.Tensor, norm: BedNormalizer) -> torch.Tensor:
     """(B,) sum over the cells of the solid fraction of a fluid-branch input grid (B, C, nx, ny, nz)."""
     mean, std = _stats(norm, "solid_fraction", grid)
     return (grid[:, SOLID_FRACTION_CHANNEL] * std[0] + mean[0]).flatten(1).sum(1)
 
 
 @torch.no_grad()
-def advect_mixing(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormalizer,
+def advect_mixing(inputs: OperatorInputs, fluid: torch.Tensor, norm: BedNormalizer,
                   scheme: str = "fct", correction: float = 1.0, consistent: bool = False) -> torch.Tensor:
     """Next mixing grid (B, cells, 1), model units: the input concentration carried over one step by the
     predicted solids flux (channels 4-6 of `fluid` (B, cells, 7)), starting from the input solid fraction;
@@ -112,7 +112,7 @@ def advect_mixing(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormalize
     return ((new_conc - m_mean[0]) / m_std[0]).reshape(batch, -1, 1)
 
 
-def continuity_residual(inputs: OperatorInputs, fluid: torch.Tensor, norm: FbNormalizer) -> torch.Tensor:
+def continuity_residual(inputs: OperatorInputs, fluid: torch.Tensor, norm: BedNormalizer) -> torch.Tensor:
     """(B, cells) how far the step's solids flux (channels 4-6 of `fluid` (B, cells, 7), model units) is from
     carrying the input solid fraction to the step's next one (channel 3): alpha_in - alpha_next - the flux's net
     outflow over dt, on the face fluxes `advect_mixing` moves the tagged solid with, in units of the training
@@ -167,7 +167,7 @@ def grid_cells(grid: torch.Tensor) -> torch.Tensor:
     return grid.flatten(2).transpose(1, 2)
 
 
-def grid_step_scales(norm: FbNormalizer) -> dict[str, torch.Tensor]:
+def grid_step_scales(norm: BedNormalizer) -> dict[str, torch.Tensor]:
     """Per-channel scale of one step's change, model units, for the fluid (fluid velocity + solid fraction) and
     mixing branches: a residual model's output times this is the change of the field over one step."""
     fluid = np.concatenate([norm.step_scale("fluid_velocity"), norm.step_scale("solid_fraction")])
@@ -201,8 +201,8 @@ def decode_grid(net: MultiBranchOperator, tokens: dict[str, torch.Tensor], cond:
     return out
 
 
-def apply_stability(fields: dict[str, torch.Tensor], inputs: OperatorInputs, norm: FbNormalizer,
-                    stability: FbStability | None, volume: torch.Tensor | None) -> dict[str, torch.Tensor]:
+def apply_stability(fields: dict[str, torch.Tensor], inputs: OperatorInputs, norm: BedNormalizer,
+                    stability: BedStability | None, volume: torch.Tensor | None) -> dict[str, torch.Tensor]:
     """The decoded next state with the step's stability options applied (volume projection, mixing advection)."""
     if stability is None:
         return fields
@@ -216,7 +216,7 @@ def apply_stability(fields: dict[str, torch.Tensor], inputs: OperatorInputs, nor
 
 
 def next_inputs(net: MultiBranchOperator, tokens: dict[str, torch.Tensor], cond: torch.Tensor,
-                fields: dict[str, torch.Tensor], inputs: OperatorInputs, norm: FbNormalizer, n_particles: int,
+                fields: dict[str, torch.Tensor], inputs: OperatorInputs, norm: BedNormalizer, n_particles: int,
                 generator: torch.Generator | Sequence[torch.Generator] | None = None,
                 chunk_size: int | None = None) -> OperatorInputs:
     """The next state as the next input: the grids, particles re-sampled from the solid fraction with the
@@ -253,9 +253,9 @@ def perturb_inputs(x: OperatorInputs, std: dict[str, torch.Tensor | float],
                    grid=noisy("fluid", x.grid, 1), mixing_grid=noisy("mixing", x.mixing_grid, 1))
 
 
-def advance(net: MultiBranchOperator, inputs: OperatorInputs, norm: FbNormalizer, n_particles: int,
+def advance(net: MultiBranchOperator, inputs: OperatorInputs, norm: BedNormalizer, n_particles: int,
             generator: torch.Generator | None = None, chunk_size: int | None = None,
-            step_scales: dict[str, torch.Tensor] | None = None, stability: FbStability | None = None,
+            step_scales: dict[str, torch.Tensor] | None = None, stability: BedStability | None = None,
             volume: torch.Tensor | None = None, net_view: OperatorInputs | None = None) -> OperatorInputs:
     """The model's next state as the next input: decoded grids (with the stability options: `volume` (B,) is
     the solid volume to conserve, default the input's), particles re-sampled from the solid fraction.

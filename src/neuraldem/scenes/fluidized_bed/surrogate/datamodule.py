@@ -1,6 +1,6 @@
-"""FluidizedBedDataModule: next-step samples (state at t -> fields at t + k dt) streamed from the HDF5 files.
+"""BedDataModule: next-step samples (state at t -> fields at t + k dt) streamed from the HDF5 files.
 
-A sample, in model units (`FbNormalizer`, fitted on the training trajectories only):
+A sample, in model units (`BedNormalizer`, fitted on the training trajectories only):
 - inputs at t: particle positions and their last displacement (t-1 -> t; zero at t = 0) for the particle
   branch (supernode pooling), fluid velocity + solid fraction on the grid for the fluid branch (patches),
   mixing concentration on the grid for the off-branch, the inlet velocity as conditioning scalar;
@@ -42,9 +42,9 @@ from neuraldem.data.file_samples import FileSamples
 from neuraldem.data.manifest import Manifest, SimRecord, require_dataset
 from neuraldem.data.part_loaders import PartLoaders
 from neuraldem.errors import ConfigError, DataError
-from neuraldem.scenes.fluidized_bed.dataset.store import KIND, FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import KIND, BedFile
 from neuraldem.scenes.fluidized_bed.surrogate.mirror import mirror_grid, mirror_points, mirror_vectors
-from neuraldem.scenes.fluidized_bed.surrogate.normalization import FbNormalizer
+from neuraldem.scenes.fluidized_bed.surrogate.normalization import BedNormalizer
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +54,7 @@ MAX_PUSH_FORWARD = 64
 MAX_INPUT_NOISE = 1.0  # model units (one standard deviation of the data)
 
 
-def grid_input(norm: FbNormalizer, fluid_velocity: np.ndarray, solid_fraction: np.ndarray,
+def grid_input(norm: BedNormalizer, fluid_velocity: np.ndarray, solid_fraction: np.ndarray,
                solids_flux: np.ndarray | None = None) -> np.ndarray:
     """Fluid-branch input (4 or 7, nx, ny, nz): normalised fluid velocity (3 channels) + solid fraction
     (+ solids flux, 3 channels, when given)."""
@@ -64,15 +64,15 @@ def grid_input(norm: FbNormalizer, fluid_velocity: np.ndarray, solid_fraction: n
     return np.moveaxis(np.concatenate(parts, axis=-1), -1, 0)
 
 
-def mixing_input(norm: FbNormalizer, mixing: np.ndarray) -> np.ndarray:
+def mixing_input(norm: BedNormalizer, mixing: np.ndarray) -> np.ndarray:
     """Off-branch input (1, nx, ny, nz): normalised mixing concentration."""
     return np.moveaxis(norm.field("mixing", mixing), -1, 0)
 
 
-class FbSamples(FileSamples):
+class BedSamples(FileSamples):
     """All (trajectory, t) samples with t + steps inside the trajectory (every `time_stride`-th t)."""
 
-    def __init__(self, dataset_dir: Path, records: list[SimRecord], norm: FbNormalizer, steps: int,
+    def __init__(self, dataset_dir: Path, records: list[SimRecord], norm: BedNormalizer, steps: int,
                  particles_per_sample: int | None, input_noise: float, random: bool, seed: int = 0,
                  time_stride: int = 1, solids_flux: bool = False, mirror: bool = False):
         self.dir = Path(dataset_dir)
@@ -85,7 +85,7 @@ class FbSamples(FileSamples):
         self.noise = input_noise
         self.items = []
         for s, rec in enumerate(records):
-            with FbFile(self.dir / str(rec.file), validate=False) as f:
+            with BedFile(self.dir / str(rec.file), validate=False) as f:
                 n_snapshots = f.n_snapshots
             self.items += [(s, t) for t in range(0, n_snapshots - steps, time_stride)]
         super().__init__(random, seed)
@@ -93,8 +93,8 @@ class FbSamples(FileSamples):
     def __len__(self) -> int:
         return len(self.items)
 
-    def _open_file(self, s: int) -> FbFile:
-        return FbFile(self.dir / str(self.records[s].file), validate=False)  # validated in setup()
+    def _open_file(self, s: int) -> BedFile:
+        return BedFile(self.dir / str(self.records[s].file), validate=False)  # validated in setup()
 
     def _pick(self, rng: np.random.Generator, ok: np.ndarray, n: int) -> np.ndarray:
         """Indices of n particles of a sample: all present ones (n of them), or a random subset."""
@@ -103,7 +103,7 @@ class FbSamples(FileSamples):
             return present
         return np.sort(rng.choice(present, n, replace=len(present) < n))
 
-    def _grid(self, f: FbFile, t: int, flip: bool = False) -> np.ndarray:
+    def _grid(self, f: BedFile, t: int, flip: bool = False) -> np.ndarray:
         # the whole trajectory's flux, computed once per open file and kept (not one deposit per sample)
         flux = f.solids_flux()[t] if self.solids_flux else None
         velocity, alpha = f.fluid_velocity(t), f.solid_fraction(t)
@@ -112,7 +112,7 @@ class FbSamples(FileSamples):
             flux = None if flux is None else mirror_grid(flux, vector=True)
         return grid_input(self.norm, velocity, alpha, flux)
 
-    def _mixing(self, f: FbFile, t: int, flip: bool) -> np.ndarray:
+    def _mixing(self, f: BedFile, t: int, flip: bool) -> np.ndarray:
         c = f.mixing(t)
         return mixing_input(self.norm, mirror_grid(c, vector=False) if flip else c)
 
@@ -165,7 +165,7 @@ class FbSamples(FileSamples):
         }
 
 
-class FluidizedBedDataModule(PartLoaders):
+class BedDataModule(PartLoaders):
     """Train/val/test loaders over a fluidized-bed dataset dir, split by inlet velocity (manifest)."""
 
     def __init__(self, dataset_dir: str, name: str, conditioning: list[str] | None = None,
@@ -197,8 +197,8 @@ class FluidizedBedDataModule(PartLoaders):
         self.seed = checks.positive_int("data.datamodule.seed", seed, allow_zero=True)
         self.eval_time_stride = checks.positive_int("data.datamodule.eval_time_stride", eval_time_stride)
         self.manifest: Manifest | None = None
-        self.norm: FbNormalizer | None = None
-        self.datasets: dict[str, FbSamples] = {}
+        self.norm: BedNormalizer | None = None
+        self.datasets: dict[str, BedSamples] = {}
 
     @property
     def scene(self) -> dict[str, Any]:
@@ -232,17 +232,17 @@ class FluidizedBedDataModule(PartLoaders):
             return
         self.prepare_manifest()
         if self.norm is None:
-            self.norm = FbNormalizer.fit(self.paths("train"), self.solids_flux)  # validates every training file
+            self.norm = BedNormalizer.fit(self.paths("train"), self.solids_flux)  # validates every training file
         for part in ("val", "test"):
             for path in self.paths(part):
-                FbFile(path).close()  # validate once, up front
+                BedFile(path).close()  # validate once, up front
         if not self.records("val"):
             log.warning("dataset %s: split %r has no validation trajectories; training runs without "
                         "validation", self.dataset_dir, self.split)
         self._check_push_forward()
         for part in ("train", "val", "test"):
             train = part == "train"
-            self.datasets[part] = FbSamples(
+            self.datasets[part] = BedSamples(
                 self.dataset_dir, self.records(part), self.norm, self.push_forward_steps if train else 1,
                 self.particles_per_sample, self.input_noise if train else 0.0, random=train, seed=self.seed,
                 time_stride=1 if train else self.eval_time_stride, solids_flux=self.solids_flux,
@@ -251,7 +251,7 @@ class FluidizedBedDataModule(PartLoaders):
     def _check_push_forward(self) -> None:
         lengths = []
         for path in self.paths("train"):
-            with FbFile(path, validate=False) as f:
+            with BedFile(path, validate=False) as f:
                 lengths.append(f.n_snapshots - 1)
         shortest = min(lengths)
         if self.push_forward_steps > shortest:

@@ -1,4 +1,4 @@
-"""FluidizedBedModule: trains a MultiBranchOperator to step a CFD-DEM fluidized bed forward by one dt.
+"""BedModule: trains a MultiBranchOperator to step a CFD-DEM fluidized bed forward by one dt.
 
 Loss: the sum over branches (particles, fluid, mixing; weights in config) of the mean squared error in model
 units (paper sec. 4.3), or of the fair CRPS over `stability.ensemble` >= 2 members of a stochastic net. Each
@@ -44,26 +44,27 @@ from neuraldem.scenes.fluidized_bed.surrogate.autoregressive import (
     perturb_inputs,
     solid_volume,
 )
-from neuraldem.scenes.fluidized_bed.surrogate.datamodule import FluidizedBedDataModule
-from neuraldem.scenes.fluidized_bed.surrogate.normalization import FbNormalizer
-from neuraldem.scenes.fluidized_bed.surrogate.options import FbStability, training_stability
+from neuraldem.scenes.fluidized_bed.surrogate.datamodule import BedDataModule
+from neuraldem.scenes.fluidized_bed.surrogate.normalization import BedNormalizer
+from neuraldem.scenes.fluidized_bed.surrogate.options import BedStability, training_stability
 
+OLD_DATAMODULE_NAME = "FluidizedBedDataModule"  # Lightning keys a data module's state by its class name
 
-class FluidizedBedModule(SurrogateModule):
+class BedModule(SurrogateModule):
     # set from the dataset, not model.net: the grid's channel count (4, or 7 with the solids flux of experiment=fb);
     # a resumed run is not refused for them (`neuraldem.train.check_resume_checkpoint`)
     DATA_DERIVED_NET_KEYS = frozenset({"fluid_channels"})
 
-    def __init__(self, net: DictConfig | dict, datamodule: FluidizedBedDataModule | None = None,
+    def __init__(self, net: DictConfig | dict, datamodule: BedDataModule | None = None,
                  optimizer: DictConfig | dict | None = None, scheduler: DictConfig | dict | None = None,
                  loss_weights: DictConfig | dict | None = None, chunk_size: int | None = None,
                  metadata: dict[str, Any] | None = None, residual: bool = False,
                  stability: DictConfig | dict | None = None):
         super().__init__()
-        net_cfg, metadata = net_config_and_metadata("FluidizedBedModule", net, datamodule, metadata)
+        net_cfg, metadata = net_config_and_metadata("BedModule", net, datamodule, metadata)
         net_cfg.fluid_channels = int(metadata.get("grid_channels", net_cfg.get("fluid_channels", 4)))
         self.metadata = metadata
-        self.norm = FbNormalizer.from_dict(metadata["normalizer"])
+        self.norm = BedNormalizer.from_dict(metadata["normalizer"])
         net_schema = validate_net(net_cfg)  # checked once: the fit to the data below, then the build
         if not isinstance(net_schema, MultiBranchOperatorNet):
             raise ConfigError(f"config value model.net._target_={net_schema.target!r} is invalid: the fluidized "
@@ -76,7 +77,7 @@ class FluidizedBedModule(SurrogateModule):
         self.opt_cfg, self.sched_cfg, self.loss_weights = opt, sched, weights
         self.chunk_size = chunk_size
         self.push_forward_steps = int(metadata.get("push_forward_steps", 1))
-        self.stability = FbStability.from_config(plain(stability))
+        self.stability = BedStability.from_config(plain(stability))
         self.stability.check_fits(self.push_forward_steps, bool(metadata.get("solids_flux", False)),
                                   int(net_cfg.get("noise_dim", 0) or 0))
         self.residual = checks.boolean("model.residual", residual)
@@ -103,7 +104,10 @@ class FluidizedBedModule(SurrogateModule):
                               grid=batch["grid"], mixing_grid=batch["mixing_grid"], scalars=batch["scalars"])
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        """Checkpoints from before the running one-step error existed load with it at zero."""
+        """Checkpoints from before the running one-step error existed load with it at zero; the data module's
+        place in its epoch, stored under its class name, is found under the name it had before (0.6)."""
+        if OLD_DATAMODULE_NAME in checkpoint and "BedDataModule" not in checkpoint:
+            checkpoint["BedDataModule"] = checkpoint.pop(OLD_DATAMODULE_NAME)
         state = checkpoint.get("state_dict", {})
         for name, buf in self.named_buffers():
             if name.startswith("step_error_") and name not in state:
@@ -250,7 +254,7 @@ def repeat_members(x: OperatorInputs, members: int) -> OperatorInputs:
                    supernode_idx=None if x.supernode_idx is None else rep(x.supernode_idx))
 
 
-def check_fits_data(net: MultiBranchOperatorNet, norm: FbNormalizer, particles_per_sample: int | None) -> None:
+def check_fits_data(net: MultiBranchOperatorNet, norm: BedNormalizer, particles_per_sample: int | None) -> None:
     """The patches must tile the data's grid and the supernodes fit in a sample: say so before training."""
     patch = net.patch_size
     shape = tuple(norm.grid_shape)

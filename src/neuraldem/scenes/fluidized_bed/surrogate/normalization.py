@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from neuraldem.errors import DataError
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 
 FIELDS = ("displacement", "fluid_velocity", "solid_fraction", "mixing", "solids_flux")
 CHANNELS = {"displacement": 3, "fluid_velocity": 3, "solid_fraction": 1, "mixing": 1, "solids_flux": 3}
@@ -28,7 +28,7 @@ STEP_FIELDS = ("fluid_velocity", "solid_fraction", "mixing")
 
 
 @dataclass
-class FbNormalizer:
+class BedNormalizer:
     box_lo: list[float]  # grid box [m]
     box_hi: list[float]
     grid_shape: list[int]  # cells (nx, ny, nz)
@@ -49,7 +49,7 @@ class FbNormalizer:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> FbNormalizer:
+    def from_dict(cls, d: dict[str, Any]) -> BedNormalizer:
         return cls(**d)
 
     # ---- positions
@@ -101,7 +101,7 @@ class FbNormalizer:
 
     # ---- fitting
     @classmethod
-    def fit(cls, paths: Sequence[Path], solids_flux: bool = False) -> FbNormalizer:
+    def fit(cls, paths: Sequence[Path], solids_flux: bool = False) -> BedNormalizer:
         """Statistics of the given (training) trajectories, read one file at a time (`solids_flux`: also of the
         kernel solids flux, computed from the particles: a few seconds per 300-step file)."""
         if not paths:
@@ -110,7 +110,7 @@ class FbNormalizer:
         steps = {name: _Moments(CHANNELS[name]) for name in STEP_FIELDS}  # of the one-step changes
         grids, velocities, horizons, dts, counts, volumes, alpha_max = set(), [], [], [], [], [], 0.0
         for path in paths:
-            with FbFile(path) as f:  # validates the file
+            with BedFile(path) as f:  # validates the file
                 grids.add((f.grid.lo, f.grid.hi, f.grid.shape))
                 velocities.append(f.inlet_velocity)
                 horizons.append(f.n_snapshots - 1)

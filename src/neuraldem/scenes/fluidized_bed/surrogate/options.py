@@ -1,12 +1,12 @@
 """Stability options of the fluidized-bed surrogate, validated in one place.
 
-Two objects. `FbStability` is every option a model trains and rolls out with, what a checkpoint stores (its
+Two objects. `BedStability` is every option a model trains and rolls out with, what a checkpoint stores (its
 `hyper_parameters["stability"]`); the training-only ones are set as `model.stability.<name>`. `RolloutOptions` is
 the six that a rollout may change (conserve_volume, mixing, advection_correction, advection_flux, mirror_alternate,
 rollout_noise), each None = "as the checkpoint was trained": one Hydra group `rollout` (conf/rollout/) and one
 spelling on every command, `rollout.<name>=VALUE` (train, evaluate, `evaluate rollout`, `report fb-select`,
 `bench fb_stability`, `bench fb_speed`, `release`). Training reads them from `rollout.*` too (experiment=fb sets
-them there), merged into FbStability when the module is built (`training_stability`), so a checkpoint records them
+them there), merged into BedStability when the module is built (`training_stability`), so a checkpoint records them
 as before. The old spellings are read one more release by `option_aliases` alone.
 
 What each option is for (each measured as an ablation row: results/fluidized_bed/recipe.md, tables in
@@ -235,10 +235,10 @@ class RolloutOptions:
     def as_dict(self, names: Iterable[str] = OPTION_NAMES) -> dict[str, Any]:
         return {name: getattr(self, name) for name in names}
 
-    def apply(self, stability: FbStability) -> FbStability:
+    def apply(self, stability: BedStability) -> BedStability:
         """The options a rollout uses: the checkpoint's, with the given ones replaced (validated together)."""
         given = self.given()
-        return FbStability.from_config({**stability.to_dict(), **given}) if given else stability
+        return BedStability.from_config({**stability.to_dict(), **given}) if given else stability
 
     def tag(self) -> str:
         """A folder name for these options, from the given ones: `rollout_noise-3+mirror_alternate-true`
@@ -272,7 +272,7 @@ def training_stability(stability: Mapping[str, Any] | None, rollout: Mapping[str
 
 
 @dataclass(frozen=True)
-class FbStability:
+class BedStability:
     unroll: tuple[float, ...] = (1.0,)
     loss_on: str = "every"
     input_noise: float | str = 0.0
@@ -288,7 +288,7 @@ class FbStability:
     noise_ema: float = field(default=0.99, repr=False)
 
     @classmethod
-    def from_config(cls, cfg: Mapping[str, Any] | None) -> FbStability:
+    def from_config(cls, cfg: Mapping[str, Any] | None) -> BedStability:
         cfg = dict(cfg or {})
         known = [f.name for f in fields(cls)]
         unknown = sorted(set(cfg) - set(known))

@@ -37,13 +37,13 @@ from tqdm import tqdm
 from neuraldem.config import checks
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.models.multi_branch_operator import OperatorInputs
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.scenes.fluidized_bed.surrogate.autoregressive import advance, perturb_inputs
 from neuraldem.scenes.fluidized_bed.surrogate.datamodule import grid_input, mixing_input
 from neuraldem.scenes.fluidized_bed.surrogate.mirror import mirror_grid, mirror_points, mirror_vectors
-from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
-from neuraldem.scenes.fluidized_bed.surrogate.normalization import FbNormalizer
-from neuraldem.scenes.fluidized_bed.surrogate.options import FbStability, RolloutOptions
+from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule
+from neuraldem.scenes.fluidized_bed.surrogate.normalization import BedNormalizer
+from neuraldem.scenes.fluidized_bed.surrogate.options import BedStability, RolloutOptions
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +58,7 @@ class ExtrapolationWarning(UserWarning):
 
 
 @dataclass
-class FbState:
+class BedState:
     """The model's input at one time, in physical units."""
 
     time: float
@@ -73,7 +73,7 @@ class FbState:
 DEFAULT_INIT_SNAPSHOT = 1  # snapshot 0 has no last displacement (zero), which training almost never sees
 
 
-def initial_state(f: FbFile, snapshot: int = DEFAULT_INIT_SNAPSHOT, key: str = "init_snapshot") -> FbState:
+def initial_state(f: BedFile, snapshot: int = DEFAULT_INIT_SNAPSHOT, key: str = "init_snapshot") -> BedState:
     """Snapshot `snapshot` of a stored trajectory as a rollout's first state (absent particles dropped)."""
     if isinstance(snapshot, bool) or not isinstance(snapshot, int) or not 0 <= snapshot < f.n_snapshots:
         raise ConfigError(f"config value {key}={snapshot!r} is invalid: {f.path} has snapshots 0 .. "
@@ -81,14 +81,14 @@ def initial_state(f: FbFile, snapshot: int = DEFAULT_INIT_SNAPSHOT, key: str = "
     pos = f.positions(snapshot)
     disp = f.displacement(snapshot - 1) if snapshot > 0 else np.zeros_like(pos)
     ok = np.isfinite(pos).all(axis=1) & np.isfinite(disp).all(axis=1)
-    return FbState(time=float(f.times[snapshot]), positions=pos[ok], displacement=disp[ok],
+    return BedState(time=float(f.times[snapshot]), positions=pos[ok], displacement=disp[ok],
                    fluid_velocity=f.fluid_velocity(snapshot), solid_fraction=f.solid_fraction(snapshot),
                    mixing=f.mixing(snapshot), solids_flux=f.solids_flux(snapshot))
 
 
-def mirror_state(s: FbState, lo_x: float, hi_x: float) -> FbState:
+def mirror_state(s: BedState, lo_x: float, hi_x: float) -> BedState:
     """The state of the bed mirrored at its mid-plane in x (an involution: applied twice, the state itself)."""
-    return FbState(time=s.time, positions=mirror_points(s.positions, lo_x, hi_x),
+    return BedState(time=s.time, positions=mirror_points(s.positions, lo_x, hi_x),
                    displacement=mirror_vectors(s.displacement),
                    fluid_velocity=mirror_grid(s.fluid_velocity, vector=True),
                    solid_fraction=mirror_grid(s.solid_fraction, vector=False),
@@ -105,7 +105,7 @@ class DivergenceLimits:
         checks.number("max_packing", self.max_packing, lo=0.0, hi=1.0, lo_open=True)
         checks.number("tolerance", self.tolerance, lo=0.0, hi=0.5)
 
-    def problem(self, s: FbState) -> str | None:
+    def problem(self, s: BedState) -> str | None:
         """Why a state is unphysical (None if it is fine)."""
         for name in ("fluid_velocity", "solid_fraction", "mixing", "displacement", "positions"):
             bad = ~np.isfinite(getattr(s, name))
@@ -126,11 +126,11 @@ class DivergenceLimits:
 class Stepper(Protocol):
     dt: float
 
-    def step(self, state: FbState) -> FbState: ...
+    def step(self, state: BedState) -> BedState: ...
 
 
 class ModelStepper:
-    """A trained FluidizedBedModule as a stepper, conditioned on one inlet velocity.
+    """A trained BedModule as a stepper, conditioned on one inlet velocity.
 
     The step applies the checkpoint's stability options (`neuraldem.scenes.fluidized_bed.surrogate.options`), the
     rollout options given in `options` in their place (`RolloutOptions`; None = the checkpoint's): with volume
@@ -140,11 +140,11 @@ class ModelStepper:
     out with it is a projection on top of the model: its drift is then 0 by construction and says nothing of
     the model's own conservation. A stochastic model draws its latent noise from this stepper's generator.
     With `mirror_alternate` every second step is taken in the mirror image of the bed, with `rollout_noise` the
-    net reads a perturbed copy of each state (`FbStability`; both drawn from this stepper's generator)."""
+    net reads a perturbed copy of each state (`BedStability`; both drawn from this stepper's generator)."""
 
-    def __init__(self, module: FluidizedBedModule, velocity: float, seed: int = 0, device: str = "cpu",
+    def __init__(self, module: BedModule, velocity: float, seed: int = 0, device: str = "cpu",
                  options: RolloutOptions | None = None):
-        base = getattr(module, "stability", None) or FbStability()
+        base = getattr(module, "stability", None) or BedStability()
         self.stability = (options or RolloutOptions()).apply(base)
         self.noise_std = perturbation_std(module, self.stability.rollout_noise, device)
         self.steps_taken = 0
@@ -155,7 +155,7 @@ class ModelStepper:
         self.solid_volume: float | None = None  # sum of the first state's solid fraction (cells are equal)
         self.net = module.net.to(device).eval()
         self.step_scales = getattr(module, "step_scales", None)  # a residual model's
-        self.norm: FbNormalizer = module.norm
+        self.norm: BedNormalizer = module.norm
         self.solids_flux = bool(module.metadata.get("solids_flux", False))
         self.dt = self.norm.dt
         self.chunk_size = module.chunk_size
@@ -166,7 +166,7 @@ class ModelStepper:
     def _tensor(self, x: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))[None].to(self.device)
 
-    def step(self, state: FbState) -> FbState:
+    def step(self, state: BedState) -> BedState:
         mirrored = self.stability.mirror_alternate and self.steps_taken % 2 == 1
         self.steps_taken += 1
         if not mirrored:
@@ -177,7 +177,7 @@ class ModelStepper:
     # inference_mode, not just no_grad: no version counters or view tracking (bench fb_speed on the shipped net:
     # 0.832 -> 0.791 s per simulated second at one thread, fields bit-identical)
     @torch.inference_mode()
-    def _step(self, state: FbState) -> FbState:
+    def _step(self, state: BedState) -> BedState:
         norm = self.norm
         if self.solid_volume is None:
             self.solid_volume = float(np.sum(state.solid_fraction))
@@ -211,7 +211,7 @@ class ModelStepper:
                                 "rescaling moves cells at the packing cap by as much", state.time + self.dt,
                                 100 * (1 / ratio - 1))
                 solid_fraction = solid_fraction * ratio
-        return FbState(
+        return BedState(
             time=state.time + self.dt,
             positions=norm.positions_back(nxt.particle_pos[0].double().cpu().numpy()),
             displacement=norm.field_back("displacement", nxt.particle_features[0].double().cpu().numpy()),
@@ -222,7 +222,7 @@ class ModelStepper:
         )
 
 
-def perturbation_std(module: FluidizedBedModule, scale: float, device: str) -> dict[str, torch.Tensor] | None:
+def perturbation_std(module: BedModule, scale: float, device: str) -> dict[str, torch.Tensor] | None:
     """Per-channel std (model units) of `rollout_noise`: `scale` times the module's running one-step error
     (None when off)."""
     if not scale:
@@ -239,11 +239,11 @@ class DataStepper:
     """Replays a stored trajectory as if it were predicted: ground truth fed through the rollout and
     evaluation path must come out unchanged (the test of that path)."""
 
-    def __init__(self, f: FbFile):
+    def __init__(self, f: BedFile):
         self.f = f
         self.dt = f.dt
 
-    def step(self, state: FbState) -> FbState:
+    def step(self, state: BedState) -> BedState:
         k = round(state.time / self.dt) + 1
         if k >= self.f.n_snapshots:
             raise DataError(f"{self.f.path}: the stored trajectory ends at snapshot {self.f.n_snapshots - 1}")
@@ -282,7 +282,7 @@ class Rollout:
         return float(self.times[1] - self.times[0]) if len(self.times) > 1 else float(self.attrs.get("dt", 0.0))
 
 
-def rollout(stepper: Stepper, state: FbState, steps: int, limits: DivergenceLimits | None = None,
+def rollout(stepper: Stepper, state: BedState, steps: int, limits: DivergenceLimits | None = None,
             particles_every: int = 10, progress: bool = True) -> Rollout:
     """Step `steps` times from `state`, stopping at the first state that fails `limits`."""
     checks.positive_int("steps", steps)
@@ -316,7 +316,7 @@ def rollout(stepper: Stepper, state: FbState, steps: int, limits: DivergenceLimi
     return out
 
 
-def _grid_fields(s: FbState) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+def _grid_fields(s: BedState) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     return s.time, s.fluid_velocity.astype(np.float32), s.solid_fraction.astype(np.float32), s.mixing.astype(np.float32)
 
 

@@ -20,9 +20,9 @@ from neuraldem.data.schema import SCHEMA_VERSION, atomic_write_h5, atomic_write_
 from neuraldem.errors import DataError
 from neuraldem.eval.checkpoints import checkpoint_dataset, read_checkpoint
 from neuraldem.eval.vtk_export import write_grid_series, write_point_series
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
-from neuraldem.scenes.fluidized_bed.surrogate.module import FluidizedBedModule
-from neuraldem.scenes.fluidized_bed.surrogate.normalization import FbNormalizer
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
+from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule
+from neuraldem.scenes.fluidized_bed.surrogate.normalization import BedNormalizer
 from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
 from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import (
@@ -75,7 +75,7 @@ def write_rollout(path: Path, r: Rollout, grid: BoxGrid, particle_volume: float,
 
 
 class RolloutFile(ValidatedH5File):
-    """Validating reader of a rollout file; the grid fields read like `FbFile`'s."""
+    """Validating reader of a rollout file; the grid fields read like `BedFile`'s."""
 
     KIND = ROLLOUT_KIND
 
@@ -116,12 +116,12 @@ def write_rollout_vtk(folder: Path, name: str, r: Rollout, grid: BoxGrid, every:
 
 
 # ---- checkpoints and conditions
-def load_fb_checkpoint(path: Path, device: str = "cpu") -> FluidizedBedModule:
+def load_fb_checkpoint(path: Path, device: str = "cpu") -> BedModule:
     """A trained fluidized-bed model; a checkpoint of another kind is refused with a message."""
     return read_checkpoint(path).module("fluidized_bed", device, "a fluidized-bed rollout or evaluation")
 
 
-def check_velocity(norm: FbNormalizer, velocity: float) -> bool:
+def check_velocity(norm: BedNormalizer, velocity: float) -> bool:
     """True (and a warning stating the trained range) when `velocity` is outside what the model saw."""
     checks.positive("velocity", velocity)
     if norm.in_trained_range(velocity):
@@ -133,7 +133,7 @@ def check_velocity(norm: FbNormalizer, velocity: float) -> bool:
     return True
 
 
-def check_grid(norm: FbNormalizer, f: FbFile) -> None:
+def check_grid(norm: BedNormalizer, f: BedFile) -> None:
     """The initial state must be on the grid the model was trained on."""
     same_shape = list(f.grid.shape) == list(norm.grid_shape)
     same_box = np.allclose(f.grid.lo, norm.box_lo, atol=1e-9) and np.allclose(f.grid.hi, norm.box_hi, atol=1e-9)
@@ -172,7 +172,7 @@ def run_rollout(ckpt: Path, velocity: float, steps: int, out_dir: Path, datasets
     meta, norm = module.metadata, module.norm
     extrapolation = check_velocity(norm, velocity)
     path, source = initial_file(meta, Path(ckpt), velocity, datasets_dir, dataset_dir, init, init_sim)
-    with FbFile(path) as f:
+    with BedFile(path) as f:
         check_grid(norm, f)
         state = initial_state(f, init_snapshot)
         present = np.isfinite(f.positions(init_snapshot)).all(axis=1)

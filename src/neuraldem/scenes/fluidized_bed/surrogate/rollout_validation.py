@@ -41,7 +41,7 @@ from neuraldem.scenes.fluidized_bed.analysis.evaluation import (
     pooled_reference,
 )
 from neuraldem.scenes.fluidized_bed.dataset.report import metric_settings
-from neuraldem.scenes.fluidized_bed.dataset.store import FbFile
+from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import DEFAULT_INIT_SNAPSHOT, ModelStepper, initial_state, rollout
 
 log = logging.getLogger(__name__)
@@ -111,7 +111,7 @@ class RolloutValidation(L.Callback):
         pooled = self.reference == "pooled"
         for rec in trajectories:
             stepper = ModelStepper(pl_module, float(rec.params["inlet_velocity"]), self.seed, str(pl_module.device))
-            with FbFile(Path(dm.dataset_dir) / str(rec.file)) as f:
+            with BedFile(Path(dm.dataset_dir) / str(rec.file)) as f:
                 truth = FieldSeries.from_dataset_file(f).since(DEFAULT_INIT_SNAPSHOT)
                 steps = self.steps if pooled else min(self.steps, f.n_snapshots - 1 - DEFAULT_INIT_SNAPSHOT)
                 r = rollout(stepper, initial_state(f, DEFAULT_INIT_SNAPSHOT), steps, progress=False)
