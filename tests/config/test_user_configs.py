@@ -122,3 +122,25 @@ def test_every_hydra_command_composes_your_scene_and_names_its_file_on_a_bad_key
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
     assert f"neuraldem: error: scene file {path}: unknown key(s) ['insertion_fractoin'] in data.scene" in proc.stderr
     assert "correct it in that file" in proc.stderr and not (tmp_path / "data" / "datasets" / "mine").exists()
+
+
+@pytest.mark.parametrize(("source", "section", "line"), [
+    ("hopper_tiny", "data.storage", "storage:\n  keep_rwa: true\n"),
+    ("hopper_tiny", "data.parameters", "parameters:\n  sed: 3\n"),
+    ("hopper_tiny", "data.characterization", "characterization:\n  enable: false\n"),
+    ("fb_tiny", "data.parameters", "parameters:\n  packings: 2\n"),
+    ("fb_tiny", "data.parameters.long", "parameters:\n  long:\n    parts: val\n"),
+    ("fb_tiny", "data.storage", "storage:\n  keep_rwa: true\n"),
+])
+def test_a_typo_outside_the_scene_section_is_refused_naming_the_file(source: str, section: str, line: str,
+                                                                     tmp_path: Path):
+    """Every section datagen reads checks its keys: a misspelt key is one line naming the file, not ignored."""
+    cfg = tmp_path / "cfg"
+    env = {"NEURALDEM_CONFIG": str(cfg), "NEURALDEM_DATA": str(tmp_path / "data")}
+    path = cfg / "data" / "mine.yaml"
+    path.parent.mkdir(parents=True)
+    path.write_text(f"defaults:\n  - {source}\n  - _self_\nname: mine\n{line}")
+    proc = run_module("neuraldem", "datagen", "data=mine", f"hydra.run.dir={tmp_path / 'run'}", env=env)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert f"neuraldem: error: scene file {path}: unknown key(s)" in proc.stderr and f" in {section};" in proc.stderr
+    assert not (tmp_path / "data" / "datasets" / "mine").exists()

@@ -123,6 +123,10 @@ def file_metrics(path: Path, settings: BedMetricSettings) -> dict[str, float]:
     return out
 
 
+PARAMETER_KEYS = ("n_sims", "seed", "inlet_velocity", "n_velocities", "packings_per_velocity", "duration", "long")
+LONG_KEYS = ("inlet_velocities", "duration", "part")
+
+
 @dataclass
 class BedPipeline(DataConfigPipeline):
     kind: str = "fluidized_bed"
@@ -132,6 +136,10 @@ class BedPipeline(DataConfigPipeline):
         c = self.cfg
         self.scene = BedScene.from_config(c.scene, "data.scene")
         p = c.parameters
+        # a typo in a scene file must not be ignored (`scene`, `fields`, `metrics`: their settings classes check)
+        checks.known_keys("data.parameters", p, PARAMETER_KEYS)
+        checks.known_keys("data.parameters.long", p.get("long") or {}, LONG_KEYS)
+        checks.known_keys("data.storage", c.get("storage") or {}, ("keep_raw",))
         self.seed = checks.positive_int("data.parameters.seed", p.seed, allow_zero=True)
         lo, hi = checks.interval("data.parameters.inlet_velocity", list(p.inlet_velocity))
         u_low, u_high = PARAMETERS.limits("inlet_velocity")

@@ -79,6 +79,11 @@ def stored_metrics(path: Path, diameter: float,
         return trajectory_metrics(f.load(), diameter, settings, horizon)
 
 
+# the keys of the scene file's sections read here (`scene` and `metrics` are checked by their settings classes)
+SECTION_KEYS = {"parameters": ("n_sims", "seed", "ranges"), "characterization": ("enabled", "shear", "heap"),
+                "storage": ("position_resolution", "keep_raw")}
+
+
 @dataclass
 class HopperPipeline(DataConfigPipeline):
     kind: str = "hopper"
@@ -86,6 +91,8 @@ class HopperPipeline(DataConfigPipeline):
     def __post_init__(self) -> None:
         super().__post_init__()
         c = self.cfg
+        for section, known in SECTION_KEYS.items():  # a typo in a scene file must not be ignored
+            checks.known_keys(f"data.{section}", c.get(section) or {}, known)
         self.scene = HopperScene.from_config(c.scene, "data.scene")
         self.ranges = {}
         for k, v in c.parameters.ranges.items():
