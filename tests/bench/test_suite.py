@@ -134,7 +134,7 @@ def test_render_fluidized_bed_results(tmp_path: Path):
     assert bench_main(["render", f"out_dir={tmp_path}"]) == 0
     assert (tmp_path / "fb_speed.png").is_file() and (tmp_path / "fb_stability.png").is_file()
     md = (tmp_path / "fb_speed.md").read_text()
-    assert "| DPMFoam, measured | 1 | 170.0 | 160.0 | 1.000 | 0.800 | 170x | 200x |" in md
+    assert "| DPMFoam, measured | torch | 1 | 170.0 | 160.0 | 1.000 | 0.800 | 170x | 200x |" in md
 
 
 def _timing(wall: float, cpu: float, **notes) -> dict:

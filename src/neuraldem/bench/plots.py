@@ -131,7 +131,8 @@ def fb_speed_figure(results: dict[str, Any], path: Path) -> Path:
     thread setting. Right: the speed-ups solver / surrogate of every pairing, with the target (>= 100x)."""
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.6), gridspec_kw={"width_ratios": [1, 1.3]})
     entries = [(label, s) for label, s in results["solver"].items()]
-    entries += [(f"surrogate, {t} thread(s)", s) for t, s in results["surrogate"].items()]
+    entries += [(f"surrogate, {t}" if "thread" in t else f"surrogate, {t} thread(s)", s)
+                for t, s in results["surrogate"].items()]
     x = range(len(entries))
     for offset, key, name, color in ((-0.2, "median_wall_s", "wall", "C0"), (0.2, "median_cpu_s", "CPU", "C1")):
         values = [s[key] for _, s in entries]
@@ -153,7 +154,8 @@ def fb_speed_figure(results: dict[str, Any], path: Path) -> Path:
     target = results.get("target_speedup")
     if target:
         right.axvline(target, color="k", ls="--", lw=1, label=f"target {target:g}x")
-    right.set_yticks(list(y), [f"{r['solver']}\nvs surrogate, {r['surrogate_threads']} thread(s)" for r in rows],
+    right.set_yticks(list(y), [f"{r['solver']}\nvs surrogate, "
+                               f"{r.get('surrogate', str(r['surrogate_threads']) + ' thread(s)')}" for r in rows],
                      fontsize=7)
     top = max([v for r in rows for v in (r["speedup_wall"], r["speedup_cpu"]) if v] + [target or 1.0, 1.0])
     right.set(xscale="log", xlim=(1.0, 8 * top), xlabel="speed-up (solver / surrogate, medians; bars from 1x)",

@@ -20,7 +20,7 @@ RESULT_FOLDERS = {
     "hopper_speed": "hopper/speed", "hopper_scaling": "hopper/speed", "seed_floor": "hopper/accuracy",
     "hopper_stability": "hopper/stability", "whatif": "hopper/whatif",
     "query_budget": "hopper/speed", "runtime": "hopper/speed",
-    "fb_speed": "fluidized_bed/speed", "fb_stability": "fluidized_bed/stability",
+    "fb_speed": "fluidized_bed/speed", "fb_runtime": "fluidized_bed/speed", "fb_stability": "fluidized_bed/stability",
     "gns_stability": "fluidized_bed/stability", "whatif_fb": "fluidized_bed/whatif",
     "speed_accuracy": "speed_accuracy", "right_sizing": "speed_accuracy", "fb_speed_accuracy": "speed_accuracy",
     "serve_latency": "explorer", "serve_latency_fb": "explorer",

@@ -19,7 +19,7 @@ from neuraldem.models.modules.patch_embedding import PatchEmbedding, cell_centre
 from neuraldem.models.modules.perceiver_decoder import PerceiverDecoder
 from neuraldem.models.modules.position_embedding import DEFAULT_COORD_SCALE
 from neuraldem.models.modules.scalar_conditioner import ScalarConditioner
-from neuraldem.models.modules.supernode_pooling import SupernodePooling
+from neuraldem.models.modules.supernode_pooling import ParticleGraph, SupernodePooling
 
 MAIN_BRANCHES = ("particles", "fluid")
 OFF_BRANCHES = ("mixing",)
@@ -36,6 +36,8 @@ class OperatorInputs:
     scalars (B, S): normalised conditioning scalars (e.g. inlet velocity);
     query_pos {branch: (B, Q_branch, 3)}: where to decode each branch (branches left out are not decoded);
     supernode_idx (B, M): optional explicit supernodes (indices into the N particles);
+    particle_graph: optional, the particle encoder's graph of exactly these positions (`SupernodePooling.graph`),
+    so a caller that needed it already does not compute it twice (whoever changes the positions drops it);
     noise (B, noise_dim): the latent noise of a stochastic net (drawn from the global generator when None).
     """
 
@@ -46,6 +48,7 @@ class OperatorInputs:
     scalars: torch.Tensor
     query_pos: Mapping[str, torch.Tensor] = field(default_factory=dict)
     supernode_idx: torch.Tensor | None = None
+    particle_graph: ParticleGraph | None = None
     noise: torch.Tensor | None = None
 
 
@@ -115,7 +118,7 @@ class MultiBranchOperator(nn.Module):
         tokens = {}
         if self.particle_branch:
             tokens["particles"] = self.encoders["particles"](inputs.particle_pos, inputs.particle_features,
-                                                             inputs.supernode_idx)
+                                                             inputs.supernode_idx, inputs.particle_graph)
         tokens["fluid"] = self.encoders["fluid"](inputs.grid)
         if off_branches:
             tokens["mixing"] = self.encoders["mixing"](inputs.mixing_grid)

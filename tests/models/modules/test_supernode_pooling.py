@@ -80,3 +80,23 @@ def test_validation():
         make_pooling(position_mode="polar")
     with pytest.raises(ValueError, match="particle features"):
         make_pooling()(*particles()[:1], torch.randn(2, 40, 4))
+
+
+def test_a_given_graph_is_the_one_it_would_find_and_reads_only_its_particles():
+    """A caller that already found the graph (a rollout step, for the next step) passes it: the same tokens;
+    features of particles outside the graph are never read; one sample finds the edges it finds within a batch."""
+    pooling = make_pooling(radius=0.2, max_neighbours=5).eval()
+    pos, feat = particles(batch=2, n=60)
+    graph = pooling.graph(pos)
+    assert torch.equal(pooling(pos, feat, graph=graph), pooling(pos, feat))
+    read = graph.particles_read()
+    assert 0 < len(read) < 120 and torch.equal(read, torch.unique(graph.edges[1]))
+    unread = torch.ones(120, dtype=torch.bool)
+    unread[read] = False
+    other = feat.reshape(-1, 3).clone()
+    other[unread] = 1e6
+    assert torch.equal(pooling(pos, other.reshape(2, 60, 3), graph=graph), pooling(pos, feat, graph=graph))
+    one = pooling.graph(pos[1:], graph.supernode_idx[1:])
+    in_batch = graph.edges[:, graph.edges[0] >= graph.supernode_idx.shape[1]]
+    shifted = in_batch - torch.tensor([[graph.supernode_idx.shape[1]], [60]])
+    assert torch.equal(one.edges, shifted)

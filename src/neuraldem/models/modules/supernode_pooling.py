@@ -7,6 +7,8 @@ independently of how many particles discretise it and of their order.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import nn
 from torch_cluster import radius as radius_graph
@@ -30,6 +32,21 @@ def select_supernodes(batch_size: int, n_particles: int, n_supernodes: int, *, d
     noise = torch.rand(batch_size, n_particles, generator=generator,
                        device=generator.device if generator is not None else device)
     return noise.topk(n_supernodes, dim=1).indices.to(device)
+
+
+@dataclass(frozen=True)
+class ParticleGraph:
+    """Which particles each supernode pools, for one batch of positions: the supernodes (B, M) (indices into
+    the N particles) and the edges (2, E), row 0 the flat supernode index (b * M + m), row 1 the flat particle
+    index (b * N + n). Computed once, it can be reused by a caller that holds the same positions (a rollout
+    that also needs to know which particles the encoder will read)."""
+
+    supernode_idx: torch.Tensor
+    edges: torch.Tensor
+
+    def particles_read(self) -> torch.Tensor:
+        """Sorted flat indices of the particles whose features the encoder reads (the others it never sees)."""
+        return torch.unique(self.edges[1])
 
 
 class SupernodePooling(nn.Module):
@@ -68,26 +85,35 @@ class SupernodePooling(nn.Module):
         return select_supernodes(batch_size, n_particles, self.n_supernodes_eval, device=positions.device,
                                  generator=generator, key="model.net.n_supernodes_eval")
 
-    def forward(self, positions: torch.Tensor, features: torch.Tensor,
-                supernode_idx: torch.Tensor | None = None) -> torch.Tensor:
+    def graph(self, positions: torch.Tensor, supernode_idx: torch.Tensor | None = None) -> ParticleGraph:
+        """The supernodes (`supernode_idx`, else `choose_supernodes`) and the particles each one pools."""
         batch_size, n_particles, ndim = positions.shape
-        if features.shape[:2] != positions.shape[:2] or features.shape[2] != self.in_channels:
-            raise ValueError(f"expected particle features of shape ({batch_size}, {n_particles}, "
-                             f"{self.in_channels}), got {tuple(features.shape)}")
         if supernode_idx is None:
             supernode_idx = self.choose_supernodes(positions)
         n_supernodes = supernode_idx.shape[1]
         supernode_pos = torch.gather(positions, 1, supernode_idx.unsqueeze(-1).expand(-1, -1, ndim))
+        batch_x = batch_y = None  # one sample: no batch vectors (the same edges, checked on random clouds)
+        if batch_size > 1:
+            batch = torch.arange(batch_size, device=positions.device)
+            batch_x, batch_y = batch.repeat_interleave(n_particles), batch.repeat_interleave(n_supernodes)
+        edges = radius_graph(positions.reshape(-1, ndim), supernode_pos.reshape(-1, ndim), self.radius,
+                             batch_x=batch_x, batch_y=batch_y, max_num_neighbors=self.max_neighbours)
+        return ParticleGraph(supernode_idx, edges)
 
+    def forward(self, positions: torch.Tensor, features: torch.Tensor,
+                supernode_idx: torch.Tensor | None = None, graph: ParticleGraph | None = None) -> torch.Tensor:
+        """`graph`: the particle graph of these very positions (`graph(positions)`), when the caller has it."""
+        batch_size, n_particles, ndim = positions.shape
+        if features.shape[:2] != positions.shape[:2] or features.shape[2] != self.in_channels:
+            raise ValueError(f"expected particle features of shape ({batch_size}, {n_particles}, "
+                             f"{self.in_channels}), got {tuple(features.shape)}")
+        if graph is None:
+            graph = self.graph(positions, supernode_idx)
+        n_supernodes = graph.supernode_idx.shape[1]
+        supernode_pos = torch.gather(positions, 1, graph.supernode_idx.unsqueeze(-1).expand(-1, -1, ndim))
         flat_pos = positions.reshape(-1, ndim)
         flat_supernode_pos = supernode_pos.reshape(-1, ndim)
-        batch = torch.arange(batch_size, device=positions.device)
-        # edges[0]: supernode (flat index), edges[1]: particle (flat index)
-        edges = radius_graph(flat_pos, flat_supernode_pos, self.radius,
-                             batch_x=batch.repeat_interleave(n_particles),
-                             batch_y=batch.repeat_interleave(n_supernodes),
-                             max_num_neighbors=self.max_neighbours)
-        supernode, particle = edges[0], edges[1]
+        supernode, particle = graph.edges[0], graph.edges[1]
         message_inputs = [features.reshape(-1, self.in_channels)[particle]]
         if self.position_mode in ("relative", "both"):
             message_inputs.append(self.pos_embed(flat_pos[particle] - flat_supernode_pos[supernode]))

@@ -73,6 +73,9 @@ SCENE = Scene(
         "fb_speed_accuracy": ("neuraldem.scenes.fluidized_bed.bench.speed_accuracy",
                               "rollout cost vs error of time averages and mixing, surrogates and cheaper DPMFoam; "
                               "Pareto front, right-sizing"),
+        "fb_runtime": ("neuraldem.scenes.fluidized_bed.bench.runtime",
+                       "torch vs ONNX Runtime stepping the shipped bed model: answer time, answers within the "
+                       "seed spread"),
         "fb_stability": ("neuraldem.scenes.fluidized_bed.bench.stability_map",
                          "stability map: divergence, solid volume and bed height against CFD-DEM across velocities"),
         "whatif_fb": ("neuraldem.scenes.fluidized_bed.bench.predict_timing",

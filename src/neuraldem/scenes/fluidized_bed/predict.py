@@ -33,10 +33,18 @@ ERROR_KEYS = {"bed_height": ErrorKey("bed_height_mae_mm", " mm"),
 def add_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0,
                    help="seed of the field model's rollout (and of DPMFoam's packing with verify=true)")
+    p.add_argument("--runtime", choices=("auto", "onnx", "torch"), default="auto",
+                   help="what steps the field model: onnx (ONNX Runtime, exported once per model; equal to torch "
+                        "to round-off), torch, or auto (onnx when the runtime is installed)")
+    p.add_argument("--threads", type=int, default=1,
+                   help="threads of the field model's rollout (default 1: the fastest on a 2-core CPU)")
 
 
 def answer(point: dict[str, float], model_name: str, out: Path, args: argparse.Namespace) -> dict[str, Any]:
-    return predict_fb(point, model_name, out, args.fields, args.verify, args.seed)
+    from neuraldem.models.onnx_runtime import check_threads
+
+    check_threads(args.threads)
+    return predict_fb(point, model_name, out, args.fields, args.verify, args.seed, args.runtime, args.threads)
 
 
 def fb_window(model: pretrained.Pretrained) -> Any:
@@ -52,7 +60,7 @@ def fb_settings(model: pretrained.Pretrained) -> Any:
 
 
 def predict_fb(point: dict[str, float], model_name: str, out: Path, fields: bool, verify: bool,
-               seed: int = 0) -> dict[str, Any]:
+               seed: int = 0, runtime: str = "auto", threads: int = 1) -> dict[str, Any]:
     from neuraldem.models.scalar_baselines import gp_answers
     from neuraldem.scenes.fluidized_bed.whatif import check_fluidized, load_gp
 
@@ -71,7 +79,8 @@ def predict_fb(point: dict[str, float], model_name: str, out: Path, fields: bool
     series = {}
     settings = fb_settings(model) if fields or verify else None
     if fields:
-        answer["field"], curves = fb_fields(model, point["inlet_velocity"], settings, window, out, seed)
+        answer["field"], curves = fb_fields(model, point["inlet_velocity"], settings, window, out, seed, runtime,
+                                            threads)
         series["field model"] = curves.as_series()
         warnings += range_warnings(answer["field"]["extrapolation"], "field model",
                                    model.meta.get("asked_range"))
@@ -91,7 +100,7 @@ def predict_fb(point: dict[str, float], model_name: str, out: Path, fields: bool
 
 
 def fb_fields(model: pretrained.Pretrained, velocity: float, settings: Any, window: Any, out: Path,
-              seed: int) -> tuple[dict[str, Any], Any]:
+              seed: int, runtime: str = "auto", threads: int = 1) -> tuple[dict[str, Any], Any]:
     """The field model's rollout over the answer window: its answers, the animation and ParaView files."""
     from neuraldem.eval.checkpoints import read_checkpoint
     from neuraldem.scenes.fluidized_bed.analysis.plots import animate_fields
@@ -100,13 +109,14 @@ def fb_fields(model: pretrained.Pretrained, velocity: float, settings: Any, wind
 
     module = read_checkpoint(model.file("field")).module("fluidized_bed", "cpu", "predict")
     states = InitialStates.load_npz(model.file("states"))
-    f = field_answer(module, states, velocity, settings, window, seed)
+    f = field_answer(module, states, velocity, settings, window, seed, runtime=runtime, threads=threads)
     g = states.grid
     gif = animate_fields(f.rollout.times, f.rollout.solid_fraction, f.rollout.mixing,
                          (g.lo[0], g.hi[0], g.lo[2], g.hi[2]), out / "animation.gif",
                          f"field model, {velocity:g} m/s")
     vtk = write_rollout_vtk(out / "vtk", "bed_predicted", f.rollout, g)
-    return {"summary": f.summary, "seconds": f.seconds, "start": f.start, "extrapolation": f.extrapolation,
+    return {"summary": f.summary, "seconds": f.seconds, "runtime": f.runtime, "start": f.start,
+            "extrapolation": f.extrapolation,
             "diverged_at": f.rollout.diverged_at, "steps": f.rollout.steps_done,
             "files": {"animation": str(gif), "vtk": str(vtk[0].parent)}}, f.curves
 

@@ -241,18 +241,25 @@ class FieldAnswer:
     seconds: float
     start: str
     extrapolation: dict[str, list[float]]
+    runtime: str = "torch"  # what stepped the net (`ModelStepper`)
 
 
 def field_answer(module: Any, states: InitialStates, velocity: float, settings: BedMetricSettings,
-                 window: AnswerWindow, seed: int = 0, particles_every: int = 10) -> FieldAnswer:
-    """Roll the model out over the answer window from the shipped state nearest in velocity; read the answers."""
+                 window: AnswerWindow, seed: int = 0, particles_every: int = 10,
+                 runtime: str = "auto", threads: int = 1) -> FieldAnswer:
+    """Roll the model out over the answer window from the shipped state nearest in velocity; read the answers.
+    `runtime`: what steps the net (auto: ONNX Runtime where installed, equal to torch to round-off); `threads`:
+    its threads (one is fastest for the shipped model on a 2-core CPU: 2.0 s per 3-s answer against 4.6 s on
+    two, results/fluidized_bed/speed/fb_speed.md)."""
+    from neuraldem.bench.timing import torch_threads
     from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, rollout  # torch: only for fields
 
     t0 = time.perf_counter()
     norm = module.norm
     state, particle_volume, start = states.nearest(velocity)
-    stepper = ModelStepper(module, velocity, seed)
-    r = rollout(stepper, state, window.steps, particles_every=particles_every, progress=False)
+    with torch_threads(threads):
+        stepper = ModelStepper(module, velocity, seed, runtime=runtime)
+        r = rollout(stepper, state, window.steps, particles_every=particles_every, progress=False)
     curves = bed_curves(r.times, r.solid_fraction.astype(np.float64), r.mixing.astype(np.float64), states.grid,
                         particle_volume, settings)
     summary = bed_answers(curves, window)
@@ -260,7 +267,7 @@ def field_answer(module: Any, states: InitialStates, velocity: float, settings: 
         summary = {t: float("nan") for t in TARGETS}
     extrapolation = {} if norm.in_trained_range(velocity) else \
         {"inlet_velocity": [float(velocity), norm.velocity_lo, norm.velocity_hi]}
-    return FieldAnswer(r, curves, summary, time.perf_counter() - t0, start, extrapolation)
+    return FieldAnswer(r, curves, summary, time.perf_counter() - t0, start, extrapolation, stepper.runtime)
 
 
 # ---- DPMFoam on the same velocity

@@ -47,10 +47,11 @@ def test_ratios_are_solver_over_surrogate_medians():
     """Solver runs of 0.25 simulated s: medians 11 s wall / 9.2 s CPU per run = 44 / 36.8 per simulated s;
     surrogate medians 0.2 / 0.4 s per simulated s on one thread, 0.1 / 0.5 on two."""
     solver = Timing([Sample(10.0, 9.0), Sample(12.0, 9.5), Sample(11.0, 9.2)]).scaled(1 / 0.25)
-    one = Timing([Sample(0.2, 0.4), Sample(0.3, 0.5), Sample(0.1, 0.3)])
-    two = Timing([Sample(0.1, 0.5)])
-    rows = fb_speed.compare({"DPMFoam, measured": solver}, {1: one, 2: two})
-    assert [(r["solver"], r["surrogate_threads"]) for r in rows] == [("DPMFoam, measured", 1), ("DPMFoam, measured", 2)]
+    one = Timing([Sample(0.2, 0.4), Sample(0.3, 0.5), Sample(0.1, 0.3)], notes={"runtime": "torch", "torch_threads": 1})
+    two = Timing([Sample(0.1, 0.5)], notes={"runtime": "onnx", "torch_threads": 2})
+    rows = fb_speed.compare({"DPMFoam, measured": solver}, {"torch, 1 thread(s)": one, "onnx, 2 thread(s)": two})
+    assert [(r["solver"], r["surrogate_runtime"], r["surrogate_threads"]) for r in rows] == [
+        ("DPMFoam, measured", "torch", 1), ("DPMFoam, measured", "onnx", 2)]
     assert rows[0]["solver_wall_s"] == pytest.approx(44.0) and rows[0]["solver_cpu_s"] == pytest.approx(36.8)
     assert rows[0]["speedup_wall"] == pytest.approx(220.0) and rows[0]["speedup_cpu"] == pytest.approx(92.0)
     assert rows[1]["speedup_wall"] == pytest.approx(440.0) and rows[1]["speedup_cpu"] == pytest.approx(73.6)
@@ -59,7 +60,9 @@ def test_ratios_are_solver_over_surrogate_medians():
 def _check_rows(r: dict) -> None:
     for row in r["side_by_side"]:
         solver = r["solver"][row["solver"]]
-        surrogate = r["surrogate"][str(row["surrogate_threads"])]
+        surrogate = r["surrogate"][row["surrogate"]]
+        assert (surrogate["runtime"], surrogate["torch_threads"]) == (row["surrogate_runtime"],
+                                                                      row["surrogate_threads"])
         assert row["solver_cpu_s"] == solver["median_cpu_s"] and row["surrogate_cpu_s"] == surrogate["median_cpu_s"]
         assert row["speedup_cpu"] == pytest.approx(row["solver_cpu_s"] / row["surrogate_cpu_s"])
         assert row["speedup_wall"] == pytest.approx(row["solver_wall_s"] / row["surrogate_wall_s"])
@@ -84,14 +87,18 @@ def test_with_the_manifest_costs(fb_tiny_checkpoint: Path, fb_tiny_dataset: Path
              if s["status"] == "ok"]
     assert recorded["repeats"] == len(per_s) and recorded["median_cpu_s"] == pytest.approx(float(np.median(per_s)))
     assert recorded["per_simulation"]["repeats"] == len(per_s)
-    assert set(r["surrogate"]) == {"1", "2"}
-    for threads, s in r["surrogate"].items():
-        assert s["torch_threads"] == int(threads) and s["repeats"] == 2 and s["source"] == "measured"
+    # both runtimes by default, each at every thread count
+    assert set(r["surrogate"]) == {"torch, 1 thread(s)", "torch, 2 thread(s)", "onnx, 1 thread(s)",
+                                   "onnx, 2 thread(s)"}
+    for label, s in r["surrogate"].items():
+        assert label == f"{s['runtime']}, {s['torch_threads']} thread(s)"
+        assert s["repeats"] == 2 and s["source"] == "measured"
         assert 1 <= s["steps_computed"] <= 3 and s["steps_requested"] == 3
         assert s["median_wall_s"] == pytest.approx(s["per_run"]["median_wall_s"] / s["simulated_s"])
-    assert len(r["side_by_side"]) == 2
+    assert len(r["side_by_side"]) == 4
     _check_rows(r)
-    assert "| DPMFoam, dataset manifest | 1 |" in (tmp_path / "fb_speed.md").read_text()
+    md = (tmp_path / "fb_speed.md").read_text()
+    assert "| DPMFoam, dataset manifest | torch | 1 |" in md and "| DPMFoam, dataset manifest | onnx | 2 |" in md
     assert (tmp_path / "fb_speed.png").stat().st_size > 0
 
 
@@ -109,7 +116,8 @@ def test_mirror_alternation_is_timed_when_asked(fb_tiny_checkpoint: Path, fb_tin
 
     monkeypatch.setattr(fb_speed, "ModelStepper", recording)
     argv = ["fb-speed", f"ckpt={fb_tiny_checkpoint}", f"dataset={fb_tiny_dataset}", "reuse_dataset=true",
-            "repeats=1", "rollout_steps=2", "threads=1", "rollout.mirror_alternate=true", f"out={tmp_path}"]
+            "repeats=1", "rollout_steps=2", "threads=1", "runtime=torch", "rollout.mirror_alternate=true",
+            f"out={tmp_path}"]
     assert bench_main(argv) == 0
     assert seen == [True, True]  # the warm-up and the timed rollout
     results = json.loads((tmp_path / "fb_speed.json").read_text())["results"]
@@ -123,7 +131,7 @@ def test_fresh_dpmfoam_run_of_the_same_trajectory(fb_tiny_checkpoint: Path, fb_t
     work = tmp_path / "work"
     plan = fb_speed.prepare(fb_tiny_checkpoint, fb_tiny_dataset, "sim_0000", repeats=1, solver_repeats=1,
                             sim_seconds=0.01, rollout_steps=2, threads=[1], reuse_dataset=False, workdir=work,
-                            keep_runs=True)
+                            keep_runs=True, runtimes=["torch"])
     r = fb_speed.measure(plan)
     measured = r["solver"]["DPMFoam, measured"]
     assert measured["source"] == "measured" and measured["repeats"] == 1
@@ -163,6 +171,7 @@ def test_without_keep_runs_the_run_folders_go(fb_tiny_checkpoint: Path, fb_tiny_
     (["sim_seconds=0.015"], ("sim_seconds=0.015 is invalid: must be a positive multiple of the "
                              "scene's snapshot interval 0.01 s")),
     (["threads=0"], "config value threads[0]=0 is invalid: must be a positive integer"),
+    (["runtime=tensorrt"], "runtime[0]='tensorrt' is invalid: choose torch or onnx"),
     (["repeats=0"], "config value repeats=0 is invalid"),
     (["rollout_steps=-2"], "config value rollout_steps=-2 is invalid"),
     (["rollout.rollout_noise=-1"], "rollout.rollout_noise=-1 is invalid: must be a number in [0, 10]"),

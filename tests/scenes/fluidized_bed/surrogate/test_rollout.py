@@ -346,3 +346,57 @@ def test_rollout_noise_names_a_checkpoint_without_its_running_error(fb_tiny_flux
         ModelStepper(module, TRAINED_VELOCITY, 0, options=RolloutOptions(rollout_noise=1.0))
     with pytest.raises(ConfigError, match="rollout.rollout_noise=-0.5 is invalid"):
         ModelStepper(module, TRAINED_VELOCITY, 0, options=RolloutOptions(rollout_noise=-0.5))
+
+
+def test_particles_nobody_keeps_are_decoded_only_where_the_next_step_reads_them(fb_tiny_flux_checkpoint: Path,
+                                                                                fb_tiny_dataset: Path):
+    """A rollout keeps the particles every `particles_every` steps; in between the stepper decodes the
+    displacement only of the particles the next step's encoder reads (a quarter of them on the shipped model). The
+    rollout is the one of decoding them all, to round-off, and its kept samples are whole."""
+    module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
+    with BedFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
+        state = initial_state(f)
+    every, partial = ModelStepper(module, TRAINED_VELOCITY, 0), ModelStepper(module, TRAINED_VELOCITY, 0)
+    a, b = every.step(state), partial.step(state, all_particles=False)
+    assert a.decoded is None and b.decoded is not None and 0 < len(b.decoded) < len(b.positions)
+    np.testing.assert_array_equal(a.positions, b.positions)  # the same draws
+    np.testing.assert_allclose(b.displacement[b.decoded], a.displacement[b.decoded], rtol=1e-5, atol=1e-9)
+    graph = partial.net.encoders["particles"].graph(torch.from_numpy(
+        module.norm.positions(b.positions).astype(np.float32))[None])
+    assert set(graph.particles_read().tolist()) <= set(b.decoded.tolist())  # what the next step reads is there
+    with pytest.raises(ValueError, match="can only be stepped by the stepper that made it"):
+        ModelStepper(module, TRAINED_VELOCITY, 0).step(b)
+    full = rollout(ModelStepper(module, TRAINED_VELOCITY, 0), state, 12, particles_every=1, progress=False)
+    lean = rollout(ModelStepper(module, TRAINED_VELOCITY, 0), state, 12, particles_every=5, progress=False)
+    np.testing.assert_allclose(lean.solid_fraction, full.solid_fraction, atol=1e-5)
+    np.testing.assert_allclose(lean.mixing, full.mixing, atol=1e-5)
+    assert lean.positions.shape == (3, *full.positions.shape[1:])  # states 0, 5, 10: every particle
+    np.testing.assert_allclose(lean.displacement, full.displacement[::5], rtol=1e-4, atol=1e-8)
+
+
+def test_the_onnx_step_is_the_torch_step_to_round_off(fb_tiny_flux_checkpoint: Path, fb_tiny_dataset: Path,
+                                                      monkeypatch: pytest.MonkeyPatch, caplog):
+    module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
+    with BedFile(sorted((fb_tiny_dataset / "sims").glob("*.h5"))[0]) as f:
+        state = initial_state(f)
+    runs = {}
+    for runtime in ("torch", "onnx"):
+        stepper = ModelStepper(module, TRAINED_VELOCITY, 0, runtime=runtime)
+        assert stepper.runtime == runtime
+        runs[runtime] = rollout(stepper, state, 5, progress=False)
+    for name in ("solid_fraction", "mixing", "fluid_velocity"):
+        np.testing.assert_allclose(getattr(runs["onnx"], name), getattr(runs["torch"], name), atol=1e-4)
+    with pytest.raises(ConfigError, match="runtime='fast' is invalid"):
+        ModelStepper(module, TRAINED_VELOCITY, 0, runtime="fast")
+    import neuraldem.scenes.fluidized_bed.surrogate.rollout as rollout_module
+
+    def refuse(*args, **kwargs):
+        raise DataError("cannot export here")
+
+    monkeypatch.setattr(rollout_module, "OnnxOperator", refuse)
+    monkeypatch.setattr(rollout_module, "_ONNX_NETS", type(rollout_module._ONNX_NETS)())
+    with caplog.at_level(logging.WARNING, logger="neuraldem.scenes.fluidized_bed.surrogate.rollout"):
+        assert ModelStepper(module, TRAINED_VELOCITY, 0, runtime="auto").runtime == "torch"  # falls back, says so
+    assert "the rollout steps in torch: the ONNX export failed" in caplog.text
+    with pytest.raises(DataError, match="cannot export here"):
+        ModelStepper(module, TRAINED_VELOCITY, 0, runtime="onnx")

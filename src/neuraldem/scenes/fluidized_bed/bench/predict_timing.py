@@ -40,12 +40,15 @@ def answer_times(model: pretrained.Pretrained, repeats: int) -> dict[str, Any]:
     module = read_checkpoint(model.file("field")).module("fluidized_bed", "cpu", "bench")
     states, settings, window = InitialStates.load_npz(model.file("states")), fb_settings(model), fb_window(model)
     gp_t, _ = time_call(lambda: gp_answers(gp, [point]), repeats)
-    field_t, _ = time_call(lambda: field_answer(module, states, DEFAULT_VELOCITY, settings, window), repeats)
+    field_t, _ = time_call(lambda: field_answer(module, states, DEFAULT_VELOCITY, settings, window), repeats,
+                           warmup=1)  # the warm-up exports the net to ONNX once per machine
+    torch_t, _ = time_call(lambda: field_answer(module, states, DEFAULT_VELOCITY, settings, window,
+                                                runtime="torch"), repeats)
     cmd = [sys.executable, "-m", "neuraldem", "predict", "fluidized_bed", f"inlet_velocity={DEFAULT_VELOCITY:g}",
            "fields=false", f"out={data_dir() / 'bench' / 'whatif_fb' / 'command'}"]
     cmd_t, _ = time_call(lambda: subprocess.run(cmd, check=True, capture_output=True), repeats)
     return {"point": point, "rollout_steps": window.steps, "gp_in_process": gp_t.as_dict(),
-            "field_in_process": field_t.as_dict(),
+            "field_in_process": field_t.as_dict(), "field_in_process_torch": torch_t.as_dict(),
             "predict_command_no_fields": {**cmd_t.as_dict(), "command": " ".join(cmd[1:])}}
 
 
@@ -73,8 +76,10 @@ def markdown(result: dict[str, Any]) -> str:
              f"Answer time, median of {t['gp_in_process']['repeats']} (`{result['command']}`):", "",
              "| answer | median wall [s] |", "|---|---|",
              f"| GP, in the process | {t['gp_in_process']['median_wall_s']:.2g} |",
-             f"| field model ({t['rollout_steps']}-step rollout), in the process | "
+             f"| field model ({t['rollout_steps']}-step rollout), in the process (runtime=auto) | "
              f"{t['field_in_process']['median_wall_s']:.3g} |",
+             *([f"| field model, in the process, runtime=torch | "
+                f"{t['field_in_process_torch']['median_wall_s']:.3g} |"] if "field_in_process_torch" in t else []),
              f"| `neuraldem predict fluidized_bed ... fields=false`, whole command | "
              f"{t['predict_command_no_fields']['median_wall_s']:.3g} |"]
     if result["verified"]:

@@ -1,7 +1,7 @@
 """DPMFoam against the fluidized-bed rollout on the same scene and machine, side by side in one run.
 
 `neuraldem bench fb_speed ckpt=CKPT [dataset=DIR] [sim=SIM_ID] [repeats=3]
-[solver_repeats=3] [sim_seconds=0.1] [rollout_steps=N] [threads=[1,N]] [reuse_dataset=true]
+[solver_repeats=3] [sim_seconds=0.1] [rollout_steps=N] [threads=[1,N]] [runtime=[torch,onnx]] [reuse_dataset=true]
 [rollout.rollout_noise=X] [rollout.mirror_alternate=true|false] [out=PATH]` writes
 results/fluidized_bed/speed/fb_speed.json, .md and .png. Of the rollout options it takes those that change a step's
 cost (`STEP_COST_OPTIONS`).
@@ -14,7 +14,8 @@ of one trajectory of the checkpoint's dataset (its scene, inlet velocity and sta
 recorded at datagen.
 The surrogate: `rollout_steps=` autoregressive steps (`scenes.fluidized_bed.rollout.rollout`, divergence check and
 particle re-sampling included) from snapshot 1 of the same trajectory, divided by the seconds they span, at
-each `threads=` setting. Ratios are solver / surrogate of the medians over repeats.
+each `threads=` setting and `runtime=` (torch, or the net's calls in ONNX Runtime, `models.operator_onnx`; the
+one-time export is not timed). Ratios are solver / surrogate of the medians over repeats.
 """
 
 from __future__ import annotations
@@ -171,18 +172,20 @@ def solver_recorded(m: Manifest, dataset_dir: Path) -> Timing:
 
 def surrogate_timing(module: BedModule, velocity: float, state: BedState, steps: int, repeats: int,
                      threads: int, seed: int = 0, limits: DivergenceLimits | None = None,
-                     clock: Clock = SYSTEM_CLOCK, options: RolloutOptions | None = None) -> Timing:
+                     clock: Clock = SYSTEM_CLOCK, options: RolloutOptions | None = None,
+                     runtime: str = "torch") -> Timing:
     """Median over `repeats` (after one untimed warm-up) of a `steps`-step rollout from `state` on `threads`
-    torch threads, per simulated second. A rollout that diverges is timed over the steps it computed."""
+    threads of `runtime`, per simulated second. A rollout that diverges is timed over the steps it computed."""
     def once():
-        stepper = ModelStepper(module, velocity, seed, options=options)
+        stepper = ModelStepper(module, velocity, seed, options=options, runtime=runtime)
         return rollout(stepper, state, steps, limits, progress=False)
 
     with torch_threads(threads):
         per_run, r = time_call(once, repeats, warmup=1, clock=clock)
     computed = r.diverged_at if r.diverged_at is not None else r.steps_done
     simulated = computed * module.norm.dt
-    notes = {"unit": "seconds per simulated second", "torch_threads": threads, "steps_requested": steps,
+    notes = {"unit": "seconds per simulated second", "torch_threads": threads, "runtime": runtime,
+             "steps_requested": steps,
              "steps_computed": computed, "simulated_s": simulated, "diverged_at": r.diverged_at,
              "divergence": r.divergence, "per_run": {**per_run.as_dict(), "unit": "seconds per rollout"}}
     return per_run.scaled(1.0 / simulated, **notes)
@@ -190,13 +193,19 @@ def surrogate_timing(module: BedModule, velocity: float, state: BedState, steps:
 
 # ---- side by side
 
-def compare(solvers: dict[str, Timing], surrogates: dict[int, Timing]) -> list[dict[str, Any]]:
-    """One row per (solver timing, surrogate thread setting): medians per simulated second and the speed-ups."""
+def surrogate_label(runtime: str, threads: int) -> str:
+    return f"{runtime}, {threads} thread(s)"
+
+
+def compare(solvers: dict[str, Timing], surrogates: dict[str, Timing]) -> list[dict[str, Any]]:
+    """One row per (solver timing, surrogate setting): medians per simulated second and the speed-ups."""
     rows = []
     for label, solver in solvers.items():
-        for threads, surrogate in surrogates.items():
-            row = side_by_side([solver], surrogate, f"{label} vs surrogate on {threads} thread(s)")
-            rows.append({"solver": label, "surrogate_threads": threads, **row})
+        for setting, surrogate in surrogates.items():
+            row = side_by_side([solver], surrogate, f"{label} vs surrogate ({setting})")
+            rows.append({"solver": label, "surrogate": setting,
+                         "surrogate_runtime": surrogate.notes.get("runtime", "torch"),
+                         "surrogate_threads": surrogate.notes["torch_threads"], **row})
     return rows
 
 
@@ -216,11 +225,12 @@ def render_markdown(results: dict[str, Any], machine: dict[str, Any]) -> str:
         else:
             lines.append(f"{label}: median over {s['repeats']} trajectories of the dataset ({s['source']}).")
     lines += ["", "Seconds per simulated second (medians):", "",
-              ("| solver | surrogate threads | solver wall | solver CPU | surrogate wall | surrogate CPU | "
-               "speed-up (wall) | speed-up (CPU) |"),
-              "|---|---|---|---|---|---|---|---|"]
+              ("| solver | surrogate runtime | threads | solver wall | solver CPU | surrogate wall | "
+               "surrogate CPU | speed-up (wall) | speed-up (CPU) |"),
+              "|---|---|---|---|---|---|---|---|---|"]
     for r in results["side_by_side"]:
-        lines.append(f"| {r['solver']} | {r['surrogate_threads']} | {r['solver_wall_s']:.1f} | "
+        lines.append(f"| {r['solver']} | {r.get('surrogate_runtime', 'torch')} | {r['surrogate_threads']} | "
+                     f"{r['solver_wall_s']:.1f} | "
                      f"{r['solver_cpu_s']:.1f} | {r['surrogate_wall_s']:.3f} | {r['surrogate_cpu_s']:.3f} | "
                      f"{_x(r['speedup_wall'])} | {_x(r['speedup_cpu'])} |")
     if first.get("diverged_at") is not None:
@@ -231,6 +241,22 @@ def render_markdown(results: dict[str, Any], machine: dict[str, Any]) -> str:
 
 def _x(v: float | None) -> str:
     return "n/a" if v is None else f"{v:,.0f}x"
+
+
+def parse_runtimes(values: list[str] | None) -> list[str]:
+    """runtime=: distinct runtimes, default torch and onnx (onnx only where ONNX Runtime is installed)."""
+    from neuraldem.models.operator_onnx import resolve_runtime
+
+    if not values:
+        return list(dict.fromkeys(["torch", resolve_runtime("auto")]))
+    out: list[str] = []
+    for i, r in enumerate(values):
+        if r not in ("torch", "onnx"):
+            raise ConfigError(f"runtime[{i}]={r!r} is invalid: choose torch or onnx", "e.g. runtime=[torch,onnx]")
+        resolve_runtime(r, f"runtime[{i}]")
+        if r not in out:
+            out.append(r)
+    return out
 
 
 def parse_threads(values: list[int] | None) -> list[int]:
@@ -255,6 +281,7 @@ class Plan:
     state: BedState
     steps: int
     threads: list[int]
+    runtimes: list[str]
     repeats: int
     solver_repeats: int
     sim_seconds: float
@@ -268,7 +295,8 @@ class Plan:
 
 def prepare(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: int, solver_repeats: int,
             sim_seconds: float, rollout_steps: int | None, threads: list[int] | None, reuse_dataset: bool,
-            workdir: Path, keep_runs: bool = False, seed: int = 0, options: RolloutOptions | None = None) -> Plan:
+            workdir: Path, keep_runs: bool = False, seed: int = 0, options: RolloutOptions | None = None,
+            runtimes: list[str] | None = None) -> Plan:
     """Check every option and input (one clear error for a bad one) before anything is timed."""
     checks.positive_int("repeats", repeats)
     checks.positive_int("solver_repeats", solver_repeats)
@@ -281,6 +309,7 @@ def prepare(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: i
         raise ConfigError(f"rollout.{other[0]}= does not change what a step costs: fb_speed takes "
                           f"{', '.join(f'rollout.{n}=' for n in STEP_COST_OPTIONS)} (leave it out)")
     threads = parse_threads(threads)
+    runtimes = parse_runtimes(runtimes)
     t0 = time.perf_counter()
     module = load_fb_checkpoint(Path(ckpt))  # refuses other kinds with a message
     load_s = time.perf_counter() - t0
@@ -296,7 +325,7 @@ def prepare(ckpt: Path, dataset_dir: Path | None, sim_id: str | None, repeats: i
             raise
         recorded = None  # e.g. an imported dataset: no datagen costs, the measured runs stand alone
     return Plan(Path(ckpt), module, load_s, case, state, rollout_steps or module.norm.horizon_steps, threads,
-                repeats, solver_repeats, sim_seconds, recorded, reuse_dataset, Path(workdir), keep_runs, seed,
+                runtimes, repeats, solver_repeats, sim_seconds, recorded, reuse_dataset, Path(workdir), keep_runs, seed,
                 options)
 
 
@@ -307,8 +336,10 @@ def measure(plan: Plan, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
     if not plan.reuse_dataset:
         measured = solver_measured(case, plan.sim_seconds, plan.solver_repeats, plan.workdir, plan.keep_runs)
         solvers = {"DPMFoam, measured": measured, **solvers}
-    surrogates = {t: surrogate_timing(module, case.velocity, plan.state, plan.steps, plan.repeats, t, plan.seed,
-                                      clock=clock, options=plan.options) for t in plan.threads}
+    surrogates = {surrogate_label(rt, t): surrogate_timing(module, case.velocity, plan.state, plan.steps,
+                                                           plan.repeats, t, plan.seed, clock=clock,
+                                                           options=plan.options, runtime=rt)
+                  for rt in plan.runtimes for t in plan.threads}
     return {
         "scene": module.metadata["data_name"], "checkpoint": str(plan.ckpt.resolve()),
         "dataset": str(case.dataset_dir), "sim_id": case.record.sim_id, "inlet_velocity": case.velocity,
@@ -317,7 +348,7 @@ def measure(plan: Plan, clock: Clock = SYSTEM_CLOCK) -> dict[str, Any]:
         "n_particles": case.scene.n_particles, "cells": list(case.scene.cells), "dt": norm.dt,
         "unit": "seconds per simulated second",
         "solver": {label: t.as_dict() for label, t in solvers.items()},
-        "surrogate": {str(t): s.as_dict() for t, s in surrogates.items()},
+        "surrogate": {label: s.as_dict() for label, s in surrogates.items()},
         "surrogate_parameters": sum(p.numel() for p in module.net.parameters()), "surrogate_load_s": plan.load_s,
         **plan.options.as_dict(STEP_COST_OPTIONS),
         "side_by_side": compare(solvers, surrogates), "target_speedup": TARGET_SPEEDUP,
@@ -336,7 +367,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--rollout-steps", type=int, default=None,
                    help="steps of each timed rollout (default: the model's training horizon)")
     p.add_argument("--threads", type=int, nargs="+", default=None,
-                   help="torch thread counts of the surrogate (default: 1 and every usable core)")
+                   help="thread counts of the surrogate (default: 1 and every usable core)")
+    p.add_argument("--runtime", nargs="+", default=None,
+                   help="what steps the surrogate's net: torch and/or onnx (default both, onnx where installed)")
     p.add_argument("--reuse-dataset", action="store_true",
                    help="run no DPMFoam: compare with the costs the manifest recorded (labelled in the output)")
     p.add_argument("--seed", type=int, default=0, help="seed of the rollout's particle re-sampling")
@@ -350,7 +383,7 @@ def main(argv: list[str]) -> int:
     out = resolve_out(a.out, NAME)
     plan = prepare(a.ckpt, a.dataset, a.sim, a.repeats, a.solver_repeats, a.sim_seconds, a.rollout_steps,
                    a.threads, a.reuse_dataset, a.workdir or default_workdir(NAME), a.keep_runs, a.seed,
-                   RolloutOptions.from_args(a))
+                   RolloutOptions.from_args(a), a.runtime)
     machine = machine_info()
     warning = warn_if_busy(machine)
     results = measure(plan)

@@ -35,6 +35,7 @@ QUIET_S = 0.5  # the background rollouts step only after this long without a mov
 FRAMES = 60  # the time player's frames over the window at most (every `stride`-th rollout state)
 MIX_BLANK = 0.02  # mixing is not drawn where the solid fraction is at most this (plots.animate_fields)
 SEED = 0  # `neuraldem predict fb`'s default seed: the same rollout, the same numbers
+RUNTIME = "auto"  # and its default runtime
 
 
 class Superseded(Exception):
@@ -63,10 +64,11 @@ class GatedStepper:
 
     def __init__(self, stepper: Any, gate: Callable[[], None]):
         self.stepper, self.gate, self.dt = stepper, gate, stepper.dt
+        self.decodes_on_demand = getattr(stepper, "decodes_on_demand", False)
 
-    def step(self, state: Any) -> Any:
+    def step(self, state: Any, **kwargs: Any) -> Any:
         self.gate()
-        return self.stepper.step(state)
+        return self.stepper.step(state, **kwargs)
 
 
 def spread_order(values: list[float], first: float) -> list[float]:
@@ -188,6 +190,7 @@ class BedEngine:
     def compute(self, v: float, gate: Callable[[], None] | None = None) -> BedRollout:
         """The rollout at `v` as `whatif.field_answer` (and so `neuraldem predict fb`) runs it: the shipped first
         state nearest in velocity, the same stepper, seed and steps; `gate` runs before every step."""
+        from neuraldem.bench.timing import torch_threads
         from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, rollout
         from neuraldem.scenes.fluidized_bed.whatif import TARGETS, bed_answers, bed_curves
 
@@ -197,9 +200,10 @@ class BedEngine:
             return done
         t0 = time.perf_counter()
         state, particle_volume, start = self.states.nearest(v)
-        stepper = ModelStepper(self.module, v, SEED)
-        r = rollout(stepper if gate is None else GatedStepper(stepper, gate), state, self.window.steps,
-                    particles_every=10, progress=False)
+        with torch_threads(1):  # as predict steps it (one thread: the fastest for the bed's small net)
+            stepper = ModelStepper(self.module, v, SEED, runtime=RUNTIME)
+            r = rollout(stepper if gate is None else GatedStepper(stepper, gate), state, self.window.steps,
+                        particles_every=10, progress=False)
         curves = bed_curves(r.times, r.solid_fraction.astype(np.float64), r.mixing.astype(np.float64),
                             self.states.grid, particle_volume, self.settings)
         summary = bed_answers(curves, self.window)

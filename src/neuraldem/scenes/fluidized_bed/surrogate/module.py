@@ -250,7 +250,7 @@ def repeat_members(x: OperatorInputs, members: int) -> OperatorInputs:
         return t.repeat(members, *([1] * (t.ndim - 1)))
 
     return replace(x, particle_pos=rep(x.particle_pos), particle_features=rep(x.particle_features), grid=rep(x.grid),
-                   mixing_grid=rep(x.mixing_grid), scalars=rep(x.scalars), noise=None,
+                   mixing_grid=rep(x.mixing_grid), scalars=rep(x.scalars), noise=None, particle_graph=None,
                    supernode_idx=None if x.supernode_idx is None else rep(x.supernode_idx))
 
 

@@ -1,0 +1,87 @@
+"""The multi-branch operator's calls through ONNX Runtime answer as the torch net does (to round-off), are exported
+once per weights and grid, and a runtime that cannot run is one line naming the option and the fix."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from neuraldem.errors import ConfigError
+from neuraldem.models.multi_branch_operator import MultiBranchOperator
+from neuraldem.models.operator_onnx import OnnxOperator, resolve_runtime, weights_key
+from tests.models.nets import activate_modulations
+
+GRID = (4, 1, 6)
+
+
+def small_net(noise_dim: int = 0) -> MultiBranchOperator:
+    torch.manual_seed(0)
+    net = MultiBranchOperator(n_scalars=1, particle_channels=3, fluid_channels=7, mixing_channels=1, dim=16,
+                              num_heads=2, cond_dim=16, n_supernodes=6, radius=0.3, max_neighbours=8,
+                              patch_size=(2, 1, 2), noise_dim=noise_dim)
+    return activate_modulations(net).eval()
+
+
+@pytest.mark.parametrize(("off_branches", "noise_dim"), [(False, 0), (True, 0), (True, 3)])
+def test_latents_and_decodes_equal_the_torch_nets(tmp_path: Path, off_branches: bool, noise_dim: int):
+    net = small_net(noise_dim)
+    onnx = OnnxOperator(net, tmp_path, off_branches=off_branches)
+    x = net.example_inputs(batch_size=1, n_particles=40, grid_shape=GRID, generator=torch.Generator().manual_seed(3))
+    if noise_dim:
+        x.noise = torch.randn(1, noise_dim, generator=torch.Generator().manual_seed(4))
+    with torch.no_grad():
+        want_tokens, want_cond = net.latents(x, off_branches=off_branches)
+        tokens, cond = onnx.latents(x, off_branches=off_branches)
+        queries = {b: x.query_pos[b] for b in onnx.branches}
+        want, got = net.decode(want_tokens, want_cond, queries), onnx.decode(tokens, cond, queries, chunk_size=7)
+    assert set(tokens) == set(want_tokens) == set(onnx.branches)
+    assert onnx.branches == (("particles", "fluid", "mixing") if off_branches else ("particles", "fluid"))
+    torch.testing.assert_close(cond, want_cond, atol=1e-5, rtol=1e-5)
+    for b in onnx.branches:
+        torch.testing.assert_close(tokens[b], want_tokens[b], atol=1e-4, rtol=1e-4)
+        assert got[b].shape == want[b].shape
+        torch.testing.assert_close(got[b], want[b], atol=1e-4, rtol=1e-4)  # chunked: the same answer
+    if not off_branches:
+        with pytest.raises(ValueError, match="main branches alone"):
+            onnx.latents(x, off_branches=True)
+
+
+def test_the_export_is_cached_per_weights_and_grid(tmp_path: Path):
+    net = small_net()
+    x = net.example_inputs(batch_size=1, n_particles=30, grid_shape=GRID)
+    first = OnnxOperator(net, tmp_path, off_branches=False)
+    first.latents(x, off_branches=False)
+    folders = sorted(p.name for p in tmp_path.iterdir())
+    assert folders == [weights_key(net, False, GRID)] and (tmp_path / folders[0] / "checked.json").is_file()
+    stamp = (tmp_path / folders[0] / "latents.onnx").stat().st_mtime_ns
+    OnnxOperator(net, tmp_path, off_branches=False).prepare(GRID)  # read back, not exported again
+    assert (tmp_path / folders[0] / "latents.onnx").stat().st_mtime_ns == stamp
+    with torch.no_grad():
+        next(net.parameters()).add_(1.0)  # other weights: another export
+    assert weights_key(net, False, GRID) != folders[0]
+    assert weights_key(net, False, (4, 1, 8)) != weights_key(net, False, GRID)
+
+
+def test_a_damaged_export_names_the_folder_to_delete(tmp_path: Path):
+    from neuraldem.errors import DataError
+
+    net = small_net()
+    OnnxOperator(net, tmp_path, off_branches=False).prepare(GRID)
+    folder = tmp_path / weights_key(net, False, GRID)
+    (folder / "latents.onnx").write_bytes(b"not a model")
+    with pytest.raises(DataError, match=f"delete {folder}"):
+        OnnxOperator(net, tmp_path, off_branches=False).prepare(GRID)
+
+
+def test_runtime_values_and_a_missing_runtime(monkeypatch: pytest.MonkeyPatch):
+    assert resolve_runtime("torch") == "torch" and resolve_runtime("auto") == "onnx"
+    with pytest.raises(ConfigError, match="runtime='tensorrt' is invalid: choose one of torch, onnx, auto"):
+        resolve_runtime("tensorrt")
+    monkeypatch.setitem(sys.modules, "onnxruntime", None)  # as on a machine without it
+    assert resolve_runtime("auto") == "torch"
+    with pytest.raises(ConfigError, match="runtime=onnx needs ONNX Runtime") as err:
+        resolve_runtime("onnx")
+    assert "pip install onnxruntime" in str(err.value)
