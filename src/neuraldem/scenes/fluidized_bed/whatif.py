@@ -249,8 +249,8 @@ def field_answer(module: Any, states: InitialStates, velocity: float, settings: 
                  runtime: str = "auto", threads: int = 1) -> FieldAnswer:
     """Roll the model out over the answer window from the shipped state nearest in velocity; read the answers.
     `runtime`: what steps the net (auto: ONNX Runtime where installed, equal to torch to round-off); `threads`:
-    its threads (one is fastest for the shipped model on a 2-core CPU: 2.0 s per 3-s answer against 4.6 s on
-    two, results/fluidized_bed/speed/fb_speed.md)."""
+    its threads (one is fastest for the shipped model on a 2-core CPU: 0.44 s per simulated second against 0.84 s
+    on two, results/fluidized_bed/speed/fb_speed.md)."""
     from neuraldem.bench.timing import torch_threads
     from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, rollout  # torch: only for fields
 

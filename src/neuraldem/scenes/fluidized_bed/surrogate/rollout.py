@@ -160,7 +160,7 @@ class ModelStepper:
     With `mirror_alternate` every second step is taken in the mirror image of the bed, with `rollout_noise` the
     net reads a perturbed copy of each state (`BedStability`; both drawn from this stepper's generator).
     `runtime`: torch, onnx (the net's calls in ONNX Runtime, equal to round-off, not bit for bit: the shipped
-    model's what-if 1.5x faster, its answers the same well within the seed spread,
+    model's what-if 1.35x faster, its answers the same well within the seed spread,
     results/fluidized_bed/speed/fb_runtime.md) or auto (onnx where installed). A step whose particles nobody keeps
     (`rollout`'s steps between samples) decodes the displacement only where the next step's encoder reads it
     (`autoregressive.next_inputs`) and hands that step its particle graph."""
@@ -413,7 +413,7 @@ def rollout(stepper: Stepper, state: BedState, steps: int, limits: DivergenceLim
 def _older_objects_left_alone() -> Iterator[None]:
     """The objects alive before the loop are left out of the garbage collector's passes during it. With torch and
     Lightning imported they are ~420 000, which every full pass walked while a rollout made its small arrays
-    (a 300-step what-if of the shipped model: 1.50 -> 1.34 s, median of 8)."""
+    (a 300-step rollout of the shipped model in ONNX Runtime: 1.50 -> 1.34 s, medians of 4, twice)."""
     gc.freeze()
     try:
         yield
