@@ -61,7 +61,9 @@ def test_bed_what_if_bad_input(fb_tiny_pretrained: Path, tmp_path: Path):
     far = predict("fb", "inlet_velocity=3.5", "--no-fields", "--out", str(tmp_path), env=env)
     assert far.returncode == 0 and "inlet_velocity=3.5 is outside the trained range" in far.stderr, far.stderr
     for args, expected in ((("fb", "velocity=1.5"), "unknown option velocity=: the options are inlet_velocity="),
-                           (("fb", "inlet_velocity=-1"), "outside what the solver can run")):
+                           (("fb", "inlet_velocity=-1"), "outside what the solver can run"),
+                           (("fb", "inlet_velocity=1.5", "threads=0"), "threads=0 is invalid: give a whole number"),
+                           (("fb", "inlet_velocity=1.5", "runtime=gpu"), "option runtime=: invalid choice: 'gpu'")):
         proc = predict(*args, "--out", str(tmp_path), env=env)
         out = proc.stdout + proc.stderr
         assert proc.returncode == 2 and expected in out and "Traceback" not in out, out
