@@ -350,7 +350,7 @@ def test_rollout_noise_names_a_checkpoint_without_its_running_error(fb_tiny_flux
 
 def test_particles_nobody_keeps_are_decoded_only_where_the_next_step_reads_them(fb_tiny_flux_checkpoint: Path,
                                                                                 fb_tiny_dataset: Path):
-    """A rollout keeps the particles every `particles_every` steps; in between the stepper decodes the
+    """A rollout keeps the particles every `particles_every` steps; in between an ONNX stepper decodes the
     displacement only of the particles the next step's encoder reads (a quarter of them on the shipped model). The
     rollout is the one of decoding them all, to round-off, and its kept samples are whole."""
     module = load_fb_checkpoint(fb_tiny_flux_checkpoint)
@@ -366,8 +366,12 @@ def test_particles_nobody_keeps_are_decoded_only_where_the_next_step_reads_them(
     assert set(graph.particles_read().tolist()) <= set(b.decoded.tolist())  # what the next step reads is there
     with pytest.raises(ValueError, match="can only be stepped by the stepper that made it"):
         ModelStepper(module, TRAINED_VELOCITY, 0).step(b)
-    full = rollout(ModelStepper(module, TRAINED_VELOCITY, 0), state, 12, particles_every=1, progress=False)
-    lean = rollout(ModelStepper(module, TRAINED_VELOCITY, 0), state, 12, particles_every=5, progress=False)
+    assert not every.decodes_on_demand  # torch steps decode every particle: bit for bit the reference
+    on_demand = ModelStepper(module, TRAINED_VELOCITY, 0, runtime="onnx")
+    assert on_demand.decodes_on_demand
+    full = rollout(ModelStepper(module, TRAINED_VELOCITY, 0, runtime="onnx"), state, 12, particles_every=1,
+                   progress=False)
+    lean = rollout(on_demand, state, 12, particles_every=5, progress=False)
     np.testing.assert_allclose(lean.solid_fraction, full.solid_fraction, atol=1e-5)
     np.testing.assert_allclose(lean.mixing, full.mixing, atol=1e-5)
     assert lean.positions.shape == (3, *full.positions.shape[1:])  # states 0, 5, 10: every particle

@@ -224,8 +224,8 @@ def next_inputs(net: MultiBranchOperator, tokens: dict[str, torch.Tensor], cond:
     particle branch decoded at them (zero displacement for a grid-only model).
 
     `rows(positions)` (a batch of one): the indices of the particles whose displacement is needed, None for
-    all; the others get 0 (model units). A rollout step asks only for the particles the next step's encoder
-    reads (a quarter of them on the shipped model), and for all of them when they are kept. Queries never
+    all; the others get 0 (model units). A rollout step in ONNX Runtime asks only for the particles the next
+    step's encoder reads (a quarter of them on the shipped model), and for all of them when they are kept. Queries never
     interact, so a subset decodes to those rows of decoding all, up to the last bit: the matrix kernels may round
     a row differently for another number of rows (on the shipped model, a 300-step rollout's fields first differed
     from decoding all, by 1e-6, at step 275)."""

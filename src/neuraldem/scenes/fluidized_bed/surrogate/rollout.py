@@ -161,9 +161,10 @@ class ModelStepper:
     net reads a perturbed copy of each state (`BedStability`; both drawn from this stepper's generator).
     `runtime`: torch, onnx (the net's calls in ONNX Runtime, equal to round-off, not bit for bit: the shipped
     model's what-if 1.35x faster, its answers the same well within the seed spread,
-    results/fluidized_bed/speed/fb_runtime.md) or auto (onnx where installed). A step whose particles nobody keeps
-    (`rollout`'s steps between samples) decodes the displacement only where the next step's encoder reads it
-    (`autoregressive.next_inputs`) and hands that step its particle graph."""
+    results/fluidized_bed/speed/fb_runtime.md) or auto (onnx where installed). On the ONNX path
+    (`decodes_on_demand`) a step whose particles nobody keeps (`rollout`'s steps between samples) decodes the
+    displacement only where the next step's encoder reads it (`autoregressive.next_inputs`) and hands that step
+    its particle graph."""
 
     def __init__(self, module: BedModule, velocity: float, seed: int = 0, device: str = "cpu",
                  options: RolloutOptions | None = None, runtime: str = "torch"):
@@ -185,12 +186,15 @@ class ModelStepper:
         self.device = device
         self.scalars = torch.tensor([[self.norm.velocity(velocity)]], dtype=torch.float32, device=device)
         self.generator = torch.Generator(device=device).manual_seed(int(seed))
-        self.decodes_on_demand = True
         self.runtime = "torch"
         if runtime == "auto" and device != "cpu":
             runtime = "torch"
         if resolve_runtime(runtime) == "onnx":  # the same step in ONNX Runtime, equal to round-off
             self._use_onnx(runtime, device)
+        # on-demand particle decoding equals decoding all to round-off only: torch steps stay bit for bit the
+        # reference (evaluation, training's rollout validation, the stored results); the ONNX path, itself equal to
+        # torch to round-off, decodes on demand
+        self.decodes_on_demand = self.runtime == "onnx"
         self._next_graph: tuple[torch.Tensor, Any, np.ndarray] | None = None  # the next input's positions,
         # their particle graph and the particles it reads
 
