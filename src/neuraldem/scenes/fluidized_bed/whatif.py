@@ -249,7 +249,7 @@ def field_answer(module: Any, states: InitialStates, velocity: float, settings: 
                  runtime: str = "auto", threads: int = 1) -> FieldAnswer:
     """Roll the model out over the answer window from the shipped state nearest in velocity; read the answers.
     `runtime`: what steps the net (auto: ONNX Runtime where installed, equal to torch to round-off); `threads`:
-    its threads (one is fastest for the shipped model on a 2-core CPU: 0.44 s per simulated second against 0.84 s
+    its threads (one is fastest for the shipped model on a 2-core CPU: 0.48 s per simulated second against 1.29 s
     on two, results/fluidized_bed/speed/fb_speed.md)."""
     from neuraldem.bench.timing import torch_threads
     from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, rollout  # torch: only for fields
