@@ -33,6 +33,15 @@ def require_onnxruntime(key: str = "runtime") -> Any:
     return onnxruntime
 
 
+def installed() -> bool:
+    """Whether ONNX Runtime imports here (what runtime=auto chooses by)."""
+    try:
+        import onnxruntime  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 def check_threads(threads: int, key: str = "threads") -> int:
     if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= MAX_THREADS:
         raise ConfigError(f"{key}={threads!r} is invalid: give a whole number of threads in 1 .. {MAX_THREADS}",

@@ -28,8 +28,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from neuraldem.models.modules.supernode_pooling import ParticleGraph
 from neuraldem.models.multi_branch_operator import MultiBranchOperator, OperatorInputs
-from neuraldem.models.onnx_runtime import OPSET, check_threads, require_onnxruntime
+from neuraldem.models.onnx_runtime import OPSET, check_threads, installed, require_onnxruntime
 
 log = logging.getLogger(__name__)
 
@@ -45,11 +46,7 @@ def resolve_runtime(runtime: str, key: str = "runtime") -> str:
         raise ConfigError(f"{key}={runtime!r} is invalid: choose one of {', '.join(RUNTIMES)}",
                           f"e.g. {key}=auto (ONNX Runtime where it is installed, else torch)")
     if runtime == "auto":
-        try:
-            import onnxruntime  # noqa: F401
-        except ImportError:
-            return "torch"
-        return "onnx"
+        return "onnx" if installed() else "torch"
     if runtime == "onnx":
         require_onnxruntime(key)
     return runtime
@@ -85,20 +82,10 @@ class _Latents(nn.Module):
 
     def _pool(self, positions: torch.Tensor, features: torch.Tensor, supernode_idx: torch.Tensor,
               edges: torch.Tensor) -> torch.Tensor:
-        pooling = self.net.encoders["particles"]
-        batch, n_particles, ndim = positions.shape
-        n_supernodes = supernode_idx.shape[1]
-        supernode_pos = torch.gather(positions, 1, supernode_idx.unsqueeze(-1).expand(-1, -1, ndim))
-        flat_pos, flat_supernode_pos = positions.reshape(-1, ndim), supernode_pos.reshape(-1, ndim)
-        supernode, particle = edges[0], edges[1]
-        parts = [features.reshape(-1, features.shape[-1])[particle]]
-        if pooling.position_mode in ("relative", "both"):
-            parts.append(pooling.pos_embed(flat_pos[particle] - flat_supernode_pos[supernode]))
-        if pooling.position_mode in ("absolute", "both"):
-            parts.append(pooling.pos_embed(flat_pos[particle]))
-        messages = pooling.message(torch.cat(parts, dim=-1))
+        messages = self.net.encoders["particles"].messages(positions, features, ParticleGraph(supernode_idx, edges))
+        batch, n_supernodes = supernode_idx.shape
         tokens = torch.arange(batch * n_supernodes, device=positions.device)
-        one_hot = (supernode.unsqueeze(1) == tokens.unsqueeze(0)).to(messages.dtype)  # (E, B * M)
+        one_hot = (edges[0].unsqueeze(1) == tokens.unsqueeze(0)).to(messages.dtype)  # (E, B * M)
         summed = one_hot.transpose(0, 1) @ messages
         counts = one_hot.sum(0).clamp(min=1.0).unsqueeze(-1)
         return (summed / counts).reshape(batch, n_supernodes, -1)

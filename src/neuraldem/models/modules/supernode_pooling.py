@@ -100,16 +100,10 @@ class SupernodePooling(nn.Module):
                              batch_x=batch_x, batch_y=batch_y, max_num_neighbors=self.max_neighbours)
         return ParticleGraph(supernode_idx, edges)
 
-    def forward(self, positions: torch.Tensor, features: torch.Tensor,
-                supernode_idx: torch.Tensor | None = None, graph: ParticleGraph | None = None) -> torch.Tensor:
-        """`graph`: the particle graph of these very positions (`graph(positions)`), when the caller has it."""
-        batch_size, n_particles, ndim = positions.shape
-        if features.shape[:2] != positions.shape[:2] or features.shape[2] != self.in_channels:
-            raise ValueError(f"expected particle features of shape ({batch_size}, {n_particles}, "
-                             f"{self.in_channels}), got {tuple(features.shape)}")
-        if graph is None:
-            graph = self.graph(positions, supernode_idx)
-        n_supernodes = graph.supernode_idx.shape[1]
+    def messages(self, positions: torch.Tensor, features: torch.Tensor, graph: ParticleGraph) -> torch.Tensor:
+        """(E, dim): the message along each edge of `graph`, before the mean per supernode (which an ONNX export
+        takes in another form, `models.operator_onnx`)."""
+        ndim = positions.shape[-1]
         supernode_pos = torch.gather(positions, 1, graph.supernode_idx.unsqueeze(-1).expand(-1, -1, ndim))
         flat_pos = positions.reshape(-1, ndim)
         flat_supernode_pos = supernode_pos.reshape(-1, ndim)
@@ -119,9 +113,21 @@ class SupernodePooling(nn.Module):
             message_inputs.append(self.pos_embed(flat_pos[particle] - flat_supernode_pos[supernode]))
         if self.position_mode in ("absolute", "both"):
             message_inputs.append(self.pos_embed(flat_pos[particle]))
-        messages = self.message(torch.cat(message_inputs, dim=-1))
+        return self.message(torch.cat(message_inputs, dim=-1))
 
+    def forward(self, positions: torch.Tensor, features: torch.Tensor,
+                supernode_idx: torch.Tensor | None = None, graph: ParticleGraph | None = None) -> torch.Tensor:
+        """`graph`: the particle graph of these very positions (`graph(positions)`), when the caller has it."""
+        batch_size, n_particles, _ = positions.shape
+        if features.shape[:2] != positions.shape[:2] or features.shape[2] != self.in_channels:
+            raise ValueError(f"expected particle features of shape ({batch_size}, {n_particles}, "
+                             f"{self.in_channels}), got {tuple(features.shape)}")
+        if graph is None:
+            graph = self.graph(positions, supernode_idx)
+        messages = self.messages(positions, features, graph)
+        n_supernodes = graph.supernode_idx.shape[1]
         n_tokens = batch_size * n_supernodes
+        supernode = graph.edges[0]
         summed = messages.new_zeros(n_tokens, messages.shape[-1]).index_add_(0, supernode, messages)
         counts = torch.bincount(supernode, minlength=n_tokens).clamp(min=1).unsqueeze(-1)
         return (summed / counts).view(batch_size, n_supernodes, -1)

@@ -22,6 +22,7 @@ import numpy as np
 
 from neuraldem import pretrained
 from neuraldem.data.schema import atomic_write_json
+from neuraldem.models.onnx_runtime import RUNTIMES, check_threads
 from neuraldem.pretrained.trust import ErrorKey, trust_label, trust_reasons, trusted
 from neuraldem.scenes.parameters import range_warnings
 
@@ -33,7 +34,7 @@ ERROR_KEYS = {"bed_height": ErrorKey("bed_height_mae_mm", " mm"),
 def add_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0,
                    help="seed of the field model's rollout (and of DPMFoam's packing with verify=true)")
-    p.add_argument("--runtime", choices=("auto", "onnx", "torch"), default="auto",
+    p.add_argument("--runtime", choices=("auto", *RUNTIMES), default="auto",
                    help="what steps the field model: onnx (ONNX Runtime, exported once per model; equal to torch "
                         "to round-off), torch, or auto (onnx when the runtime is installed)")
     p.add_argument("--threads", type=int, default=1,
@@ -41,8 +42,6 @@ def add_options(p: argparse.ArgumentParser) -> None:
 
 
 def answer(point: dict[str, float], model_name: str, out: Path, args: argparse.Namespace) -> dict[str, Any]:
-    from neuraldem.models.onnx_runtime import check_threads
-
     check_threads(args.threads)
     return predict_fb(point, model_name, out, args.fields, args.verify, args.seed, args.runtime, args.threads)
 
@@ -57,6 +56,16 @@ def fb_settings(model: pretrained.Pretrained) -> Any:
     from neuraldem.scenes.fluidized_bed.dataset.datagen import BedMetricSettings
 
     return BedMetricSettings.from_config(model.meta["metric_settings"], f"{model.name} metric_settings")
+
+
+def fb_field_model(model: pretrained.Pretrained, purpose: str) -> tuple[Any, Any, Any, Any]:
+    """What `whatif.field_answer` takes from a shipped model: its field module, first states, metric settings and
+    answer window (read once; the benchmarks answer many times from them)."""
+    from neuraldem.eval.checkpoints import read_checkpoint
+    from neuraldem.scenes.fluidized_bed.whatif import InitialStates
+
+    module = read_checkpoint(model.file("field")).module("fluidized_bed", "cpu", purpose)
+    return module, InitialStates.load_npz(model.file("states")), fb_settings(model), fb_window(model)
 
 
 def predict_fb(point: dict[str, float], model_name: str, out: Path, fields: bool, verify: bool,

@@ -21,7 +21,7 @@ import numpy as np
 from neuraldem import pretrained
 from neuraldem.data.schema import atomic_write_json
 from neuraldem.errors import ConfigError
-from neuraldem.models.onnx_runtime import RUNTIMES, check_threads
+from neuraldem.models.onnx_runtime import RUNTIMES, check_threads, installed
 from neuraldem.pretrained.trust import ErrorKey, trust_label, trust_reasons, trusted
 from neuraldem.scenes.hopper.whatif import ANSWER_BUDGET
 from neuraldem.scenes.parameters import range_warnings
@@ -89,7 +89,7 @@ def hopper_net(model: pretrained.Pretrained, runtime: str = "auto", threads: int
         raise ConfigError(f"runtime=onnx: model {model.name} has no field.onnx",
                           f"release it again (neuraldem release hopper name={model.name} onnx_only=true) or "
                           "use runtime=torch")
-    if runtime == "onnx" or (runtime == "auto" and has_onnx and onnx_available()):
+    if runtime == "onnx" or (runtime == "auto" and has_onnx and installed()):
         from neuraldem.models.onnx_runtime import OnnxNet
 
         return OnnxNet(model.file("onnx"), threads), model.meta["field_metadata"]
@@ -101,11 +101,6 @@ def hopper_net(model: pretrained.Pretrained, runtime: str = "auto", threads: int
     checkpoint = read_checkpoint(model.file("field"))
     return checkpoint_net(checkpoint, "hopper", "cpu", "predict"), checkpoint.metadata
 
-
-def onnx_available() -> bool:
-    import importlib.util
-
-    return importlib.util.find_spec("onnxruntime") is not None
 
 
 def format_value(key: str, v: float) -> str:

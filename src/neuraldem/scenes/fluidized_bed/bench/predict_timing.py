@@ -30,15 +30,13 @@ DEFAULT_VELOCITY = 1.8  # [m/s] `neuraldem predict fluidized_bed`'s example
 
 
 def answer_times(model: pretrained.Pretrained, repeats: int) -> dict[str, Any]:
-    from neuraldem.eval.checkpoints import read_checkpoint
     from neuraldem.models.scalar_baselines import ArrayGaussianProcess, gp_answers
-    from neuraldem.scenes.fluidized_bed.predict import fb_settings, fb_window
-    from neuraldem.scenes.fluidized_bed.whatif import InitialStates, field_answer
+    from neuraldem.scenes.fluidized_bed.predict import fb_field_model
+    from neuraldem.scenes.fluidized_bed.whatif import field_answer
 
     point = {"inlet_velocity": DEFAULT_VELOCITY}
     gp = ArrayGaussianProcess.load_npz(model.file("gp"))
-    module = read_checkpoint(model.file("field")).module("fluidized_bed", "cpu", "bench")
-    states, settings, window = InitialStates.load_npz(model.file("states")), fb_settings(model), fb_window(model)
+    module, states, settings, window = fb_field_model(model, "bench")
     gp_t, _ = time_call(lambda: gp_answers(gp, [point]), repeats)
     field_t, _ = time_call(lambda: field_answer(module, states, DEFAULT_VELOCITY, settings, window), repeats,
                            warmup=1)  # the warm-up exports the net to ONNX once per machine

@@ -33,14 +33,12 @@ QUANTITIES = {"bed_height": ("bed height [mm]", 1000.0), "bubble_fraction": ("bu
               "lacey": ("Lacey index", 1.0)}
 
 
-def answers(model: pretrained.Pretrained, velocities: list[float], seeds: int) -> dict[str, Any]:
-    """{runtime: {velocity: [summary per seed]}} of the field model's what-if answers."""
-    from neuraldem.eval.checkpoints import read_checkpoint
-    from neuraldem.scenes.fluidized_bed.predict import fb_settings, fb_window
-    from neuraldem.scenes.fluidized_bed.whatif import InitialStates, field_answer
+def answers(field: tuple[Any, ...], velocities: list[float], seeds: int) -> dict[str, Any]:
+    """{runtime: {velocity: [summary per seed]}} of the field model's what-if answers (`field`: what
+    `predict.fb_field_model` reads)."""
+    from neuraldem.scenes.fluidized_bed.whatif import field_answer
 
-    module = read_checkpoint(model.file("field")).module("fluidized_bed", "cpu", "bench")
-    states, settings, window = InitialStates.load_npz(model.file("states")), fb_settings(model), fb_window(model)
+    module, states, settings, window = field
     out: dict[str, Any] = {rt: {} for rt in RUNTIMES}
     for rt in RUNTIMES:
         for v in velocities:
@@ -63,14 +61,11 @@ def differences(runs: dict[str, Any]) -> dict[str, dict[str, float]]:
     return out
 
 
-def times(model: pretrained.Pretrained, velocity: float, repeats: int) -> dict[str, Any]:
+def times(field: tuple[Any, ...], velocity: float, repeats: int) -> dict[str, Any]:
     """Median seconds of one what-if field answer per runtime (after a warm-up, which also exports once)."""
-    from neuraldem.eval.checkpoints import read_checkpoint
-    from neuraldem.scenes.fluidized_bed.predict import fb_settings, fb_window
-    from neuraldem.scenes.fluidized_bed.whatif import InitialStates, field_answer
+    from neuraldem.scenes.fluidized_bed.whatif import field_answer
 
-    module = read_checkpoint(model.file("field")).module("fluidized_bed", "cpu", "bench")
-    states, settings, window = InitialStates.load_npz(model.file("states")), fb_settings(model), fb_window(model)
+    module, states, settings, window = field
     out = {}
     with torch_threads(1):
         for rt in RUNTIMES:
@@ -131,10 +126,13 @@ def main(argv: list[str] | None = None) -> int:
     model = pretrained.load(args.model or pretrained.default_for("fluidized_bed"), "fluidized_bed")
     lo, hi = (float(x) for x in model.meta["trained_range"]["inlet_velocity"])
     velocities = [float(v) for v in np.linspace(lo, hi, args.velocities + 2)[1:-1]]
-    runs = answers(model, velocities, args.seeds)
+    from neuraldem.scenes.fluidized_bed.predict import fb_field_model
+
+    field = fb_field_model(model, "bench")
+    runs = answers(field, velocities, args.seeds)
     middle = velocities[len(velocities) // 2]
     result = {"model": model.name, "command": command_line(NAME, argv), "velocities": velocities,
-              "seeds": args.seeds, "timed_velocity": middle, "times": times(model, middle, args.repeats),
+              "seeds": args.seeds, "timed_velocity": middle, "times": times(field, middle, args.repeats),
               "differences": differences(runs), "answers": runs}
     write_report(NAME, result, markdown(result), command=result["command"], path=resolve_out(args.out, NAME),
                  machine=machine)
