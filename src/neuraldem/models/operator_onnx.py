@@ -101,9 +101,11 @@ class _Decoder(nn.Module):
 
 
 def weights_key(net: MultiBranchOperator, off_branches: bool, grid_shape: tuple[int, ...]) -> str:
-    """Hash of the weights, the net's shape, the grid and what is exported: the cache key of the exported
-    files."""
+    """Hash of the weights, the net's shape, the grid, what is exported and the code that computes it (every module
+    of `neuraldem.models`): the cache key of the exported files, so a changed net code is exported anew."""
     h = hashlib.sha256()
+    for source in sorted(Path(__file__).parent.rglob("*.py")):
+        h.update(source.read_bytes())
     for name, value in sorted(net.state_dict().items()):
         h.update(name.encode())
         h.update(value.detach().cpu().contiguous().numpy().tobytes())
