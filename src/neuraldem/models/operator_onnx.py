@@ -1,11 +1,11 @@
 """The multi-branch operator's inference calls (`latents`, `decode`) answered by ONNX Runtime.
 
 Why: a small net is dominated by the cost of each call, not by arithmetic. The shipped bed model (width 32,
-16 supernodes, 60 grid patches) makes ~2000 torch calls per rollout step at 10-20 us each on a 2-core CPU;
-ONNX Runtime runs the same graph at a few us per node (the bed's whole rollout step, 0.88 -> 0.48 s per
-simulated second at one thread: results/fluidized_bed/speed/fb_speed.md, its runtime column). The particle
-graph (torch_cluster's radius search) is no ONNX operator: it stays in torch and the exported encoder takes its
-edges as inputs.
+16 supernodes, 60 grid patches) makes thousands of small torch calls per rollout step, each costing more in
+dispatch than in arithmetic; ONNX Runtime runs the same graph with far less per node (the bed's whole rollout
+step, 0.88 -> 0.48 s per simulated second at one thread: results/fluidized_bed/speed/fb_speed.md, its runtime
+column). The particle graph (torch_cluster's radius search) is no ONNX operator: it stays in torch and the
+exported encoder takes its edges as inputs.
 
 `OnnxOperator` stands in for a `MultiBranchOperator` wherever a caller only runs `latents` and `decode` (a
 rollout step). Its answers are the torch net's to float32 round-off (checked at export, `EXPORT_TOLERANCE`), not

@@ -227,8 +227,8 @@ def next_inputs(net: MultiBranchOperator, tokens: dict[str, torch.Tensor], cond:
     all; the others get 0 (model units). A rollout step in ONNX Runtime asks only for the particles the next
     step's encoder reads (a quarter of them on the shipped model), and for all of them when they are kept. Queries never
     interact, so a subset decodes to those rows of decoding all, up to the last bit: the matrix kernels may round
-    a row differently for another number of rows (on the shipped model, a 300-step rollout's fields first differed
-    from decoding all, by 1e-6, at step 275)."""
+    a row differently for another number of rows (on the shipped model, a 300-step rollout's fields came to differ
+    from decoding all in their last bits late in the rollout)."""
     shape = inputs.grid.shape[2:]
     batch = inputs.grid.shape[0]
     fluid = fields["fluid"].transpose(1, 2).reshape(batch, -1, *shape)

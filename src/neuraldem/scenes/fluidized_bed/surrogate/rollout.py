@@ -206,7 +206,7 @@ class ModelStepper:
         key = (self.stability.mixing != "advect", torch.get_num_threads(), tuple(int(n) for n in self.norm.grid_shape))
         opened = _ONNX_NETS.setdefault(self.net, {})
         try:
-            if key not in opened:  # one export check and session per net and setting (70 ms), not per rollout
+            if key not in opened:  # one export check and session per net and setting, not per rollout
                 net = OnnxOperator(self.net, data_dir() / "cache" / "onnx", off_branches=key[0], threads=key[1])
                 net.prepare(key[2])
                 opened[key] = net
@@ -416,8 +416,9 @@ def rollout(stepper: Stepper, state: BedState, steps: int, limits: DivergenceLim
 @contextmanager
 def _older_objects_left_alone() -> Iterator[None]:
     """The objects alive before the loop are left out of the garbage collector's passes during it. With torch and
-    Lightning imported they are ~420 000, which every full pass walked while a rollout made its small arrays
-    (a 300-step rollout of the shipped model in ONNX Runtime: 1.50 -> 1.34 s, medians of 4, twice)."""
+    Lightning imported they are hundreds of thousands, which every full pass walked while a rollout made its many
+    small arrays: a noticeable share of a bed rollout's time (it is in the step times of
+    results/fluidized_bed/speed/fb_speed.md)."""
     gc.freeze()
     try:
         yield
