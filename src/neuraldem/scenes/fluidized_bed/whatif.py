@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -246,20 +247,22 @@ class FieldAnswer:
 
 def field_answer(module: Any, states: InitialStates, velocity: float, settings: BedMetricSettings,
                  window: AnswerWindow, seed: int = 0, particles_every: int = 10,
-                 runtime: str = "auto", threads: int = 1) -> FieldAnswer:
+                 runtime: str = "auto", threads: int = 1, gate: Callable[[], None] | None = None) -> FieldAnswer:
     """Roll the model out over the answer window from the shipped state nearest in velocity; read the answers.
     `runtime`: what steps the net (auto: ONNX Runtime where installed, equal to torch to round-off); `threads`:
     its threads (one is fastest for the shipped model on a 2-core CPU: 0.48 s per simulated second against 1.29 s
-    on two, results/fluidized_bed/speed/fb_speed.md)."""
+    on two, results/fluidized_bed/speed/fb_speed.md); `gate`: called before every step (the explorer's pauses,
+    which do not change the rollout)."""
     from neuraldem.bench.timing import torch_threads
-    from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, rollout  # torch: only for fields
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout import GatedStepper, ModelStepper, rollout  # torch
 
     t0 = time.perf_counter()
     norm = module.norm
     state, particle_volume, start = states.nearest(velocity)
     with torch_threads(threads):
         stepper = ModelStepper(module, velocity, seed, runtime=runtime)
-        r = rollout(stepper, state, window.steps, particles_every=particles_every, progress=False)
+        r = rollout(stepper if gate is None else GatedStepper(stepper, gate), state, window.steps,
+                    particles_every=particles_every, progress=False)
     curves = bed_curves(r.times, r.solid_fraction.astype(np.float64), r.mixing.astype(np.float64), states.grid,
                         particle_volume, settings)
     summary = bed_answers(curves, window)

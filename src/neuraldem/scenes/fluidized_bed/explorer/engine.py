@@ -58,19 +58,6 @@ class BedRollout:
     diverged_at: int | None
 
 
-class GatedStepper:
-    """A stepper that calls `gate()` before each step (which may wait, or raise Superseded). The steps are the
-    wrapped stepper's own, in the same order: pauses do not change the rollout."""
-
-    def __init__(self, stepper: Any, gate: Callable[[], None]):
-        self.stepper, self.gate, self.dt = stepper, gate, stepper.dt
-        self.decodes_on_demand = getattr(stepper, "decodes_on_demand", False)
-
-    def step(self, state: Any, **kwargs: Any) -> Any:
-        self.gate()
-        return self.stepper.step(state, **kwargs)
-
-
 def spread_order(values: list[float], first: float) -> list[float]:
     """`values` starting with the one nearest `first`, then each time the one farthest from those taken (the
     lattice fills evenly: an early move finds a rollout not far off)."""
@@ -188,34 +175,21 @@ class BedEngine:
             return len(self._lattice_done)
 
     def compute(self, v: float, gate: Callable[[], None] | None = None) -> BedRollout:
-        """The rollout at `v` as `whatif.field_answer` (and so `neuraldem predict fb`) runs it: the shipped first
-        state nearest in velocity, the same stepper, seed and steps; `gate` runs before every step."""
-        from neuraldem.bench.timing import torch_threads
-        from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper, rollout
-        from neuraldem.scenes.fluidized_bed.whatif import TARGETS, bed_answers, bed_curves
+        """The rollout at `v` by `whatif.field_answer`, as `neuraldem predict fb` runs it (the shipped first state
+        nearest in velocity, the same stepper, seed, runtime, threads and steps); `gate` runs before every step."""
+        from neuraldem.scenes.fluidized_bed.whatif import field_answer
 
         v = self.velocity(v)
         done = self.rollout(v)
         if done is not None:
             return done
-        t0 = time.perf_counter()
-        state, particle_volume, start = self.states.nearest(v)
-        with torch_threads(1):  # as predict steps it (one thread: the fastest for the bed's small net)
-            stepper = ModelStepper(self.module, v, SEED, runtime=RUNTIME)
-            r = rollout(stepper if gate is None else GatedStepper(stepper, gate), state, self.window.steps,
-                        particles_every=10, progress=False)
-        curves = bed_curves(r.times, r.solid_fraction.astype(np.float64), r.mixing.astype(np.float64),
-                            self.states.grid, particle_volume, self.settings)
-        summary = bed_answers(curves, self.window)
-        if r.diverged_at is not None:
-            summary = {t: float("nan") for t in TARGETS}
-        norm = self.module.norm
-        extrapolation = {} if norm.in_trained_range(v) else {KEY: [float(v), norm.velocity_lo, norm.velocity_hi]}
+        f = field_answer(self.module, self.states, v, self.settings, self.window, SEED, runtime=RUNTIME, gate=gate)
+        r = f.rollout
         mid = r.solid_fraction.shape[2] // 2
         sf = np.ascontiguousarray(r.solid_fraction[:, :, mid, :], dtype=np.float32)
         mix = np.where(sf > MIX_BLANK, r.mixing[:, :, mid, :], np.nan).astype(np.float32)
-        out = BedRollout(v, np.asarray(r.times, dtype=np.float64), sf, mix, curves, summary,
-                         time.perf_counter() - t0, start, extrapolation, r.diverged_at)
+        out = BedRollout(v, np.asarray(r.times, dtype=np.float64), sf, mix, f.curves, f.summary, f.seconds, f.start,
+                         f.extrapolation, r.diverged_at)
         with self._lock:
             if v in self.lattice:
                 self._lattice_done[v] = out

@@ -345,6 +345,19 @@ class DataStepper:
         return initial_state(self.f, k)
 
 
+class GatedStepper:
+    """A stepper that calls `gate()` before each step (which may wait, or raise: the explorer's `Superseded`). The
+    steps are the wrapped stepper's own, in the same order: pauses do not change the rollout."""
+
+    def __init__(self, stepper: Stepper, gate: Callable[[], None]):
+        self.stepper, self.gate, self.dt = stepper, gate, stepper.dt
+        self.decodes_on_demand = getattr(stepper, "decodes_on_demand", False)
+
+    def step(self, state: BedState, **kwargs: Any) -> BedState:
+        self.gate()
+        return self.stepper.step(state, **kwargs)
+
+
 @dataclass
 class Rollout:
     """The states of a rollout, stacked (grid fields in float32, as stored); particle samples every
