@@ -49,6 +49,39 @@ def test_latents_and_decodes_equal_the_torch_nets(tmp_path: Path, off_branches: 
             onnx.latents(x, off_branches=True)
 
 
+@pytest.mark.parametrize("off_branches", [False, True])
+def test_the_grid_decoded_with_the_latents_is_the_decoders_answer(tmp_path: Path, off_branches: bool):
+    """The latents call also decodes the grid branches at the cell centres; a decode at exactly those positions,
+    from those tokens, answers from it, and any other decode asks the decoder."""
+    from neuraldem.models.modules.patch_embedding import cell_centres
+
+    net = small_net()
+    onnx = OnnxOperator(net, tmp_path, off_branches=off_branches)
+    x = net.example_inputs(batch_size=1, n_particles=40, grid_shape=GRID, generator=torch.Generator().manual_seed(5))
+    centres = cell_centres(GRID)[None]
+    with torch.no_grad():
+        want_tokens, want_cond = net.latents(x, off_branches=off_branches)
+        tokens, cond = onnx.latents(x, off_branches=off_branches)
+        grids = onnx.grid_branches
+        assert grids == (("fluid", "mixing") if off_branches else ("fluid",))
+        want = net.decode(want_tokens, want_cond, {b: centres for b in grids})
+        calls = []
+        for b in grids:  # count the decoder sessions' runs
+            run = onnx.sessions[b].run
+            onnx.sessions[b] = type("Counted", (), {"run": lambda self, *a, run=run, b=b: calls.append(b) or run(*a)})()
+        got = onnx.decode(tokens, cond, {b: centres.clone() for b in grids})
+        assert calls == []  # answered by the latents call
+        for b in grids:
+            torch.testing.assert_close(got[b], want[b], atol=1e-4, rtol=1e-4)
+        shifted = onnx.decode(tokens, cond, {"fluid": centres * 0.5})["fluid"]
+        other = {k: v.clone() for k, v in tokens.items()}  # equal tokens, not the latents call's own
+        again = onnx.decode(other, cond, {"fluid": centres})["fluid"]
+    assert calls == ["fluid", "fluid"]
+    torch.testing.assert_close(shifted, net.decode(want_tokens, want_cond, {"fluid": centres * 0.5})["fluid"],
+                               atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(again, want["fluid"], atol=1e-4, rtol=1e-4)
+
+
 def test_the_export_is_cached_per_weights_and_grid(tmp_path: Path):
     net = small_net()
     x = net.example_inputs(batch_size=1, n_particles=30, grid_shape=GRID)

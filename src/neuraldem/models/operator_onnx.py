@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from neuraldem.models.modules.patch_embedding import cell_centres
 from neuraldem.models.modules.supernode_pooling import ParticleGraph
 from neuraldem.models.multi_branch_operator import MultiBranchOperator, OperatorInputs
 from neuraldem.models.onnx_runtime import OPSET, check_threads, installed, require_onnxruntime
@@ -54,11 +55,14 @@ def resolve_runtime(runtime: str, key: str = "runtime") -> str:
 
 class _Latents(nn.Module):
     """`net.latents` with the particle graph given: the supernode mean as a product with the edges' one-hot
-    matrix (ONNX has no scatter-add the exporter maps index_add_ to)."""
+    matrix (ONNX has no scatter-add the exporter maps index_add_ to). With `grid_shape`, the grid branches are
+    also decoded at the grid's cell centres in the same call (what every rollout step asks for next: one session
+    run instead of two, and the query embedding of the fixed centres folded into constants at export)."""
 
-    def __init__(self, net: MultiBranchOperator, off_branches: bool):
+    def __init__(self, net: MultiBranchOperator, off_branches: bool, grid_shape: tuple[int, ...] | None = None):
         super().__init__()
         self.net, self.off_branches = net, off_branches
+        self.grid_shape = grid_shape
 
     def forward(self, particle_pos: torch.Tensor, particle_features: torch.Tensor, supernode_idx: torch.Tensor,
                 edges: torch.Tensor, grid: torch.Tensor, mixing_grid: torch.Tensor, scalars: torch.Tensor,
@@ -75,10 +79,18 @@ class _Latents(nn.Module):
             tokens["mixing"] = net.encoders["mixing"](mixing_grid)
         for block in [*net.encoder_blocks, *net.approximator_blocks, *net.decoder_blocks]:
             tokens = block(tokens, cond, self.off_branches)
-        return (*(tokens[b] for b in self.branches()), cond)
+        grids = ()
+        if self.grid_shape is not None:
+            centres = cell_centres(self.grid_shape).unsqueeze(0).expand(grid.shape[0], -1, -1)
+            decoded = net.decode(tokens, cond, {b: centres for b in self.grid_branches()})
+            grids = tuple(decoded[b] for b in self.grid_branches())
+        return (*(tokens[b] for b in self.branches()), cond, *grids)
 
     def branches(self) -> tuple[str, ...]:
         return self.net.main_branches + (("mixing",) if self.off_branches else ())
+
+    def grid_branches(self) -> tuple[str, ...]:
+        return tuple(b for b in self.branches() if b != "particles")
 
     def _pool(self, positions: torch.Tensor, features: torch.Tensor, supernode_idx: torch.Tensor,
               edges: torch.Tensor) -> torch.Tensor:
@@ -138,6 +150,10 @@ class OnnxOperator:
         self.noise_dim, self.particle_branch = net.noise_dim, net.particle_branch
         self.main_branches, self.off_branches = net.main_branches, off_branches
         self.branches = _Latents(net, off_branches).branches()  # decodable: an off-branch needs its own tokens
+        self.grid_branches = _Latents(net, off_branches).grid_branches()
+        # the grid branches decoded at the cell centres by the last `latents` call: {branch: (its tokens, out)}
+        self._grid_out: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._centres: torch.Tensor | None = None
         self.root, self.threads, self._ort = Path(folder), check_threads(threads), ort
         self.sessions: dict[str, Any] = {}
         self.grid_shape: tuple[int, ...] | None = None  # exported for the first grid it is given
@@ -175,6 +191,7 @@ class OnnxOperator:
         # the exporter drops the inputs a net does not read (noise of a deterministic net, ...)
         self.latent_inputs = [i.name for i in self.sessions["latents"].get_inputs()]
         self.grid_shape = grid_shape
+        self._centres = cell_centres(grid_shape)
 
     # ---- export
     def _example(self, grid_shape: tuple[int, ...]) -> dict[str, torch.Tensor]:
@@ -199,8 +216,8 @@ class OnnxOperator:
         from neuraldem.errors import DataError
 
         feed = self._example(grid_shape)
-        latents = _Latents(self.torch_net, self.off_branches)
-        outputs = [*self.branches, "cond"]
+        latents = _Latents(self.torch_net, self.off_branches, grid_shape)
+        outputs = [*self.branches, "cond", *self._grid_names()]
         _export(latents, feed, outputs, self.folder / "latents.onnx",
                 {"particle_pos": {1: "particles"}, "particle_features": {1: "particles"},
                  "edges": {1: "edges"}})
@@ -211,6 +228,8 @@ class OnnxOperator:
                 else None), off_branches=self.off_branches)
             queries = torch.rand(1, 50, 3, generator=torch.Generator().manual_seed(1))
             want = {b: self.torch_net.decode(tokens, cond, {b: queries})[b] for b in self.branches}
+            centres = cell_centres(grid_shape)[None]
+            want_grid = {b: self.torch_net.decode(tokens, cond, {b: centres})[b] for b in self.grid_branches}
         for b in self.branches:
             _export(_Decoder(self.torch_net, b), {"tokens": tokens[b], "query_pos": queries, "cond": cond},
                     ["out"], self.folder / f"{b}.onnx", {"query_pos": {1: "queries"}, "out": {1: "queries"}})
@@ -219,6 +238,8 @@ class OnnxOperator:
         got = dict(zip(outputs, session.run(outputs, {k: v.numpy() for k, v in feed.items() if k in used}),
                        strict=True))
         worst = max(float(np.abs(got[b] - tokens[b].numpy()).max()) for b in self.branches)
+        worst = max(worst, *(float(np.abs(got[f"grid_{b}"] - want_grid[b].numpy()).max())
+                             for b in self.grid_branches))
         for b in self.branches:
             s = ort.InferenceSession(str(self.folder / f"{b}.onnx"), providers=["CPUExecutionProvider"])
             out = s.run(["out"], {"tokens": tokens[b].numpy(), "query_pos": queries.numpy(),
@@ -230,6 +251,9 @@ class OnnxOperator:
         (self.folder / "checked.json").write_text(json.dumps({"max_abs_difference_to_torch": worst}) + "\n")
         log.info("exported the net to ONNX in %s (largest difference to torch %.2g)", self.folder, worst)
 
+    def _grid_names(self) -> list[str]:
+        return [f"grid_{b}" for b in self.grid_branches]
+
     # ---- the calls a rollout makes
     def latents(self, inputs: OperatorInputs, off_branches: bool = True) -> tuple[dict[str, torch.Tensor],
                                                                                  torch.Tensor]:
@@ -240,10 +264,11 @@ class OnnxOperator:
             self.prepare(grid_shape)
         tensors = self._feed_tensors(inputs)
         feed = {k: tensors[k].detach().cpu().numpy() for k in self.latent_inputs}
-        names = [*self.branches, "cond"]
+        names = [*self.branches, "cond", *self._grid_names()]
         out = self.sessions["latents"].run(names, feed)
         tensors = {name: torch.from_numpy(a) for name, a in zip(names, out, strict=True)}
         cond = tensors.pop("cond")
+        self._grid_out = {b: (tensors[b], tensors.pop(f"grid_{b}")) for b in self.grid_branches}
         return tensors, cond
 
     def decode(self, tokens: Mapping[str, torch.Tensor], cond: torch.Tensor,
@@ -251,10 +276,18 @@ class OnnxOperator:
         cond_np = cond.detach().cpu().numpy()
         out = {}
         for name, pos in query_pos.items():
+            done = self._grid_out.get(name)
+            if done is not None and done[0] is tokens[name] and self._at_centres(pos):
+                out[name] = done[1]  # decoded by the latents call that made these tokens
+                continue
             t = tokens[name].detach().cpu().numpy()
             chunks = [pos] if chunk_size is None else pos.split(chunk_size, dim=1)
             parts = [self.sessions[name].run(["out"], {"tokens": t, "query_pos": c.detach().cpu().numpy(),
                                                        "cond": cond_np})[0] for c in chunks]
             out[name] = torch.from_numpy(np.concatenate(parts, axis=1))
         return out
+
+    def _at_centres(self, pos: torch.Tensor) -> bool:
+        """Whether (1, Q, 3) query positions are the grid's cell centres, in their order."""
+        return pos.shape[0] == 1 and pos.shape[1:] == self._centres.shape and torch.equal(pos[0], self._centres)
 

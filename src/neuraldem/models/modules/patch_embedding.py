@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from functools import lru_cache
 
 import torch
 from torch import nn
@@ -17,9 +18,16 @@ from neuraldem.models.modules.position_embedding import ContinuousSincosEmbed
 
 
 def cell_centres(shape: Sequence[int], device: torch.device | str | None = None) -> torch.Tensor:
-    """Normalised centres of all cells of a grid, (prod(shape), ndim), in C order (last axis fastest)."""
+    """Normalised centres of all cells of a grid, (prod(shape), ndim), in C order (last axis fastest). Shared
+    and read-only: made once per grid and device (a rollout step asks for them several times)."""
+    return _cell_centres(tuple(int(n) for n in shape), torch.device(device) if device is not None else None)
+
+
+@lru_cache(maxsize=32)
+def _cell_centres(shape: tuple[int, ...], device: torch.device | None) -> torch.Tensor:
     axes = [(torch.arange(n, device=device, dtype=torch.float32) + 0.5) / n for n in shape]
-    return torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, len(shape))
+    centres = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, len(shape))
+    return centres.requires_grad_(False)
 
 
 def as_patch_size(patch_size: Sequence[int]) -> tuple[int, ...]:

@@ -8,6 +8,7 @@ independently of how many particles discretise it and of their order.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import torch
 from torch import nn
@@ -32,6 +33,15 @@ def select_supernodes(batch_size: int, n_particles: int, n_supernodes: int, *, d
     noise = torch.rand(batch_size, n_particles, generator=generator,
                        device=generator.device if generator is not None else device)
     return noise.topk(n_supernodes, dim=1).indices.to(device)
+
+
+@lru_cache(maxsize=16)
+def _eval_supernodes(batch_size: int, n_particles: int, n_supernodes: int, device: torch.device) -> torch.Tensor:
+    """The supernodes of eval mode (drawn with `EVAL_SEED`): the same for every state of a shape, so drawn once
+    per shape (a rollout step asked for them every step)."""
+    generator = torch.Generator().manual_seed(EVAL_SEED)
+    return select_supernodes(batch_size, n_particles, n_supernodes, device=device, generator=generator,
+                             key="model.net.n_supernodes_eval")
 
 
 @dataclass(frozen=True)
@@ -81,9 +91,7 @@ class SupernodePooling(nn.Module):
         batch_size, n_particles, _ = positions.shape
         if self.training:
             return select_supernodes(batch_size, n_particles, self.n_supernodes, device=positions.device)
-        generator = torch.Generator().manual_seed(EVAL_SEED)
-        return select_supernodes(batch_size, n_particles, self.n_supernodes_eval, device=positions.device,
-                                 generator=generator, key="model.net.n_supernodes_eval")
+        return _eval_supernodes(batch_size, n_particles, self.n_supernodes_eval, positions.device).clone()
 
     def graph(self, positions: torch.Tensor, supernode_idx: torch.Tensor | None = None) -> ParticleGraph:
         """The supernodes (`supernode_idx`, else `choose_supernodes`) and the particles each one pools."""

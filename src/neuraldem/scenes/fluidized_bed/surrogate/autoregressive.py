@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import replace
+from functools import lru_cache
 
 import numpy as np
 import torch
@@ -32,8 +33,15 @@ FLUX_CHANNELS = slice(4, 7)
 
 
 def _stats(norm: BedNormalizer, name: str, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    return (torch.tensor(norm.mean[name], dtype=like.dtype, device=like.device),
-            torch.tensor(norm.std[name], dtype=like.dtype, device=like.device))
+    """The field's mean and std as tensors like `like` (shared, read-only: made once per values, dtype and device,
+    not at every call of a rollout step)."""
+    return _stat_tensors(tuple(norm.mean[name]), tuple(norm.std[name]), like.dtype, like.device)
+
+
+@lru_cache(maxsize=64)
+def _stat_tensors(mean: tuple[float, ...], std: tuple[float, ...], dtype: torch.dtype,
+                  device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    return torch.tensor(mean, dtype=dtype, device=device), torch.tensor(std, dtype=dtype, device=device)
 
 
 def water_fill(alpha: torch.Tensor, volume: torch.Tensor, cap: float) -> torch.Tensor:
@@ -157,9 +165,19 @@ def sample_positions(solid_fraction: torch.Tensor, n: int,
     device = generator.device if generator is not None else solid_fraction.device
     cell = torch.multinomial(weights.to(device), n, replacement=True, generator=generator)
     dims = torch.tensor(shape, device=device)
-    ijk = torch.stack(torch.unravel_index(cell, tuple(shape)), dim=-1)
+    ijk = _unravel(cell, tuple(int(d) for d in shape))
     offset = torch.rand(batch, n, 3, generator=generator, device=device)
     return ((ijk + offset) / dims).to(solid_fraction.device)
+
+
+def _unravel(cell: torch.Tensor, shape: tuple[int, ...]) -> torch.Tensor:
+    """(..., ndim) C-order indices of flat cell indices: torch.unravel_index's integers, in a few operations
+    instead of its many small ones (a rollout samples every step)."""
+    out, rest = [], cell
+    for n in reversed(shape):
+        out.append(rest % n)
+        rest = rest // n
+    return torch.stack(out[::-1], dim=-1)
 
 
 def grid_cells(grid: torch.Tensor) -> torch.Tensor:
