@@ -104,6 +104,38 @@ def test_volume_projection_of_a_field_that_overfills_its_dense_cells():
     assert float(alpha[0]) == pytest.approx(cap) and float(alpha.sum()) == pytest.approx(2.0, rel=1e-6)
 
 
+def test_volume_projection_without_a_gradient_is_the_differentiable_ones_bit_for_bit():
+    """A rollout step fills in NumPy (no gradient to keep); training in torch. Random fields, float32 and
+    float64, ties at the cap, volumes from far below to past what the cap allows (the fallback rows): equal to
+    the last bit."""
+    from neuraldem.scenes.fluidized_bed.surrogate.autoregressive import _water_fill_numpy, water_fill
+
+    g = torch.Generator().manual_seed(0)
+    cap, numpy_rows = 0.72, 0
+    for t in range(600):
+        rows, n = 1 + t % 3, (360, 50, 7)[t % 3]
+        alpha = torch.rand(rows, n, generator=g, dtype=torch.float64) * (0.9 if t % 2 else 0.5)
+        alpha[torch.rand(rows, n, generator=g) < 0.3] = 0.0
+        if t % 5 == 0:
+            alpha[:, :10] = cap
+        alpha = alpha.float() if t % 4 else alpha
+        volume = alpha.double().sum(1) * (0.5 + 1.2 * torch.rand(rows, generator=g, dtype=torch.float64))
+        with torch.no_grad():
+            fast = water_fill(alpha, volume, cap)
+        exact = water_fill(alpha.clone().requires_grad_(True), volume, cap).detach()
+        assert fast.dtype == exact.dtype and torch.equal(fast, exact), t
+        numpy_rows += _water_fill_numpy(alpha.double().numpy(), volume.reshape(-1, 1).numpy(), cap) is not None
+    assert 300 < numpy_rows < 600  # both the NumPy fill and the torch fallback were compared
+
+
+def test_sampled_cells_unravel_as_torch_does():
+    from neuraldem.scenes.fluidized_bed.surrogate.autoregressive import _unravel
+
+    cells = torch.randint(0, 360, (2, 500), generator=torch.Generator().manual_seed(2))
+    for shape in ((12, 1, 30), (6, 2, 30), (360,)):
+        assert torch.equal(_unravel(cells, shape), torch.stack(torch.unravel_index(cells, shape), dim=-1))
+
+
 def test_continuity_residual_is_zero_exactly_when_the_flux_carries_the_solid():
     """Synthetic fields (no solver data): a next solid fraction made by moving the input with a given flux
     through the cell faces has no residual; the same flux against another next field (same volume) has one,

@@ -51,7 +51,13 @@ def water_fill(alpha: torch.Tensor, volume: torch.Tensor, cap: float) -> torch.T
     whose largest free cell stays under the cap). Cells over the cap before scaling are not held by themselves:
     a prediction that piles more than the volume into them is scaled down as a whole. A row with no solid
     outside its capped cells spreads the rest evenly over the empty ones; a volume past n * cap fills every
-    cell to the cap. Differentiable through s."""
+    cell to the cap. Differentiable through s; without a gradient to keep, on the CPU, computed by
+    `_water_fill_numpy` (the same values, bit for bit)."""
+    if alpha.device.type == "cpu" and not (torch.is_grad_enabled() and alpha.requires_grad):
+        filled = _water_fill_numpy(alpha.detach().double().numpy(), volume.detach().double().reshape(-1, 1).numpy(),
+                                   cap)
+        if filled is not None:
+            return torch.from_numpy(filled).to(alpha.dtype)
     b, n = alpha.shape
     work = alpha.double()
     target = volume.double().reshape(b, 1)
@@ -73,6 +79,25 @@ def water_fill(alpha: torch.Tensor, volume: torch.Tensor, cap: float) -> torch.T
     even = ((target - cap * held) / (n - held).clamp(min=1)).clamp(0.0, cap)
     fallback = torch.where(work > 0, torch.full_like(work, cap), even.expand_as(work))
     return torch.where(found, filled, fallback).to(alpha.dtype)
+
+
+def _water_fill_numpy(work: np.ndarray, target: np.ndarray, cap: float) -> np.ndarray | None:
+    """`water_fill` in NumPy, the same operations in the same order (float64), for a rollout step: a few hundred
+    cells, where each torch call costs several NumPy ones. None when a row needs the fallback (every solid cell
+    at the cap; rare), which is left to the torch code."""
+    b, n = work.shape
+    srt = np.sort(work, axis=1)[:, ::-1]
+    taken = np.zeros((b, n + 1))
+    np.cumsum(srt, axis=1, out=taken[:, 1:])
+    tail = taken[:, -1:] - taken
+    rest = target - cap * np.arange(n + 1, dtype=np.float64)
+    scale = rest / np.maximum(tail, 1e-300)
+    largest_free = np.concatenate([srt, np.zeros((b, 1))], axis=1)
+    ok = (rest >= 0) & (tail > 1e-12 * np.maximum(taken[:, -1:], 1e-300)) & (scale * largest_free <= cap)
+    if not ok.any(axis=1).all():
+        return None
+    s = np.take_along_axis(scale, ok.argmax(axis=1)[:, None], axis=1)
+    return np.minimum(np.maximum(s, 0.0) * work, cap)
 
 
 def project_volume(fluid: torch.Tensor, norm: BedNormalizer, volume: torch.Tensor) -> torch.Tensor:
