@@ -160,7 +160,7 @@ class ModelStepper:
     With `mirror_alternate` every second step is taken in the mirror image of the bed, with `rollout_noise` the
     net reads a perturbed copy of each state (`BedStability`; both drawn from this stepper's generator).
     `runtime`: torch, onnx (the net's calls in ONNX Runtime, equal to round-off, not bit for bit: the shipped
-    model's what-if 1.76x faster, its answers the same well within the seed spread,
+    model's what-if 1.63x faster, its answers the same well within the seed spread,
     results/fluidized_bed/speed/fb_runtime.md) or auto (onnx where installed). On the ONNX path
     (`decodes_on_demand`) a step whose particles nobody keeps (`rollout`'s steps between samples) decodes the
     displacement only where the next step's encoder reads it (`autoregressive.next_inputs`) and hands that step
