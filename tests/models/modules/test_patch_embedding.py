@@ -73,3 +73,16 @@ def test_validation():
         PatchEmbedding(1, 16, (4,))
     with pytest.raises(ValueError, match="not 2 or 3 positive cell counts"):
         PatchEmbedding(1, 16, (4, 0))
+
+
+def test_cell_centres_first_asked_for_in_inference_mode_serve_training():
+    """They are made once per grid (a rollout step asks often); the first ask may come from a rollout, in
+    inference mode, and a later training step must still backpropagate through them."""
+    from neuraldem.models.modules.patch_embedding import _cell_centres, cell_centres
+
+    _cell_centres.cache_clear()
+    with torch.inference_mode():
+        first = cell_centres((3, 1, 5))
+    weight = torch.ones(3, requires_grad=True)
+    (cell_centres((3, 1, 5)) * weight).sum().backward()
+    assert not first.is_inference() and torch.equal(weight.grad, cell_centres((3, 1, 5)).sum(0))

@@ -100,3 +100,19 @@ def test_a_given_graph_is_the_one_it_would_find_and_reads_only_its_particles():
     in_batch = graph.edges[:, graph.edges[0] >= graph.supernode_idx.shape[1]]
     shifted = in_batch - torch.tensor([[graph.supernode_idx.shape[1]], [60]])
     assert torch.equal(one.edges, shifted)
+
+
+def test_eval_supernodes_first_drawn_in_inference_mode_serve_a_gradient():
+    """Eval-mode supernodes are drawn once per shape; the first draw may come from a rollout in inference mode,
+    and a later eval-mode pass that keeps a gradient must still backpropagate through the pooling."""
+    from neuraldem.models.modules.supernode_pooling import _eval_supernodes
+
+    _eval_supernodes.cache_clear()
+    pool = make_pooling().eval()
+    pos, feat = particles(batch=1, n=37)
+    feat.requires_grad_(True)
+    with torch.inference_mode():
+        first = pool(pos, feat.detach())
+    again = pool(pos, feat)
+    again.sum().backward()
+    assert feat.grad is not None and torch.equal(first, again.detach())

@@ -24,10 +24,10 @@ def cell_centres(shape: Sequence[int], device: torch.device | str | None = None)
 
 
 @lru_cache(maxsize=32)
+@torch.inference_mode(False)  # a plain tensor even when first asked for in inference mode: training reuses it
 def _cell_centres(shape: tuple[int, ...], device: torch.device | None) -> torch.Tensor:
     axes = [(torch.arange(n, device=device, dtype=torch.float32) + 0.5) / n for n in shape]
-    centres = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, len(shape))
-    return centres.requires_grad_(False)
+    return torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, len(shape))
 
 
 def as_patch_size(patch_size: Sequence[int]) -> tuple[int, ...]:

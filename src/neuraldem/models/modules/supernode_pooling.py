@@ -36,6 +36,7 @@ def select_supernodes(batch_size: int, n_particles: int, n_supernodes: int, *, d
 
 
 @lru_cache(maxsize=16)
+@torch.inference_mode(False)  # a plain tensor even when first asked for in a rollout step: training reuses it
 def _eval_supernodes(batch_size: int, n_particles: int, n_supernodes: int, device: torch.device) -> torch.Tensor:
     """The supernodes of eval mode (drawn with `EVAL_SEED`): the same for every state of a shape, so drawn once
     per shape (a rollout step asked for them every step)."""

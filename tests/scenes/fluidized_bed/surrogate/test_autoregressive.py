@@ -128,6 +128,25 @@ def test_volume_projection_without_a_gradient_is_the_differentiable_ones_bit_for
     assert 300 < numpy_rows < 600  # both the NumPy fill and the torch fallback were compared
 
 
+def test_a_projection_first_made_in_a_rollout_step_still_trains():
+    """The normaliser's tensors are made once per values; the first may come from a rollout step in inference
+    mode, and a later training step must still backpropagate through the projection."""
+    from types import SimpleNamespace
+
+    from neuraldem.scenes.fluidized_bed.surrogate.autoregressive import _stat_tensors, project_volume
+
+    _stat_tensors.cache_clear()
+    norm = SimpleNamespace(mean={"solid_fraction": [0.25]}, std={"solid_fraction": [0.5]}, solid_fraction_max=0.7)
+    fluid = torch.rand(1, 12, 4, generator=torch.Generator().manual_seed(3))
+    volume = torch.tensor([1.5], dtype=torch.float64)
+    with torch.inference_mode():
+        first = project_volume(fluid, norm, volume)
+    trained = fluid.clone().requires_grad_(True)
+    again = project_volume(trained, norm, volume)
+    again.sum().backward()
+    assert trained.grad is not None and torch.equal(first, again.detach())
+
+
 def test_sampled_cells_unravel_as_torch_does():
     from neuraldem.scenes.fluidized_bed.surrogate.autoregressive import _unravel
 

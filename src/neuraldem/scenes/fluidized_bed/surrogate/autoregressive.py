@@ -39,6 +39,7 @@ def _stats(norm: BedNormalizer, name: str, like: torch.Tensor) -> tuple[torch.Te
 
 
 @lru_cache(maxsize=64)
+@torch.inference_mode(False)  # plain tensors even when first asked for in a rollout step: training reuses them
 def _stat_tensors(mean: tuple[float, ...], std: tuple[float, ...], dtype: torch.dtype,
                   device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
     return torch.tensor(mean, dtype=dtype, device=device), torch.tensor(std, dtype=dtype, device=device)
