@@ -83,6 +83,8 @@ SCENE = Scene(
                       "the hopper table cross-validated (model, constant, GP, seed floor)"),
         "occupancy": ("neuraldem.scenes.hopper.dataset.occupancy_coverage",
                       "how well the occupancy field counts hopper material"),
+        "hopper-diagnosis": ("neuraldem.scenes.hopper.analysis.diagnosis",
+                             "where a hopper field model's answer errors come from, on its validation runs"),
     },
     exports={"pack": ("neuraldem.scenes.hopper.dataset.transfer",
                       "a compact, exact copy of a hopper dataset in parts, for moving it to a training machine"),
