@@ -4,6 +4,7 @@ from its JSON file without measuring again (`neuraldem bench render`)."""
 from __future__ import annotations
 
 import math
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -128,7 +129,7 @@ def _finite(v: Any) -> bool:
 
 def fb_speed_figure(results: dict[str, Any], path: Path) -> Path:
     """Left: seconds per simulated second (wall and CPU, log scale) of DPMFoam and of the surrogate at each
-    thread setting. Right: the speed-ups solver / surrogate of every pairing, with the target (>= 100x)."""
+    thread setting. Right: the speed-ups solver / surrogate of every pairing, with the target (`target_speedup`)."""
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.6), gridspec_kw={"width_ratios": [1, 1.3]})
     entries = [(label, s) for label, s in results["solver"].items()]
     entries += [(f"surrogate, {t}" if "thread" in t else f"surrogate, {t} thread(s)", s)
@@ -139,7 +140,7 @@ def fb_speed_figure(results: dict[str, Any], path: Path) -> Path:
         left.bar([i + offset for i in x], values, width=0.4, color=color, label=name)
         for i, v in zip(x, values, strict=False):
             left.annotate(f"{v:.3g}", (i + offset, v), ha="center", va="bottom", fontsize=7)
-    left.set_xticks(list(x), [label.replace(", ", "\n") for label, _ in entries], fontsize=8)
+    left.set_xticks(list(x), [textwrap.fill(label.replace(",", ""), 10) for label, _ in entries], fontsize=7)
     left.set(yscale="log", ylabel="seconds per simulated second", title="cost of one simulated second")
     left.legend(fontsize=8)
     left.grid(True, axis="y", which="both", alpha=0.3)
