@@ -149,8 +149,9 @@ class OnnxOperator:
         self._net = weakref.ref(net.eval())
         self.noise_dim, self.particle_branch = net.noise_dim, net.particle_branch
         self.main_branches, self.off_branches = net.main_branches, off_branches
-        self.branches = _Latents(net, off_branches).branches()  # decodable: an off-branch needs its own tokens
-        self.grid_branches = _Latents(net, off_branches).grid_branches()
+        latents = _Latents(net, off_branches)
+        self.branches = latents.branches()  # decodable: an off-branch needs its own tokens
+        self.grid_branches = latents.grid_branches()
         # the grid branches decoded at the cell centres by the last `latents` call: {branch: (its tokens, out)}
         self._grid_out: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
         self._centres: torch.Tensor | None = None
