@@ -87,7 +87,7 @@ def check_python_stack() -> Check:
     # import name -> distribution name
     mods = {"lightning": "lightning", "hydra": "hydra-core", "omegaconf": "omegaconf", "h5py": "h5py",
             "wandb": "wandb", "lion_pytorch": "lion-pytorch", "matplotlib": "matplotlib", "scipy": "scipy",
-            "tqdm": "tqdm", "rich": "rich", "torch_geometric": "torch-geometric"}
+            "tqdm": "tqdm", "rich": "rich", "torch_geometric": "torch-geometric", "numba": "numba"}
     missing, versions = [], []
     for mod, dist in mods.items():
         try:

@@ -38,6 +38,8 @@ import numpy as np
 import scipy.fft
 import torch
 
+from neuraldem.models.modules import compiled
+
 DEFAULT_PRIOR = 1e-3
 MAX_COURANT = 0.5
 MAX_SUBSTEPS = 16
@@ -318,8 +320,12 @@ def advect_tagged(solid_fraction: torch.Tensor, concentration: torch.Tensor, flu
     outflow = np.add.reduce(moved[grid.out_of[1:]], axis=0)
     outflow_floor = np.maximum(outflow, 1e-300)
     correction = correction if scheme == "fct" else 0.0
-    for _ in range(n):
-        alpha, beta = grid.substep(alpha, beta, share, moved[c:-1], outflow, outflow_floor, correction)
+    if compiled.available():  # the same sub-steps compiled, bit for bit (`compiled`)
+        alpha, beta = compiled.kernels().advection_substeps(n, alpha, beta, share, moved[c:-1], outflow, outflow_floor,
+                                                float(correction), grid.ends, grid.into, grid.out_of, grid.near)
+    else:
+        for _ in range(n):
+            alpha, beta = grid.substep(alpha, beta, share, moved[c:-1], outflow, outflow_floor, correction)
     if target is not None:
         alpha, beta = _settle(grid, alpha, beta, share, goal)
     conc = _clip01((beta + prior * share) / (alpha + prior))

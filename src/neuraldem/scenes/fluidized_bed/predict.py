@@ -111,6 +111,9 @@ def predict_fb(point: dict[str, float], model_name: str, out: Path, fields: bool
 def fb_fields(model: pretrained.Pretrained, velocity: float, settings: Any, window: Any, out: Path,
               seed: int, runtime: str = "auto", threads: int = 1) -> tuple[dict[str, Any], Any]:
     """The field model's rollout over the answer window: its answers, the animation and ParaView files."""
+    from neuraldem.models.modules import compiled
+
+    compiled.warm_up_in_background()  # while torch and the model load
     from neuraldem.eval.checkpoints import read_checkpoint
     from neuraldem.scenes.fluidized_bed.analysis.plots import animate_fields
     from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import write_rollout_vtk

@@ -104,11 +104,17 @@ def test_volume_projection_of_a_field_that_overfills_its_dense_cells():
     assert float(alpha[0]) == pytest.approx(cap) and float(alpha.sum()) == pytest.approx(2.0, rel=1e-6)
 
 
-def test_volume_projection_without_a_gradient_is_the_differentiable_ones_bit_for_bit():
-    """A rollout step fills in NumPy (no gradient to keep); training in torch. Random fields, float32 and
-    float64, ties at the cap, volumes from far below to past what the cap allows (the fallback rows): equal to
-    the last bit."""
+@pytest.mark.parametrize("jit", [True, False])
+def test_volume_projection_without_a_gradient_is_the_differentiable_ones_bit_for_bit(monkeypatch, jit: bool):
+    """A rollout step fills in NumPy, or its Numba-compiled form (no gradient to keep); training in torch. Random
+    fields, float32 and float64, ties at the cap, volumes from far below to past what the cap allows (the
+    fallback rows): equal to the last bit."""
+    from neuraldem.models.modules import compiled
     from neuraldem.scenes.fluidized_bed.surrogate.autoregressive import _water_fill_numpy, water_fill
+
+    if jit and not compiled.available():
+        pytest.skip("numba is not installed")
+    monkeypatch.setattr(compiled, "available", lambda: jit)
 
     g = torch.Generator().manual_seed(0)
     cap, numpy_rows = 0.72, 0

@@ -77,6 +77,9 @@ class BedEngine:
     """One shipped bed model, loaded once per server and shared by every browser session."""
 
     def __init__(self, model: pretrained.Pretrained, lattice: int = LATTICE, cache_rollouts: int = 32):
+        from neuraldem.models.modules import compiled
+
+        compiled.warm_up_in_background()  # the rollout's compiled numerics, while the model loads
         from neuraldem.eval.checkpoints import read_checkpoint
         from neuraldem.scenes.fluidized_bed.parameters import PARAMETERS
         from neuraldem.scenes.fluidized_bed.predict import fb_settings, fb_window

@@ -22,6 +22,7 @@ from functools import lru_cache
 import numpy as np
 import torch
 
+from neuraldem.models.modules import compiled
 from neuraldem.models.modules.conservative_advection import advect_tagged, face_fluxes, net_outflow
 from neuraldem.models.modules.patch_embedding import cell_centres
 from neuraldem.models.multi_branch_operator import MultiBranchOperator, OperatorInputs
@@ -86,6 +87,10 @@ def _water_fill_numpy(work: np.ndarray, target: np.ndarray, cap: float) -> np.nd
     """`water_fill` in NumPy, the same operations in the same order (float64), for a rollout step: a few hundred
     cells, where each torch call costs several NumPy ones. None when a row needs the fallback (every solid cell
     at the cap; rare), which is left to the torch code."""
+    if compiled.available():  # the same operations compiled (`neuraldem.models.modules.compiled`)
+        filled, ok = compiled.kernels().water_fill_rows(np.ascontiguousarray(work), np.ascontiguousarray(target),
+                                                        float(cap))
+        return filled if ok else None
     b, n = work.shape
     srt = np.sort(work, axis=1)[:, ::-1]
     taken = np.zeros((b, n + 1))
