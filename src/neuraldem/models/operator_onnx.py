@@ -3,7 +3,7 @@
 Why: a small net is dominated by the cost of each call, not by arithmetic. The shipped bed model (width 32,
 16 supernodes, 60 grid patches) makes thousands of small torch calls per rollout step, each costing more in
 dispatch than in arithmetic; ONNX Runtime runs the same graph with far less per node (the bed's whole rollout
-step, 0.63 -> 0.42 s per simulated second at one thread: results/fluidized_bed/speed/fb_speed.md, its runtime
+step, 0.56 -> 0.31 s per simulated second at one thread: results/fluidized_bed/speed/fb_speed.md, its runtime
 column). The particle graph (torch_cluster's radius search) is no ONNX operator: it stays in torch and the
 exported encoder takes its edges as inputs.
 

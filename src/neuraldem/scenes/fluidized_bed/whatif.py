@@ -250,7 +250,7 @@ def field_answer(module: Any, states: InitialStates, velocity: float, settings: 
                  runtime: str = "auto", threads: int = 1, gate: Callable[[], None] | None = None) -> FieldAnswer:
     """Roll the model out over the answer window from the shipped state nearest in velocity; read the answers.
     `runtime`: what steps the net (auto: ONNX Runtime where installed, equal to torch to round-off); `threads`:
-    its threads (one is fastest for the shipped model on a 2-core CPU: 0.42 s per simulated second against 0.68 s
+    its threads (one is fastest for the shipped model on a 2-core CPU: 0.31 s per simulated second against 0.61 s
     on two, results/fluidized_bed/speed/fb_speed.md); `gate`: called before every step (the explorer's pauses,
     which do not change the rollout)."""
     from neuraldem.bench.timing import torch_threads
