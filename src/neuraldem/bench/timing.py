@@ -8,7 +8,9 @@ inject a fake `Clock` to check the arithmetic on known numbers.
 
 from __future__ import annotations
 
+import resource
 import statistics
+import subprocess
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -122,3 +124,33 @@ def torch_threads(n: int) -> Iterator[int]:
         yield n
     finally:
         torch.set_num_threads(previous)
+
+
+NUMBERS_LINE = "numbers in "  # what `neuraldem predict` prints once its numbers are out
+
+
+def command_times(cmd: list[str], repeats: int) -> tuple[Timing, Timing]:
+    """(until the numbers line is printed, until the command exits) of a `neuraldem predict` command: wall clock
+    from the process start; CPU of the whole run in both (the child's CPU is not split at the numbers line)."""
+    numbers, whole = [], []
+    for i in range(repeats + 1):  # the first run warms the file cache and is not counted
+        cpu0 = children_cpu()
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        seen = None
+        for line in proc.stdout:  # type: ignore[union-attr]
+            if seen is None and line.startswith(NUMBERS_LINE):
+                seen = time.perf_counter() - t0
+        if proc.wait() != 0 or seen is None:
+            raise RuntimeError(f"{' '.join(cmd)} failed (exit {proc.returncode}) or printed no numbers")
+        total, cpu = time.perf_counter() - t0, children_cpu() - cpu0
+        if i:
+            numbers.append(Sample(seen, cpu))
+            whole.append(Sample(total, cpu))
+    return (Timing(numbers, notes={"cpu": "of the whole command"}), Timing(whole))
+
+
+def children_cpu() -> float:
+    """User + system CPU seconds of the finished child processes so far."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime

@@ -4,6 +4,9 @@ and bad input in one line."""
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +34,12 @@ def test_bed_answers_fields_animation_and_verify(fb_tiny_pretrained: Path, tmp_p
     assert answer["field"]["steps"] == 19 and np.isfinite(answer["field"]["summary"]["bed_height"])
     for name in ("curves.png", "animation.gif", "vtk/bed_predicted_grid.pvd"):
         assert (tmp_path / name).stat().st_size > 0, name
+    # the numbers are printed before the pictures are drawn; answer.json then names them
+    assert proc.stdout.index("numbers in") < proc.stdout.index("picture(s) and ParaView series")
+    assert answer["field"]["files"] == {"animation": str(tmp_path / "animation.gif"), "vtk": str(tmp_path / "vtk")}
+    bare = predict("fb", "inlet_velocity=1.5", "pictures=false", f"out={tmp_path / 'bare'}", env=env)
+    assert bare.returncode == 0 and "picture(s)" not in bare.stdout, bare.stderr
+    assert sorted(p.name for p in (tmp_path / "bare").iterdir()) == ["answer.json"]
     # the same inputs again: the finished DPMFoam check is read back, not rerun
     again = predict("fb", "inlet_velocity=1.5", "--verify", "--no-fields", "--out", str(tmp_path), env=env)
     assert again.returncode == 0 and "DPMFoam answer read back" in again.stderr, again.stderr
@@ -176,3 +185,15 @@ def test_refresh_with_rollout_options_writes_them_into_the_shipped_model(fb_tiny
     wrong = run_module("neuraldem.release", "name=x", f"ckpt={field}", "rollout.rollout_noise=1")
     assert wrong.returncode == 2 and "rollout.rollout_noise= / rollout.advection_correction= go with " \
         "refresh_field=true" in wrong.stderr, wrong.stderr
+
+
+def test_the_field_answer_imports_no_lightning_no_datagen(fb_tiny_pretrained: Path, tmp_path: Path):
+    """What the answer does not need stays off its path: Lightning (~1.3 s), the datagen and scipy.stats."""
+    code = ("import sys; from neuraldem.__main__ import main; "
+            f"main(['predict', 'fluidized_bed', 'inlet_velocity=1.5', 'pictures=false', 'out={tmp_path}']); "
+            "print(sorted(m for m in ('lightning', 'scipy.stats', 'neuraldem.scenes.fluidized_bed.dataset.datagen', "
+            "'neuraldem.scenes.fluidized_bed.surrogate.module') if m in sys.modules))")
+    env = {**os.environ, "NEURALDEM_PRETRAINED_DIR": str(fb_tiny_pretrained)}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "| bed height (mean) [mm] |" in proc.stdout and proc.stdout.strip().endswith("[]"), proc.stdout

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from neuraldem.errors import DataError
-from neuraldem.scenes.fluidized_bed.dataset.datagen import BedMetricSettings
+from neuraldem.scenes.fluidized_bed.analysis.metric_settings import BedMetricSettings
 from neuraldem.scenes.fluidized_bed.whatif import AnswerWindow, BedCurves, InitialStates, bed_answers, bed_curves
 from neuraldem.sim.foam_reader import BoxGrid
 

@@ -43,7 +43,15 @@ def add_options(p: argparse.ArgumentParser) -> None:
 
 def answer(point: dict[str, float], model_name: str, out: Path, args: argparse.Namespace) -> dict[str, Any]:
     check_threads(args.threads)
-    return predict_fb(point, model_name, out, args.fields, args.verify, args.seed, args.runtime, args.threads)
+    return predict_fb(point, model_name, out, args.fields, args.verify, args.seed, args.runtime, args.threads,
+                      pictures=False)
+
+
+def follow_up(answer: dict[str, Any], out: Path, args: argparse.Namespace) -> list[Path]:
+    """After the numbers are printed: the curves, the animation and the ParaView files of the answer just given
+    (kept from `answer`, not rolled out again); answer.json then names them."""
+    pending = _PENDING.pop(out.resolve(), None)
+    return [] if pending is None else pending.draw(answer, out)
 
 
 def fb_window(model: pretrained.Pretrained) -> Any:
@@ -53,23 +61,27 @@ def fb_window(model: pretrained.Pretrained) -> Any:
 
 
 def fb_settings(model: pretrained.Pretrained) -> Any:
-    from neuraldem.scenes.fluidized_bed.dataset.datagen import BedMetricSettings
+    from neuraldem.scenes.fluidized_bed.analysis.metric_settings import BedMetricSettings
 
     return BedMetricSettings.from_config(model.meta["metric_settings"], f"{model.name} metric_settings")
 
 
 def fb_field_model(model: pretrained.Pretrained, purpose: str) -> tuple[Any, Any, Any, Any]:
-    """What `whatif.field_answer` takes from a shipped model: its field module, first states, metric settings and
-    answer window (read once; the benchmarks answer many times from them)."""
+    """What `whatif.field_answer` takes from a shipped model: the parts of its field model a rollout reads (no
+    Lightning import: `surrogate.step_model`), its first states, metric settings and answer window (read once;
+    the benchmarks and the explorer answer many times from them)."""
     from neuraldem.eval.checkpoints import read_checkpoint
+    from neuraldem.scenes.fluidized_bed.surrogate.step_model import read_step_model
     from neuraldem.scenes.fluidized_bed.whatif import InitialStates
 
-    module = read_checkpoint(model.file("field")).module("fluidized_bed", "cpu", purpose)
-    return module, InitialStates.load_npz(model.file("states")), fb_settings(model), fb_window(model)
+    step_model = read_step_model(read_checkpoint(model.file("field")), "cpu", purpose)
+    return step_model, InitialStates.load_npz(model.file("states")), fb_settings(model), fb_window(model)
 
 
 def predict_fb(point: dict[str, float], model_name: str, out: Path, fields: bool, verify: bool,
-               seed: int = 0, runtime: str = "auto", threads: int = 1) -> dict[str, Any]:
+               seed: int = 0, runtime: str = "auto", threads: int = 1, pictures: bool = True) -> dict[str, Any]:
+    """The answers, written to out/answer.json. `pictures`: draw the curves, animation and ParaView files now;
+    False leaves them to `follow_up` (the command prints the numbers first)."""
     from neuraldem.models.scalar_baselines import gp_answers
     from neuraldem.scenes.fluidized_bed.whatif import check_fluidized, load_gp
 
@@ -85,52 +97,80 @@ def predict_fb(point: dict[str, float], model_name: str, out: Path, fields: bool
     }
     warnings = range_warnings(a.extrapolation, "GP", model.meta.get("asked_range"))
     out.mkdir(parents=True, exist_ok=True)
-    series = {}
+    pending = _Pictures(f"{model.name}: inlet velocity {point['inlet_velocity']:g} m/s")
     settings = fb_settings(model) if fields or verify else None
     if fields:
-        answer["field"], curves = fb_fields(model, point["inlet_velocity"], settings, window, out, seed, runtime,
-                                            threads)
-        series["field model"] = curves.as_series()
+        answer["field"], pending.field, pending.grid = fb_fields(model, point["inlet_velocity"], settings, window,
+                                                                 seed, runtime, threads)
+        pending.series["field model"] = pending.field.curves.as_series()
         warnings += range_warnings(answer["field"]["extrapolation"], "field model",
                                    model.meta.get("asked_range"))
     if verify:
         answer["dpmfoam"], curves = fb_verify(model, point["inlet_velocity"], settings, window, out, seed)
         if curves is not None:
-            series["DPMFoam"] = curves.as_series()
-    if series:
-        from neuraldem.scenes.fluidized_bed.analysis.plots import plot_curves
-
-        plot_curves(series, out / "curves.png",
-                    f"{model.name}: inlet velocity {point['inlet_velocity']:g} m/s")
+            pending.series["DPMFoam"] = curves.as_series()
     answer["recommended"], answer["warnings"] = trusted(model.meta, point, bool(a.extrapolation), ERROR_KEYS,
                                                         warnings)
+    if pictures:
+        pending.draw(answer, out)
+    else:
+        _PENDING[out.resolve()] = pending
     atomic_write_json(out / "answer.json", answer)
     return answer
 
 
-def fb_fields(model: pretrained.Pretrained, velocity: float, settings: Any, window: Any, out: Path,
-              seed: int, runtime: str = "auto", threads: int = 1) -> tuple[dict[str, Any], Any]:
-    """The field model's rollout over the answer window: its answers, the animation and ParaView files."""
+class _Pictures:
+    """What the pictures of one answer are drawn from: the curves of each answer that has them and the field
+    model's rollout."""
+
+    def __init__(self, title: str):
+        self.title = title
+        self.series: dict[str, Any] = {}
+        self.field: Any = None  # whatif.FieldAnswer
+        self.grid: Any = None  # its BoxGrid
+
+    def draw(self, answer: dict[str, Any], out: Path) -> list[Path]:
+        """Draw them into `out`; answer["field"]["files"] and out/answer.json name them."""
+        files = []
+        if self.series:
+            from neuraldem.scenes.fluidized_bed.analysis.plots import plot_curves
+
+            plot_curves(self.series, out / "curves.png", self.title)
+            files.append(out / "curves.png")
+        if self.field is not None:
+            from neuraldem.scenes.fluidized_bed.analysis.plots import animate_fields
+            from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import write_rollout_vtk
+
+            f, g = self.field, self.grid
+            velocity = answer["parameters"]["inlet_velocity"]
+            gif = animate_fields(f.rollout.times, f.rollout.solid_fraction, f.rollout.mixing,
+                                 (g.lo[0], g.hi[0], g.lo[2], g.hi[2]), out / "animation.gif",
+                                 f"field model, {velocity:g} m/s")
+            vtk = write_rollout_vtk(out / "vtk", "bed_predicted", f.rollout, g)
+            answer["field"]["files"] = {"animation": str(gif), "vtk": str(vtk[0].parent)}
+            files += [Path(gif), *vtk]
+        if (out / "answer.json").exists():
+            atomic_write_json(out / "answer.json", answer)
+        return files
+
+
+_PENDING: dict[Path, _Pictures] = {}  # answers whose pictures follow the printed numbers, by output folder
+
+
+def fb_fields(model: pretrained.Pretrained, velocity: float, settings: Any, window: Any, seed: int,
+              runtime: str = "auto", threads: int = 1) -> tuple[dict[str, Any], Any, Any]:
+    """The field model's rollout over the answer window: its answers, and the `whatif.FieldAnswer` and grid the
+    pictures are drawn from."""
     from neuraldem.models.modules import compiled
 
-    compiled.warm_up_in_background()  # while torch and the model load
-    from neuraldem.eval.checkpoints import read_checkpoint
-    from neuraldem.scenes.fluidized_bed.analysis.plots import animate_fields
-    from neuraldem.scenes.fluidized_bed.surrogate.rollout_run import write_rollout_vtk
-    from neuraldem.scenes.fluidized_bed.whatif import InitialStates, field_answer
+    compiled.warm_up_in_background()  # the rollout's compiled numerics, while torch and the model load
+    from neuraldem.scenes.fluidized_bed.whatif import field_answer
 
-    module = read_checkpoint(model.file("field")).module("fluidized_bed", "cpu", "predict")
-    states = InitialStates.load_npz(model.file("states"))
-    f = field_answer(module, states, velocity, settings, window, seed, runtime=runtime, threads=threads)
-    g = states.grid
-    gif = animate_fields(f.rollout.times, f.rollout.solid_fraction, f.rollout.mixing,
-                         (g.lo[0], g.hi[0], g.lo[2], g.hi[2]), out / "animation.gif",
-                         f"field model, {velocity:g} m/s")
-    vtk = write_rollout_vtk(out / "vtk", "bed_predicted", f.rollout, g)
+    step_model, states, _, _ = fb_field_model(model, "predict")
+    f = field_answer(step_model, states, velocity, settings, window, seed, runtime=runtime, threads=threads)
     return {"summary": f.summary, "seconds": f.seconds, "runtime": f.runtime, "start": f.start,
             "extrapolation": f.extrapolation,
-            "diverged_at": f.rollout.diverged_at, "steps": f.rollout.steps_done,
-            "files": {"animation": str(gif), "vtk": str(vtk[0].parent)}}, f.curves
+            "diverged_at": f.rollout.diverged_at, "steps": f.rollout.steps_done}, f, states.grid
 
 
 def fb_verify(model: pretrained.Pretrained, velocity: float, settings: Any, window: Any, out: Path,

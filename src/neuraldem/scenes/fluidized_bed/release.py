@@ -74,7 +74,7 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
     from neuraldem.eval.checkpoints import read_checkpoint
     from neuraldem.models.scalar_baselines import ArrayGaussianProcess, ConstantBaseline, GaussianProcessBaseline
     from neuraldem.pretrained.building import build_record, read_test_split, strip_checkpoint, training_inputs
-    from neuraldem.scenes.fluidized_bed.dataset.datagen import BedMetricSettings
+    from neuraldem.scenes.fluidized_bed.analysis.metric_settings import BedMetricSettings
     from neuraldem.scenes.fluidized_bed.whatif import (
         TARGET_RANGE,
         TARGETS,
@@ -205,7 +205,7 @@ def refresh_field_answers(folder: Path, progress: bool = True,
     from neuraldem.data.schema import atomic_write_json
     from neuraldem.eval.checkpoints import read_checkpoint
     from neuraldem.pretrained.building import commit
-    from neuraldem.scenes.fluidized_bed.dataset.datagen import BedMetricSettings
+    from neuraldem.scenes.fluidized_bed.analysis.metric_settings import BedMetricSettings
     from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions
     from neuraldem.scenes.fluidized_bed.whatif import AnswerWindow, InitialStates, field_answer
 

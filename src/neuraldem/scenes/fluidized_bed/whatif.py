@@ -31,7 +31,7 @@ from neuraldem.scenes.fluidized_bed.analysis.metrics import bed_height, bubble_f
 from neuraldem.sim.foam_reader import BoxGrid
 
 if TYPE_CHECKING:  # torch (rollout) and scipy (datagen) load only when fields are asked for: the GP answers fast
-    from neuraldem.scenes.fluidized_bed.dataset.datagen import BedMetricSettings
+    from neuraldem.scenes.fluidized_bed.analysis.metric_settings import BedMetricSettings
     from neuraldem.scenes.fluidized_bed.surrogate.rollout import BedState
 
 START_SNAPSHOT = 1

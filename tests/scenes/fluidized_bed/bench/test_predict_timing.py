@@ -22,6 +22,8 @@ def test_times_are_written_and_an_unverified_folder_is_refused(fb_tiny_pretraine
     result = json.loads(out.read_text())
     times = result["results"]["answer_times"]
     assert times["rollout_steps"] == 19 and times["field_in_process"]["median_wall_s"] > 0
+    numbers, whole = (times[k]["median_wall_s"] for k in ("predict_command_numbers", "predict_command_with_pictures"))
+    assert 0 < numbers < whole  # the numbers come out before the pictures are drawn
     assert "neuraldem bench whatif_fb model=fb_tiny_test" in out.with_suffix(".md").read_text()
     folder = tmp_path / "unverified"
     predict_fb({"inlet_velocity": 1.5}, "fb_tiny_test", folder, fields=False, verify=False)

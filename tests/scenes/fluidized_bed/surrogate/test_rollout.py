@@ -16,7 +16,7 @@ import torch
 
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
-from neuraldem.scenes.fluidized_bed.surrogate.datamodule import grid_input
+from neuraldem.scenes.fluidized_bed.surrogate.normalization import grid_input
 from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
 from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions
 from neuraldem.scenes.fluidized_bed.surrogate.rollout import (

@@ -30,7 +30,7 @@ def test_answer_times_follow_predicts_path(use_tiny_model: Path, tmp_path: Path)
 
 
 def test_a_predict_command_that_fails_is_named(tmp_path: Path):
-    from neuraldem.scenes.hopper.bench.predict_timing import command_times
+    from neuraldem.bench.timing import command_times
 
     with pytest.raises(RuntimeError, match="printed no numbers"):
         command_times([sys.executable, "-c", "print('no table')"], 1)

@@ -3,8 +3,9 @@
     neuraldem bench whatif_fb repeats=5 [verified=[DIR,...]]
 
 - answer times (median of repeats=): the GP's answer in the process, the field model's rollout over the
-  answer window (3 s of bed time for fb_small) in the process, and the whole `neuraldem predict fluidized_bed
-  ... fields=false` command (Python start and imports included);
+  answer window (3 s of bed time for fb_small) in the process, `neuraldem predict fluidized_bed ...` from its
+  start until the numbers are printed and until its pictures are written, and the whole GP-only command
+  (`fields=false`); Python start and imports included in the commands;
 - verified=: output folders of `neuraldem predict fluidized_bed inlet_velocity=V verify=true` (each holds
   answer.json with the GP, field model and DPMFoam answers and times): tabled side by side with the time
   ratios. The solver runs are not repeated here (each costs minutes).
@@ -14,14 +15,13 @@ Writes results/fluidized_bed/whatif/whatif_fb.json and whatif_fb.md.
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 from typing import Any
 
 from neuraldem import pretrained
 from neuraldem.bench.report import command_line, machine_at_start, resolve_out, write_report
-from neuraldem.bench.timing import time_call
+from neuraldem.bench.timing import command_times, time_call
 from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.errors import DataError
 from neuraldem.paths import data_dir
@@ -42,12 +42,16 @@ def answer_times(model: pretrained.Pretrained, repeats: int) -> dict[str, Any]:
                            warmup=1)  # the warm-up exports the net to ONNX once per machine
     torch_t, _ = time_call(lambda: field_answer(module, states, DEFAULT_VELOCITY, settings, window,
                                                 runtime="torch"), repeats)
-    cmd = [sys.executable, "-m", "neuraldem", "predict", "fluidized_bed", f"inlet_velocity={DEFAULT_VELOCITY:g}",
-           "fields=false", f"out={data_dir() / 'bench' / 'whatif_fb' / 'command'}"]
-    cmd_t, _ = time_call(lambda: subprocess.run(cmd, check=True, capture_output=True), repeats)
+    base = [sys.executable, "-m", "neuraldem", "predict", "fluidized_bed", f"inlet_velocity={DEFAULT_VELOCITY:g}",
+            f"model={model.folder}", f"out={data_dir() / 'bench' / 'whatif_fb' / 'command'}"]
+    to_numbers, with_pictures = command_times(base, repeats)
+    cmd = [*base, "fields=false"]
+    cmd_t, _ = command_times(cmd, repeats)
     return {"point": point, "rollout_steps": window.steps, "gp_in_process": gp_t.as_dict(),
             "field_in_process": field_t.as_dict(), "field_in_process_torch": torch_t.as_dict(),
-            "predict_command_no_fields": {**cmd_t.as_dict(), "command": " ".join(cmd[1:])}}
+            "predict_command_no_fields": {**cmd_t.as_dict(), "command": " ".join(cmd[1:])},
+            "predict_command_numbers": {**to_numbers.as_dict(), "command": " ".join(base[1:])},
+            "predict_command_with_pictures": with_pictures.as_dict()}
 
 
 def verified_rows(folders: list[Path]) -> list[dict[str, Any]]:
@@ -78,7 +82,12 @@ def markdown(result: dict[str, Any]) -> str:
              f"{t['field_in_process']['median_wall_s']:.3g} |",
              *([f"| field model, in the process, runtime=torch | "
                 f"{t['field_in_process_torch']['median_wall_s']:.3g} |"] if "field_in_process_torch" in t else []),
-             f"| `neuraldem predict fluidized_bed ... fields=false`, whole command | "
+             *([f"| `neuraldem predict fluidized_bed ...`, from its start until the numbers are printed | "
+                f"{t['predict_command_numbers']['median_wall_s']:.3g} |",
+                f"| the same command until its curves, animation and ParaView files are written | "
+                f"{t['predict_command_with_pictures']['median_wall_s']:.3g} |"]
+               if "predict_command_numbers" in t else []),
+             f"| `neuraldem predict fluidized_bed ... fields=false` (the GP alone), whole command | "
              f"{t['predict_command_no_fields']['median_wall_s']:.3g} |"]
     if result["verified"]:
         lines += ["", "Checked with DPMFoam (`neuraldem predict fluidized_bed inlet_velocity=V verify=true`):", "",

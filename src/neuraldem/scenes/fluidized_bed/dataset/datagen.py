@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from omegaconf import OmegaConf
 
 from neuraldem.config import checks
 from neuraldem.data.manifest import Manifest, SimRecord
@@ -35,6 +34,7 @@ from neuraldem.data.splits import random_split, too_few_warning
 from neuraldem.datagen.driver import DataConfigPipeline
 from neuraldem.datagen.sampling import latin_hypercube
 from neuraldem.errors import ConfigError
+from neuraldem.scenes.fluidized_bed.analysis.metric_settings import BedMetricSettings, settings_from_config
 from neuraldem.scenes.fluidized_bed.analysis.metrics import bed_height_particles, fb_summary, lacey_from_particles
 from neuraldem.scenes.fluidized_bed.dataset.store import BedFile, write_fb_file
 from neuraldem.scenes.fluidized_bed.parameters import PARAMETERS
@@ -54,43 +54,11 @@ class FieldSettings:
 
     @classmethod
     def from_config(cls, cfg: Any, key: str) -> FieldSettings:
-        s = _settings(cls, cfg, key)
+        s = settings_from_config(cls, cfg, key)
         checks.positive(f"{key}.kernel_sigma", s.kernel_sigma)
         checks.positive(f"{key}.mixing_sigma", s.mixing_sigma)
         checks.number(f"{key}.prior_solid_fraction", s.prior_solid_fraction, lo=0.0, hi=0.1, lo_open=True)
         return s
-
-
-@dataclass
-class BedMetricSettings:
-    lacey_block: tuple[int, int, int] = (2, 1, 2)  # sample cell = this many grid cells per axis
-    lacey_min_count: float = 5.0  # sample cells with fewer particles are skipped
-    bed_quantile: float = 0.95
-    bubble_threshold: float = 0.15  # solid fraction below which a bed cell is a void
-
-    @classmethod
-    def from_config(cls, cfg: Any, key: str) -> BedMetricSettings:
-        s = _settings(cls, cfg, key)
-        block = list(s.lacey_block)
-        if len(block) != 3:
-            raise ConfigError(f"config value {key}.lacey_block={block} is invalid: must be [bx, by, bz] "
-                              f"(override it, e.g. {key}.lacey_block=[2,1,2])")
-        s.lacey_block = tuple(checks.positive_int(f"{key}.lacey_block[{i}]", b)  # type: ignore[assignment]
-                              for i, b in enumerate(block))
-        checks.number(f"{key}.lacey_min_count", s.lacey_min_count, lo=1.0)
-        checks.number(f"{key}.bed_quantile", s.bed_quantile, lo=0.5, hi=1.0, hi_open=True)
-        checks.number(f"{key}.bubble_threshold", s.bubble_threshold, lo=0.0, hi=0.6, lo_open=True)
-        return s
-
-    def as_kwargs(self) -> dict[str, Any]:
-        return {"block": self.lacey_block, "min_count": self.lacey_min_count, "bed_quantile": self.bed_quantile,
-                "bubble_threshold": self.bubble_threshold}
-
-
-def _settings(cls: Any, cfg: Any, key: str) -> Any:
-    values = dict(cfg) if cfg is not None else {}
-    checks.known_keys(key, values, cls.__dataclass_fields__)
-    return cls(**{k: (tuple(v) if OmegaConf.is_list(v) or isinstance(v, list) else v) for k, v in values.items()})
 
 
 def coarse_to_fine_rank(i: int, n: int) -> int:

@@ -44,7 +44,8 @@ from neuraldem.data.manifest import MANIFEST_NAME, Manifest, SimRecord
 from neuraldem.data.schema import TMP_SUFFIX, sha256
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.eval.checkpoints import check_import_joins
-from neuraldem.scenes.fluidized_bed.dataset.datagen import BedMetricSettings, FieldSettings, file_metrics
+from neuraldem.scenes.fluidized_bed.analysis.metric_settings import BedMetricSettings
+from neuraldem.scenes.fluidized_bed.dataset.datagen import FieldSettings, file_metrics
 from neuraldem.scenes.fluidized_bed.dataset.store import KIND, BedFile, write_fb_file
 from neuraldem.scenes.fluidized_bed.solver.case import STAMP as CASE_RECORD
 from neuraldem.scenes.fluidized_bed.solver.reader import read_trajectory

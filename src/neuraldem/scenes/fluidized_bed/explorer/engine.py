@@ -80,21 +80,17 @@ class BedEngine:
         from neuraldem.models.modules import compiled
 
         compiled.warm_up_in_background()  # the rollout's compiled numerics, while the model loads
-        from neuraldem.eval.checkpoints import read_checkpoint
         from neuraldem.scenes.fluidized_bed.parameters import PARAMETERS
-        from neuraldem.scenes.fluidized_bed.predict import fb_settings, fb_window
-        from neuraldem.scenes.fluidized_bed.whatif import InitialStates, load_gp, quantities
+        from neuraldem.scenes.fluidized_bed.predict import fb_field_model
+        from neuraldem.scenes.fluidized_bed.whatif import load_gp, quantities
 
         self.model = model
         lo, hi = (float(x) for x in model.meta["trained_range"][KEY])
         self.trained_range = (lo, hi)
         self.solver_limits = tuple(float(x) for x in PARAMETERS.limits(KEY))
-        self.window = fb_window(model)
-        self.settings = fb_settings(model)
+        self.module, self.states, self.settings, self.window = fb_field_model(model, "predict")
         self.quantities = quantities(self.window.lacey_time)
         self.gp = load_gp(model.file("gp"))
-        self.module = read_checkpoint(model.file("field")).module("fluidized_bed", "cpu", "predict")
-        self.states = InitialStates.load_npz(model.file("states"))
         g = self.states.grid
         self.x_centres = 1000 * (g.lo[0] + (np.arange(g.shape[0]) + 0.5) * (g.hi[0] - g.lo[0]) / g.shape[0])
         self.z_centres = 1000 * (g.lo[2] + (np.arange(g.shape[2]) + 0.5) * (g.hi[2] - g.lo[2]) / g.shape[2])

@@ -44,7 +44,7 @@ from neuraldem.data.part_loaders import PartLoaders
 from neuraldem.errors import ConfigError, DataError
 from neuraldem.scenes.fluidized_bed.dataset.store import KIND, BedFile
 from neuraldem.scenes.fluidized_bed.surrogate.mirror import mirror_grid, mirror_points, mirror_vectors
-from neuraldem.scenes.fluidized_bed.surrogate.normalization import BedNormalizer
+from neuraldem.scenes.fluidized_bed.surrogate.normalization import BedNormalizer, grid_input, mixing_input
 
 log = logging.getLogger(__name__)
 
@@ -52,21 +52,6 @@ CONDITIONING_NAMES = ("inlet_velocity",)
 SPLITS = ("velocity",)
 MAX_PUSH_FORWARD = 64
 MAX_INPUT_NOISE = 1.0  # model units (one standard deviation of the data)
-
-
-def grid_input(norm: BedNormalizer, fluid_velocity: np.ndarray, solid_fraction: np.ndarray,
-               solids_flux: np.ndarray | None = None) -> np.ndarray:
-    """Fluid-branch input (4 or 7, nx, ny, nz): normalised fluid velocity (3 channels) + solid fraction
-    (+ solids flux, 3 channels, when given)."""
-    parts = [norm.field("fluid_velocity", fluid_velocity), norm.field("solid_fraction", solid_fraction)]
-    if solids_flux is not None:
-        parts.append(norm.field("solids_flux", solids_flux))
-    return np.moveaxis(np.concatenate(parts, axis=-1), -1, 0)
-
-
-def mixing_input(norm: BedNormalizer, mixing: np.ndarray) -> np.ndarray:
-    """Off-branch input (1, nx, ny, nz): normalised mixing concentration."""
-    return np.moveaxis(norm.field("mixing", mixing), -1, 0)
 
 
 class BedSamples(FileSamples):

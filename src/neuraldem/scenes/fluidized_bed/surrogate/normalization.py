@@ -168,3 +168,18 @@ class _Moments:
         mean = self.s / max(self.n, 1)
         var = np.maximum(self.ss / max(self.n, 1) - mean**2, 0.0)
         return mean, np.sqrt(var)
+
+
+def grid_input(norm: BedNormalizer, fluid_velocity: np.ndarray, solid_fraction: np.ndarray,
+               solids_flux: np.ndarray | None = None) -> np.ndarray:
+    """Fluid-branch input (4 or 7, nx, ny, nz): normalised fluid velocity (3 channels) + solid fraction
+    (+ solids flux, 3 channels, when given)."""
+    parts = [norm.field("fluid_velocity", fluid_velocity), norm.field("solid_fraction", solid_fraction)]
+    if solids_flux is not None:
+        parts.append(norm.field("solids_flux", solids_flux))
+    return np.moveaxis(np.concatenate(parts, axis=-1), -1, 0)
+
+
+def mixing_input(norm: BedNormalizer, mixing: np.ndarray) -> np.ndarray:
+    """Off-branch input (1, nx, ny, nz): normalised mixing concentration."""
+    return np.moveaxis(norm.field("mixing", mixing), -1, 0)

@@ -32,7 +32,7 @@ import weakref
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import torch
@@ -45,11 +45,13 @@ from neuraldem.models.operator_onnx import OnnxOperator, resolve_runtime
 from neuraldem.paths import data_dir
 from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
 from neuraldem.scenes.fluidized_bed.surrogate.autoregressive import advance, perturb_inputs
-from neuraldem.scenes.fluidized_bed.surrogate.datamodule import grid_input, mixing_input
 from neuraldem.scenes.fluidized_bed.surrogate.mirror import mirror_grid, mirror_points, mirror_vectors
-from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule
-from neuraldem.scenes.fluidized_bed.surrogate.normalization import BedNormalizer
+from neuraldem.scenes.fluidized_bed.surrogate.normalization import BedNormalizer, grid_input, mixing_input
 from neuraldem.scenes.fluidized_bed.surrogate.options import BedStability, RolloutOptions
+
+if TYPE_CHECKING:  # a rollout needs no Lightning (`step_model`)
+    from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule
+    from neuraldem.scenes.fluidized_bed.surrogate.step_model import BedStepModel
 
 log = logging.getLogger(__name__)
 
@@ -148,7 +150,8 @@ _ONNX_NETS: weakref.WeakKeyDictionary[torch.nn.Module, dict[tuple[Any, ...], Onn
 
 
 class ModelStepper:
-    """A trained BedModule as a stepper, conditioned on one inlet velocity.
+    """A trained bed model (its `BedModule`, or the `BedStepModel` read without it) as a stepper, conditioned
+    on one inlet velocity.
 
     The step applies the checkpoint's stability options (`neuraldem.scenes.fluidized_bed.surrogate.options`), the
     rollout options given in `options` in their place (`RolloutOptions`; None = the checkpoint's): with volume
@@ -166,7 +169,7 @@ class ModelStepper:
     displacement only where the next step's encoder reads it (`autoregressive.next_inputs`) and hands that step
     its particle graph."""
 
-    def __init__(self, module: BedModule, velocity: float, seed: int = 0, device: str = "cpu",
+    def __init__(self, module: BedModule | BedStepModel, velocity: float, seed: int = 0, device: str = "cpu",
                  options: RolloutOptions | None = None, runtime: str = "torch"):
         base = getattr(module, "stability", None) or BedStability()
         self.stability = (options or RolloutOptions()).apply(base)
@@ -317,7 +320,7 @@ class ModelStepper:
         )
 
 
-def perturbation_std(module: BedModule, scale: float, device: str) -> dict[str, torch.Tensor] | None:
+def perturbation_std(module: BedModule | BedStepModel, scale: float, device: str) -> dict[str, torch.Tensor] | None:
     """Per-channel std (model units) of `rollout_noise`: `scale` times the module's running one-step error
     (None when off)."""
     if not scale:

@@ -21,7 +21,6 @@ from neuraldem.errors import DataError
 from neuraldem.eval.checkpoints import checkpoint_dataset, read_checkpoint
 from neuraldem.eval.vtk_export import write_grid_series, write_point_series
 from neuraldem.scenes.fluidized_bed.dataset.store import BedFile
-from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule
 from neuraldem.scenes.fluidized_bed.surrogate.normalization import BedNormalizer
 from neuraldem.scenes.fluidized_bed.surrogate.option_aliases import RESULT_CONSERVE_KEY
 from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions
@@ -39,6 +38,8 @@ from neuraldem.sim.foam_reader import BoxGrid
 
 if TYPE_CHECKING:
     from omegaconf import DictConfig
+
+    from neuraldem.scenes.fluidized_bed.surrogate.module import BedModule  # built by read_checkpoint
 
 log = logging.getLogger(__name__)
 

@@ -15,8 +15,6 @@ Writes results/hopper/whatif/whatif.{json,md}.
 
 from __future__ import annotations
 
-import resource
-import subprocess
 import sys
 import tempfile
 import time
@@ -27,7 +25,7 @@ import numpy as np
 
 from neuraldem import pretrained
 from neuraldem.bench.report import command_line, machine_at_start, resolve_out, write_report
-from neuraldem.bench.timing import Sample, Timing, time_call
+from neuraldem.bench.timing import command_times, time_call
 from neuraldem.cli import doc_parser, report_user_errors
 from neuraldem.paths import data_dir
 from neuraldem.scenes.hopper.predict import errors_vs, hopper_gp, hopper_net, predict_hopper
@@ -35,39 +33,9 @@ from neuraldem.scenes.hopper.scan import verify_hopper
 from neuraldem.scenes.hopper.whatif import ANSWER_BUDGET, QueryBudget
 
 DEFAULT_POINT = {"alpha": 45.0, "mu_s": 0.4, "mu_r": 0.1}
-NUMBERS_LINE = "numbers in "  # what `neuraldem predict` prints once its numbers are out
-
-
 def random_points(ranges: dict[str, list[float]], n: int, seed: int) -> list[dict[str, float]]:
     rng = np.random.default_rng(seed)
     return [{k: round(float(rng.uniform(lo, hi)), 3) for k, (lo, hi) in ranges.items()} for _ in range(n)]
-
-
-def command_times(cmd: list[str], repeats: int) -> tuple[Timing, Timing]:
-    """(until the numbers line is printed, until the command exits) of a `neuraldem predict` command: wall clock
-    from the process start; CPU of the whole run in both (the child's CPU is not split at the numbers line)."""
-    numbers, whole = [], []
-    for i in range(repeats + 1):  # the first run warms the file cache and is not counted
-        cpu0 = children_cpu()
-        t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-        seen = None
-        for line in proc.stdout:  # type: ignore[union-attr]
-            if seen is None and line.startswith(NUMBERS_LINE):
-                seen = time.perf_counter() - t0
-        if proc.wait() != 0 or seen is None:
-            raise RuntimeError(f"{' '.join(cmd)} failed (exit {proc.returncode}) or printed no numbers")
-        total, cpu = time.perf_counter() - t0, children_cpu() - cpu0
-        if i:
-            numbers.append(Sample(seen, cpu))
-            whole.append(Sample(total, cpu))
-    return (Timing(numbers, notes={"cpu": "of the whole command"}), Timing(whole))
-
-
-def children_cpu() -> float:
-    """User + system CPU seconds of the finished child processes so far."""
-    r = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return r.ru_utime + r.ru_stime
 
 
 def answer_times(model: pretrained.Pretrained, repeats: int, settings: Any) -> dict[str, Any]:
