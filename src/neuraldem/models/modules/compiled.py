@@ -24,6 +24,7 @@ from types import ModuleType
 
 import numpy as np
 
+_numba_installed = importlib.util.find_spec("numba") is not None
 _lock = threading.Lock()
 _kernels: ModuleType | None = None
 _warming: threading.Thread | None = None
@@ -32,9 +33,6 @@ _warming: threading.Thread | None = None
 def available() -> bool:
     """Whether Numba is installed (without importing it)."""
     return _numba_installed
-
-
-_numba_installed = importlib.util.find_spec("numba") is not None
 
 
 def kernels() -> ModuleType:

@@ -51,7 +51,11 @@ def follow_up(answer: dict[str, Any], out: Path, args: argparse.Namespace) -> li
     """After the numbers are printed: the curves, the animation and the ParaView files of the answer just given
     (kept from `answer`, not rolled out again); answer.json then names them."""
     pending = _PENDING.pop(out.resolve(), None)
-    return [] if pending is None else pending.draw(answer, out)
+    if pending is None:
+        return []
+    files = pending.draw(answer, out)
+    atomic_write_json(out / "answer.json", answer)
+    return files
 
 
 def fb_window(model: pretrained.Pretrained) -> Any:
@@ -130,7 +134,7 @@ class _Pictures:
         self.grid: Any = None  # its BoxGrid
 
     def draw(self, answer: dict[str, Any], out: Path) -> list[Path]:
-        """Draw them into `out`; answer["field"]["files"] and out/answer.json name them."""
+        """Draw them into `out`; answer["field"]["files"] names them."""
         files = []
         if self.series:
             from neuraldem.scenes.fluidized_bed.analysis.plots import plot_curves
@@ -149,8 +153,6 @@ class _Pictures:
             vtk = write_rollout_vtk(out / "vtk", "bed_predicted", f.rollout, g)
             answer["field"]["files"] = {"animation": str(gif), "vtk": str(vtk[0].parent)}
             files += [Path(gif), *vtk]
-        if (out / "answer.json").exists():
-            atomic_write_json(out / "answer.json", answer)
         return files
 
 

@@ -46,7 +46,7 @@ def answer_times(model: pretrained.Pretrained, repeats: int) -> dict[str, Any]:
             f"model={model.folder}", f"out={data_dir() / 'bench' / 'whatif_fb' / 'command'}"]
     to_numbers, with_pictures = command_times(base, repeats)
     cmd = [*base, "fields=false"]
-    cmd_t, _ = command_times(cmd, repeats)
+    _, cmd_t = command_times(cmd, repeats)  # the whole GP-only command, as its row says
     return {"point": point, "rollout_steps": window.steps, "gp_in_process": gp_t.as_dict(),
             "field_in_process": field_t.as_dict(), "field_in_process_torch": torch_t.as_dict(),
             "predict_command_no_fields": {**cmd_t.as_dict(), "command": " ".join(cmd[1:])},
