@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from neuraldem.errors import ConfigError
-from neuraldem.models.multi_branch_operator import MultiBranchOperator
+from neuraldem.models.multi_branch_operator import MultiBranchOperator, OperatorInputs
 from neuraldem.models.operator_onnx import OnnxOperator, resolve_runtime, weights_key
 from tests.models.nets import activate_modulations
 
@@ -80,6 +80,45 @@ def test_the_grid_decoded_with_the_latents_is_the_decoders_answer(tmp_path: Path
     torch.testing.assert_close(shifted, net.decode(want_tokens, want_cond, {"fluid": centres * 0.5})["fluid"],
                                atol=1e-4, rtol=1e-4)
     torch.testing.assert_close(again, want["fluid"], atol=1e-4, rtol=1e-4)
+
+
+@pytest.mark.parametrize("batch", [1, 3])
+def test_an_export_with_a_batch_axis_answers_each_member_as_alone(tmp_path: Path, batch: int):
+    """One call for several states (`batch_axis=True`): each member's tokens, grid and decoded particles are its own
+    call's (the supernodes of its own call given), to round-off; the export is kept apart from the batch-of-one
+    one."""
+    from neuraldem.models.modules.patch_embedding import cell_centres
+
+    net = small_net(noise_dim=3)
+    members = [net.example_inputs(batch_size=1, n_particles=40, grid_shape=GRID,
+                                  generator=torch.Generator().manual_seed(10 + i)) for i in range(batch)]
+    encoder = net.encoders["particles"]
+    for i, x in enumerate(members):
+        x.supernode_idx = encoder.graph(x.particle_pos).supernode_idx
+        x.noise = torch.randn(1, 3, generator=torch.Generator().manual_seed(20 + i))
+    stacked = OperatorInputs(*(torch.cat([getattr(x, k) for x in members]) for k in
+                               ("particle_pos", "particle_features", "grid", "mixing_grid", "scalars")),
+                             supernode_idx=torch.cat([x.supernode_idx for x in members]),
+                             noise=torch.cat([x.noise for x in members]))
+    batched = OnnxOperator(net, tmp_path, batch_axis=True)
+    centres = cell_centres(GRID)[None]
+    queries = torch.rand(batch, 25, 3, generator=torch.Generator().manual_seed(6))
+    with torch.no_grad():
+        tokens, cond = batched.latents(stacked)
+        grids = batched.decode(tokens, cond, {b: centres.expand(batch, -1, -1) for b in batched.grid_branches})
+        particles = batched.decode(tokens, cond, {"particles": queries}, chunk_size=10)["particles"]
+        for i, x in enumerate(members):
+            want_tokens, want_cond = net.latents(x)
+            want = net.decode(want_tokens, want_cond, {"fluid": centres, "mixing": centres,
+                                                       "particles": queries[i:i + 1]})
+            torch.testing.assert_close(cond[i:i + 1], want_cond, atol=1e-5, rtol=1e-5)
+            for b in batched.branches:
+                torch.testing.assert_close(tokens[b][i:i + 1], want_tokens[b], atol=1e-4, rtol=1e-4)
+            for b in batched.grid_branches:
+                torch.testing.assert_close(grids[b][i:i + 1], want[b], atol=1e-4, rtol=1e-4)
+            torch.testing.assert_close(particles[i:i + 1], want["particles"], atol=1e-4, rtol=1e-4)
+    assert [p.name for p in tmp_path.iterdir()] == [weights_key(net, True, GRID, batch_axis=True)]
+    assert weights_key(net, True, GRID, batch_axis=True) != weights_key(net, True, GRID)
 
 
 def test_the_export_is_cached_per_weights_and_grid(tmp_path: Path):

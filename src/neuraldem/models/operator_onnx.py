@@ -112,7 +112,8 @@ class _Decoder(nn.Module):
         return self.decoder(tokens, query_pos, cond)
 
 
-def weights_key(net: MultiBranchOperator, off_branches: bool, grid_shape: tuple[int, ...]) -> str:
+def weights_key(net: MultiBranchOperator, off_branches: bool, grid_shape: tuple[int, ...],
+                batch_axis: bool = False) -> str:
     """Hash of the weights, the net's shape, the grid, what is exported and the code that computes it (every module
     of `neuraldem.models`): the cache key of the exported files, so a changed net code is exported anew."""
     h = hashlib.sha256()
@@ -123,7 +124,7 @@ def weights_key(net: MultiBranchOperator, off_branches: bool, grid_shape: tuple[
         h.update(value.detach().cpu().contiguous().numpy().tobytes())
     h.update(json.dumps({"off_branches": off_branches, "opset": OPSET, "noise_dim": net.noise_dim,
                          "particle_branch": net.particle_branch, "grid": list(grid_shape),
-                         "torch": torch.__version__}).encode())
+                         "torch": torch.__version__, **({"batch_axis": True} if batch_axis else {})}).encode())
     return h.hexdigest()[:24]
 
 
@@ -140,9 +141,12 @@ def _export(module: nn.Module, inputs: Mapping[str, torch.Tensor], outputs: list
 
 class OnnxOperator:
     """A `MultiBranchOperator`'s `latents` and `decode`, answered by ONNX Runtime sessions (exported into a
-    folder under `folder` on the first call, for the grid of that call, and checked against the torch net)."""
+    folder under `folder` on the first call, for the grid of that call, and checked against the torch net).
+    `batch_axis`: the calls exported for any batch size, not for a batch of one (a rollout steps a batch of one:
+    one for several rollouts is measured in results/fluidized_bed/speed/fb_batch.md)."""
 
-    def __init__(self, net: MultiBranchOperator, folder: Path, off_branches: bool = True, threads: int = 1):
+    def __init__(self, net: MultiBranchOperator, folder: Path, off_branches: bool = True, threads: int = 1,
+                 batch_axis: bool = False):
 
         ort = require_onnxruntime()
         # held weakly: a cache of these per net (a rollout's) must not keep the net alive
@@ -158,6 +162,7 @@ class OnnxOperator:
         self.root, self.threads, self._ort = Path(folder), check_threads(threads), ort
         self.sessions: dict[str, Any] = {}
         self.grid_shape: tuple[int, ...] | None = None  # exported for the first grid it is given
+        self.batch_axis = batch_axis
 
     @property
     def torch_net(self) -> MultiBranchOperator:
@@ -175,7 +180,7 @@ class OnnxOperator:
         from neuraldem.errors import DataError
 
         ort = self._ort
-        self.folder = self.root / weights_key(self.torch_net, self.off_branches, grid_shape)
+        self.folder = self.root / weights_key(self.torch_net, self.off_branches, grid_shape, self.batch_axis)
         if not (self.folder / "checked.json").exists():
             self._export_and_check(ort, grid_shape)
         options = ort.SessionOptions()
@@ -197,7 +202,9 @@ class OnnxOperator:
     # ---- export
     def _example(self, grid_shape: tuple[int, ...]) -> dict[str, torch.Tensor]:
         g = torch.Generator().manual_seed(0)
-        x = self.torch_net.example_inputs(batch_size=1, n_particles=64, grid_shape=grid_shape, generator=g)
+        # a batch axis is traced from a batch of two: a batch of one could be folded into constants
+        x = self.torch_net.example_inputs(batch_size=2 if self.batch_axis else 1, n_particles=64,
+                                          grid_shape=grid_shape, generator=g)
         return self._feed_tensors(x)
 
     def _feed_tensors(self, x: OperatorInputs) -> dict[str, torch.Tensor]:
@@ -219,21 +226,31 @@ class OnnxOperator:
         feed = self._example(grid_shape)
         latents = _Latents(self.torch_net, self.off_branches, grid_shape)
         outputs = [*self.branches, "cond", *self._grid_names()]
-        _export(latents, feed, outputs, self.folder / "latents.onnx",
-                {"particle_pos": {1: "particles"}, "particle_features": {1: "particles"},
-                 "edges": {1: "edges"}})
+        dynamic: dict[str, dict[int, str]] = {"particle_pos": {1: "particles"}, "particle_features": {1: "particles"},
+                                              "edges": {1: "edges"}}
+        if self.batch_axis:
+            for name in feed:
+                if name != "edges":
+                    dynamic.setdefault(name, {})[0] = "batch"
+        _export(latents, feed, outputs, self.folder / "latents.onnx", dynamic)
         with torch.no_grad():
             tokens, cond = self.torch_net.latents(OperatorInputs(
                 feed["particle_pos"], feed["particle_features"], feed["grid"], feed["mixing_grid"],
                 feed["scalars"], supernode_idx=feed["supernode_idx"], noise=feed["noise"] if self.noise_dim
                 else None), off_branches=self.off_branches)
-            queries = torch.rand(1, 50, 3, generator=torch.Generator().manual_seed(1))
-            want = {b: self.torch_net.decode(tokens, cond, {b: queries})[b] for b in self.branches}
-            centres = cell_centres(grid_shape)[None]
+            batch = cond.shape[0]
+            centres = cell_centres(grid_shape)[None].expand(batch, -1, -1)
             want_grid = {b: self.torch_net.decode(tokens, cond, {b: centres})[b] for b in self.grid_branches}
+            queries = torch.rand(1, 50, 3, generator=torch.Generator().manual_seed(1)).expand(batch, -1, -1)
+            queries = queries.contiguous()
+            want = {b: self.torch_net.decode(tokens, cond, {b: queries})[b] for b in self.branches}
+        dynamic = {"query_pos": {1: "queries"}, "out": {1: "queries"}}
+        if self.batch_axis:
+            dynamic = {"tokens": {0: "batch"}, "query_pos": {0: "batch", 1: "queries"}, "cond": {0: "batch"},
+                       "out": {0: "batch", 1: "queries"}}
         for b in self.branches:
             _export(_Decoder(self.torch_net, b), {"tokens": tokens[b], "query_pos": queries, "cond": cond},
-                    ["out"], self.folder / f"{b}.onnx", {"query_pos": {1: "queries"}, "out": {1: "queries"}})
+                    ["out"], self.folder / f"{b}.onnx", dynamic)
         session = ort.InferenceSession(str(self.folder / "latents.onnx"), providers=["CPUExecutionProvider"])
         used = {i.name for i in session.get_inputs()}
         got = dict(zip(outputs, session.run(outputs, {k: v.numpy() for k, v in feed.items() if k in used}),
@@ -289,6 +306,6 @@ class OnnxOperator:
         return out
 
     def _at_centres(self, pos: torch.Tensor) -> bool:
-        """Whether (1, Q, 3) query positions are the grid's cell centres, in their order."""
-        return pos.shape[0] == 1 and pos.shape[1:] == self._centres.shape and torch.equal(pos[0], self._centres)
+        """Whether (B, Q, 3) query positions are the grid's cell centres, in their order, for every member."""
+        return pos.shape[1:] == self._centres.shape and torch.equal(pos, self._centres.expand_as(pos))
 

@@ -76,6 +76,9 @@ SCENE = Scene(
         "fb_runtime": ("neuraldem.scenes.fluidized_bed.bench.runtime",
                        "torch vs ONNX Runtime stepping the shipped bed model: answer time, answers within the "
                        "seed spread"),
+        "fb_batch": ("neuraldem.scenes.fluidized_bed.bench.batch",
+                     "one forward pass for several bed rollouts (the explorer's lattice, an ensemble) against one "
+                     "each: time per member"),
         "fb_stability": ("neuraldem.scenes.fluidized_bed.bench.stability_map",
                          "stability map: divergence, solid volume and bed height against CFD-DEM across velocities"),
         "whatif_fb": ("neuraldem.scenes.fluidized_bed.bench.predict_timing",

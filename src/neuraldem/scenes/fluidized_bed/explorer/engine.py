@@ -30,7 +30,9 @@ from neuraldem.serve.inputs import parameter_value
 
 KEY = "inlet_velocity"
 STEP = 0.01  # [m/s] slider step; lattice velocities lie on it
-LATTICE = 9  # background rollouts over the trained range, at server start
+# background rollouts over the trained range, at server start, one after the other: stepped as one batch they
+# would be at most 1.36x faster per member (results/fluidized_bed/speed/fb_batch.md)
+LATTICE = 9
 QUIET_S = 0.5  # the background rollouts step only after this long without a move
 FRAMES = 60  # the time player's frames over the window at most (every `stride`-th rollout state)
 MIX_BLANK = 0.02  # mixing is not drawn where the solid fraction is at most this (plots.animate_fields)
