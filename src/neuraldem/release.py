@@ -3,6 +3,7 @@
     neuraldem release ckpt=RUN/checkpoints/last.ckpt name=my_hopper       # into <data dir>/models/my_hopper
     neuraldem release ckpt=RUN/checkpoints/last.ckpt name=my_hopper out=$HOME/my-models
     neuraldem release ckpt=FB_RUN/checkpoints/best.ckpt name=fb_small lacey_time=1 out=src/neuraldem/pretrained
+    neuraldem release ckpt=FB_RUN/selected.ckpt name=fb_small test_dataset=fb_small_heldout rollout.rollout_noise=3
     neuraldem release fluidized_bed name=fb_small refresh_field=true   # after a change of the bed rollouts
 
 Writes `<out>/<name>/`: `field.pt` (the checkpoint without optimizer state), the scene's scalar GP as arrays
@@ -16,6 +17,10 @@ releases it (`Scene.release`); SCENE is needed only without a checkpoint.
 `predict`, `scan` and `serve` search before the shipped models: `model=NAME` then answers with it, and
 `model=<out>/<name>` works from any folder. The shipped models are built the same way with
 `out=src/neuraldem/pretrained`. `refresh_field=true` rewrites the model found under `name=` (or `<out>/<name>`).
+A bed model's rollout options (`rollout.rollout_noise=`, `rollout.advection_correction=`,
+`rollout.mirror_alternate=`, chosen on validation) go into its field.pt before its test runs are scored;
+`test_dataset=` scores a dataset of held-out runs instead of the checkpoint's own test runs (used when those
+were read while the recipe was chosen).
 """
 
 from __future__ import annotations

@@ -36,6 +36,14 @@ def errors_table(errors: dict[str, Any]) -> list[str]:
     return out
 
 
+def held_out_line(data: dict[str, Any]) -> list[str]:
+    held = data.get("test_dataset")
+    if not held:
+        return []
+    return [f"- test runs from the dataset of held-out runs `{held['dataset']}` (new parameters and start packings), "
+            f"manifest SHA-256 `{held.get('manifest_sha256')}`: {', '.join(held.get('run_ids', []))}"]
+
+
 def render(meta: dict[str, Any], meta_sha: str) -> str:
     data = meta.get("training_data", {})
     ids = data.get("run_ids", {})
@@ -49,7 +57,7 @@ def render(meta: dict[str, Any], meta_sha: str) -> str:
     lines += ["", "## Data", "",
               f"- dataset `{data.get('dataset')}`, manifest SHA-256 `{data.get('manifest_sha256')}`",
               "- runs: " + ", ".join(f"{part} {len(v)}" for part, v in ids.items()) +
-              f" (split `{data.get('split')}`)", "",
+              f" (split `{data.get('split')}`)", *held_out_line(data), "",
               "## Recipe", "",
               f"- training: `{' '.join(config.get('train_overrides', [])) or '(the experiment defaults)'}`, "
               f"step {config.get('global_step')}",
@@ -71,7 +79,9 @@ def render(meta: dict[str, Any], meta_sha: str) -> str:
                      + (" -- this release changed the recipe after an earlier read: its test scores are not "
                         "held-out evidence for the change, new test runs are" if reads[-1].get("changed_recipe")
                         else ""))
-    lines += ["## Test scores", "", f"On {errors.get('n_test_runs', '?')} held-out solver runs{read_note}:", ""]
+    held = data.get("test_dataset")
+    where = f" of `{held['dataset']}` (not the training dataset's own test part)" if held else ""
+    lines += ["## Test scores", "", f"On {errors.get('n_test_runs', '?')} held-out solver runs{where}{read_note}:", ""]
     lines += errors_table(errors)
     if meta.get("test_errors_outside"):
         lines += ["", "Outside the trained ranges:", ""] + errors_table(meta["test_errors_outside"])

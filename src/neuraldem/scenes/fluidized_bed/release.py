@@ -64,8 +64,88 @@ def seed_floor(test: list[SimRecord], answers: dict[str, dict[str, float]]) -> d
     return errors([answers[a] for a, _ in pairs], [answers[b] for _, b in pairs])
 
 
+def held_out_runs(test_dataset: Path, m: Manifest) -> tuple[Manifest, list[SimRecord]]:
+    """The test part of a dataset of held-out runs (`test_dataset=`: new velocities and packings of the training
+    dataset's scene, e.g. data=fb_small_heldout), refused when its scene, duration or metric settings differ from
+    the training dataset's (its answers would not be the same questions)."""
+    held = Manifest.load(test_dataset)
+    for what, mine, theirs in (("scene", held.scene, m.scene),
+                               ("trajectory duration", held.parameters.get("duration"), m.parameters.get("duration")),
+                               ("metric settings", held.parameters.get("metrics"), m.parameters.get("metrics"))):
+        if mine != theirs:
+            raise DataError(f"{test_dataset}: its {what} differs from the training dataset {m.name}'s, so its runs "
+                            "do not test this model's answers", f"use held-out runs of {m.name}'s scene "
+                            "(e.g. neuraldem datagen data=fb_small_heldout)")
+    usable = {r.sim_id: r for r in held.usable()}
+    test = [usable[i] for i in held.split_ids("velocity", "test") if i in usable]
+    if not test:
+        raise DataError(f"{test_dataset}: no finished run in its test part", "finish it first: neuraldem datagen "
+                        f"data={held.name} (resumable)")
+    return held, test
+
+
+def read_results(path: Path, what: str) -> dict[str, Any]:
+    import json
+
+    try:
+        d = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as err:
+        raise DataError(f"{path}: not readable as {what} ({type(err).__name__})",
+                        f"give the JSON {what} wrote") from None
+    return d.get("results", d)
+
+
+def chosen_record(selection: Path, ckpt: Path) -> str:
+    """What validation chose, from `report fb-select`'s JSON, which must have chosen this very checkpoint."""
+    d = read_results(selection, "report fb-select")
+    picked = d.get("selected") or {}
+    if not picked or Path(str(picked.get("copied_to", ""))).resolve() != Path(ckpt).resolve():
+        raise DataError(f"{selection}: fb-select chose {picked.get('copied_to') or 'nothing'}, not ckpt={ckpt}",
+                        "release the checkpoint the selection chose, or give that selection's JSON")
+    rows = d.get("rows", [])
+    best = next((r for r in rows if r.get("step") == picked.get("step")), {})
+    options = {k: d[k] for k in ("rollout_noise", "advection_correction", "mirror_alternate") if k in d}
+    return (f"the checkpoint of step {picked.get('step')} among {len(rows)} (steps {d.get('from_step')} on), by "
+            f"`neuraldem report fb-select` on the validation runs and {', '.join(d.get('long_val') or {}) or 'no'} "
+            f"long validation trajectory, rollouts of 10x the training horizon under rollout options {options}, "
+            f"rollout seeds {d.get('seeds')}: sum of the pooled errors (time mean + std field + Lacey) "
+            f"{best.get('sum', float('nan')):.3f} ({d.get('date_utc', '')})")
+
+
+def stability_record(scan: Path, ckpt: Path) -> tuple[str, list[dict[str, Any]]]:
+    """The stability scan (`bench fb_stability`'s JSON, one series of this checkpoint) as the card's line and its
+    failed velocities as weak regions."""
+    d = read_results(scan, "bench fb_stability")
+    series = [x for x in d.get("series", []) if Path(str(x.get("checkpoint", ""))).resolve() == Path(ckpt).resolve()]
+    if len(series) != 1:
+        raise DataError(f"{scan}: no single series of ckpt={ckpt} in it", "give the scan of this checkpoint")
+    points = series[0]["points"]
+    velocities = [p["inlet_velocity"] for p in points]
+    devs = [p["bed_deviation_pct"] for p in points if p.get("bed_checked")]
+    failed = [p for p in points if not p.get("ok", False)]
+    weak = [{"parameters": {"inlet_velocity": p["inlet_velocity"]},
+             "note": p.get("failure") or p.get("bed_failure") or p.get("divergence") or "failed"} for p in failed]
+    if not devs:
+        return f"{len(points)} velocities, {len(failed)} failed", weak
+    line = (f"{len(points)} inlet velocities {min(velocities):.4g} .. {max(velocities):.4g} m/s, {d.get('steps')} "
+            f"steps each (rollout options noise {d.get('rollout_noise')}, correction "
+            f"{d.get('advection_correction')}, mirror-alternating {d.get('mirror_alternate')}): {len(failed)} failed "
+            f"(divergence, solid-volume drift beyond {d.get('drift_limit_pct')} % or a time-mean bed height beyond "
+            f"{d.get('bed_limit_pct')} % of CFD-DEM's); bed heights {min(devs):+.1f} to {max(devs):+.1f} % from "
+            "CFD-DEM's (`neuraldem bench fb_stability`)")
+    return line, weak
+
+
 def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | None, lacey_time: float = 1.0,
-                        progress: bool = True, reuse_test: bool = False) -> Path:
+                        progress: bool = True, reuse_test: bool = False,
+                        rollout_options: dict[str, Any] | None = None, test_dataset: Path | None = None,
+                        selection: Path | None = None, stability_scan: Path | None = None) -> Path:
+    """The model folder `out_root/name`. `rollout_options` (chosen on validation) are written into its field.pt
+    before anything is scored, so its test errors are those of the rollouts `predict` runs. `test_dataset`: score
+    the held-out runs of that dataset (`held_out_runs`) instead of the test part of the checkpoint's split; its test
+    runs are the ones read (and recorded) then. `selection` (fb-select's JSON, which must have chosen `ckpt`) and
+    `stability_scan` (fb_stability's JSON of `ckpt`) go into the card: what validation chose, the scan, its weak
+    regions."""
     from tqdm import tqdm
 
     from neuraldem.data.integrity import digest
@@ -75,6 +155,7 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
     from neuraldem.models.scalar_baselines import ArrayGaussianProcess, ConstantBaseline, GaussianProcessBaseline
     from neuraldem.pretrained.building import build_record, read_test_split, strip_checkpoint, training_inputs
     from neuraldem.scenes.fluidized_bed.analysis.metric_settings import BedMetricSettings
+    from neuraldem.scenes.fluidized_bed.surrogate.options import RolloutOptions
     from neuraldem.scenes.fluidized_bed.whatif import (
         TARGET_RANGE,
         TARGETS,
@@ -85,21 +166,32 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
     )
 
     meta, dataset, m = training_inputs(ckpt, "fluidized_bed", dataset)
-    reads = read_test_split(dataset, ckpt, name, reuse_test)
     parts = split_records(m, meta)
+    held = None
+    if test_dataset is not None:
+        held, held_test = held_out_runs(test_dataset, m)
+    if rollout_options:
+        RolloutOptions(**rollout_options)  # checked before anything is read or written
+    chosen = chosen_record(selection, ckpt) if selection is not None else None
+    scanned = stability_record(stability_scan, ckpt) if stability_scan is not None else None
+    reads = read_test_split(dataset if held is None else test_dataset, ckpt, name, reuse_test)
     fit_runs = parts.get("train", []) + parts.get("val", [])
-    test = parts.get("test", [])
+    test = parts.get("test", []) if held is None else held_test
+    test_dir = dataset if held is None else test_dataset
     duration = float(m.parameters["duration"])
     if not 0 < lacey_time <= duration:
         raise DataError(f"lacey_time={lacey_time:g} must lie in (0, {duration:g}] s, the trajectories' duration")
     folder = out_root / name
     folder.mkdir(parents=True, exist_ok=True)
     strip_checkpoint(ckpt, folder / "field.pt")
+    applied = set_rollout_options(folder / "field.pt", rollout_options) if rollout_options else None
     module = read_checkpoint(folder / "field.pt").module("fluidized_bed", "cpu", "build")
     window = AnswerWindow(duration, float(lacey_time), module.norm.dt)
     settings = BedMetricSettings.from_config(m.parameters.get("metrics"), f"{dataset} metrics")
 
-    truth = {r.sim_id: file_answers(dataset / str(r.file), settings, window)[0] for r in fit_runs + test}
+    truth = {r.sim_id: file_answers(dataset / str(r.file), settings, window)[0] for r in fit_runs}
+    # the test runs' own: a held-out dataset numbers its runs from sim_0000 as well
+    test_truth = {r.sim_id: file_answers(test_dir / str(r.file), settings, window)[0] for r in test}
     x = np.array([[float(r.params["inlet_velocity"])] for r in fit_runs])
     y = {t: np.array([truth[r.sim_id][t] for r in fit_runs]) for t in TARGETS}
     gp = GaussianProcessBaseline(["inlet_velocity"], targets=TARGETS, target_range=TARGET_RANGE).fit(x, y)
@@ -116,14 +208,15 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
     for r in tqdm(test, desc="test rollouts", unit="run", disable=not progress):
         v = float(r.params["inlet_velocity"])
         f = field_answer(module, states, v, settings, window)
-        rows.append({"sim_id": r.sim_id, "inlet_velocity": v, "cfd_dem": truth[r.sim_id], "field model": f.summary,
+        rows.append({"sim_id": r.sim_id, **({"dataset": held.name} if held else {}), "inlet_velocity": v,
+                     "cfd_dem": test_truth[r.sim_id], "field model": f.summary,
                      "field_start": f.start, "rollout_seconds": f.seconds,
                      "gp": gp.predict(np.array([[v]]))[0].mean, "constant": constant.predict(np.array([[v]]))[0].mean})
     cfd = [row["cfd_dem"] for row in rows]
     test_errors: dict[str, Any] = {"n_test_runs": len(rows), "runs": rows}
     for who in ("field model", "gp", "constant"):
         test_errors[who] = errors([row[who] for row in rows], cfd)
-    floor = seed_floor(test, truth)
+    floor = seed_floor(test, test_truth)
     if floor is not None:
         test_errors["seed floor"] = floor
 
@@ -142,7 +235,9 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
                     f"trajectories ({len(parts.get('val', []))} for validation)",
         inputs=["inlet_velocity"], trained_range={"inlet_velocity": [lo, hi]},
         training_data={"dataset": m.name, "manifest_sha256": digest(dataset / MANIFEST_NAME), "split": meta["split"],
-                       "run_ids": {p: [r.sim_id for r in rs] for p, rs in parts.items()}},
+                       "run_ids": {p: [r.sim_id for r in rs] for p, rs in parts.items()},
+                       **({"test_dataset": {"dataset": held.name, "manifest_sha256": digest(test_dir / MANIFEST_NAME),
+                                            "run_ids": [r.sim_id for r in test]}} if held else {})},
         extra={"asked_range": {n: [float(v) for v in r] for n, r in (m.parameters.get("ranges") or {}).items()
                                if n == "inlet_velocity"},
                "conditioning": meta["conditioning"], "metric_settings": settings.__dict__ | {
@@ -150,22 +245,27 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
                "answer_window": window.as_dict(), "scene": m.scene, "test_errors": test_errors, "test_reads": reads,
                "probes": probes,
                "initial_states": [f"{i} ({v:.4g} m/s)" for i, v in zip(states.sim_ids, states.velocities,
-                                                                         strict=True)]},
-        build_flags=f"lacey_time={lacey_time:g}")
+                                                                         strict=True)],
+               **({"rollout_options": applied} if applied else {}), **({"chosen": chosen} if chosen else {}),
+               **({"stability": scanned[0], "weak_regions": scanned[1]} if scanned else {})},
+        build_flags=" ".join([f"lacey_time={lacey_time:g}", *([f"test_dataset={held.name}"] if held else []),
+                              *RolloutOptions(**(rollout_options or {})).overrides()]))
     atomic_write_json(folder / "meta.json", info)
     write_card(folder)
     return folder
 
 
-ROLLOUT_OPTIONS = ("rollout_noise", "advection_correction")  # the rollout options a shipped model may store
+# the rollout options a shipped model may store
+ROLLOUT_OPTIONS = ("rollout_noise", "advection_correction", "mirror_alternate")
 
 
-def set_rollout_options(field: Path, options: dict[str, float]) -> dict[str, float]:
-    """Write rollout options (`rollout.rollout_noise` / `rollout.advection_correction`, chosen on validation) into
-    a shipped field checkpoint's stability, so every path that rolls the shipped model out (`predict fb`, the
-    explorer, the benches, `evaluate ckpt=<field.pt>`) uses them without a flag of its own. Checked before the
-    file is touched: the values' ranges and, for noise, that the checkpoint holds the running one-step error.
-    Returns the checkpoint's rollout options after the change (all of them, the ones not given as they were)."""
+def set_rollout_options(field: Path, options: dict[str, Any]) -> dict[str, Any]:
+    """Write rollout options (`rollout.rollout_noise` / `rollout.advection_correction` /
+    `rollout.mirror_alternate`, chosen on validation) into a shipped field checkpoint's stability, so every path
+    that rolls the shipped model out (`predict fb`, the explorer, the benches, `evaluate ckpt=<field.pt>`) uses
+    them without a flag of its own. Checked before the file is touched: the values' ranges and, for noise, that
+    the checkpoint holds the running one-step error. Returns the checkpoint's rollout options after the change
+    (all of them, the ones not given as they were)."""
     import torch
 
     from neuraldem.eval.checkpoints import read_checkpoint
@@ -175,11 +275,11 @@ def set_rollout_options(field: Path, options: dict[str, float]) -> dict[str, flo
     unknown = sorted(set(options) - set(ROLLOUT_OPTIONS))
     if unknown:
         raise DataError(f"{field}: {unknown[0]} is not a rollout option of a shipped model (known: {ROLLOUT_OPTIONS})")
-    RolloutOptions(**options)  # their ranges: one line naming the key
+    given = RolloutOptions(**options).given()  # their ranges: one line naming the key
     checkpoint = read_checkpoint(field)  # one read: its raw dict for the rewrite, its module for the check
     hp = checkpoint.hyper_parameters  # a copy: the read is shared within the process
     stability = dict(hp.get("stability") or {})
-    stability.update({k: float(v) for k, v in options.items()})
+    stability.update({k: bool(v) if isinstance(v, bool) else float(v) for k, v in given.items()})
     checked = BedStability.from_config(stability)
     module = checkpoint.module("fluidized_bed", "cpu", "setting rollout options")
     perturbation_std(module, checked.rollout_noise, "cpu")
@@ -187,7 +287,8 @@ def set_rollout_options(field: Path, options: dict[str, float]) -> dict[str, flo
     tmp = field.with_suffix(".tmp")
     torch.save({**checkpoint.raw, "hyper_parameters": hp}, tmp)
     tmp.replace(field)
-    return {k: float(getattr(checked, k)) for k in ROLLOUT_OPTIONS}
+    return {k: getattr(checked, k) if isinstance(getattr(checked, k), bool) else float(getattr(checked, k))
+            for k in ROLLOUT_OPTIONS}
 
 
 def refresh_field_answers(folder: Path, progress: bool = True,
@@ -252,10 +353,32 @@ def add_options(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("--lacey-time", type=float, default=1.0,
                    help="fluidized bed: the time [s] of the Lacey-index answer (default 1)")
+    p.add_argument("--test-dataset", default=None,
+                   help="fluidized bed: score the test part of this dataset of held-out runs (a name under <data "
+                        "dir>/datasets or a folder, e.g. fb_small_heldout) instead of the checkpoint's own test runs")
+    p.add_argument("--selection", type=Path, default=None,
+                   help="fluidized bed: the JSON of `report fb-select` that chose ckpt= (recorded in the card)")
+    p.add_argument("--stability-scan", type=Path, default=None,
+                   help="fluidized bed: the JSON of `bench fb_stability` over ckpt= (recorded in the card)")
     p.add_argument("--refresh-field", action="store_true",
                    help="fluidized bed, no ckpt=: rerun the shipped model's field answers (test rows, probe) after "
                         "a change of the rollout code, keeping its files and the stored CFD-DEM answers")
-    add_arguments(p, ROLLOUT_OPTIONS, default="as trained; with refresh_field=true: written into field.pt")
+    add_arguments(p, ROLLOUT_OPTIONS, default="as trained; written into field.pt, before the test runs are scored")
+
+
+def dataset_folder(given: str | None, key: str = "test_dataset") -> Path | None:
+    """A dataset named on the command line: a folder, or a name under <data dir>/datasets."""
+    if given is None:
+        return None
+    from neuraldem.data.manifest import MANIFEST_NAME
+    from neuraldem.paths import data_dir
+
+    for folder in (Path(given), data_dir() / "datasets" / given):
+        if (folder / MANIFEST_NAME).is_file():
+            return folder
+    raise ConfigError(f"{key}={given} is no dataset: neither {given} nor {data_dir() / 'datasets' / given} holds a "
+                      f"{MANIFEST_NAME}", "generate it (e.g. neuraldem datagen data=fb_small_heldout) or give its "
+                      "folder")
 
 
 def release(args: argparse.Namespace) -> str:
@@ -274,10 +397,9 @@ def release(args: argparse.Namespace) -> str:
                 f"{meta['test_errors']['field model']}")
     if args.ckpt is None:
         raise ConfigError("ckpt= is required (or refresh_field=true for a shipped fluidized-bed model)")
-    if options:
-        raise ConfigError(f"{' / '.join(f'rollout.{k}=' for k in ROLLOUT_OPTIONS)} go with refresh_field=true "
-                          "(build first, then set them)")
     folder = build_fluidized_bed(args.ckpt, args.name, args.out, args.dataset, args.lacey_time,
-                                 reuse_test=args.reuse_test)
+                                 reuse_test=args.reuse_test, rollout_options=options,
+                                 test_dataset=dataset_folder(args.test_dataset), selection=args.selection,
+                                 stability_scan=args.stability_scan)
     sizes = ", ".join(f"{f.name} {f.stat().st_size / 1e6:.2f} MB" for f in sorted(folder.iterdir()))
     return f"wrote {folder} ({sizes})"
