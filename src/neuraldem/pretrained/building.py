@@ -39,9 +39,18 @@ def training_inputs(ckpt: Path, kind: str, dataset: Path | None) -> tuple[dict[s
     return meta, dataset, Manifest.load(dataset)
 
 
+def run_folder(ckpt: Path) -> Path | None:
+    """The training run a checkpoint belongs to: the folder with its `.hydra/overrides.yaml` among the checkpoint's
+    nearest parents (RUN/checkpoints/last.ckpt, RUN/checkpoints/all/stepN.ckpt)."""
+    for parent in list(Path(ckpt).parents)[:3]:
+        if (parent / ".hydra" / "overrides.yaml").is_file():
+            return parent
+    return None
+
+
 def run_overrides(ckpt: Path) -> list[str]:
-    path = ckpt.parent.parent / ".hydra" / "overrides.yaml"
-    return list(yaml.safe_load(path.read_text())) if path.is_file() else []
+    run = run_folder(ckpt)
+    return list(yaml.safe_load((run / ".hydra" / "overrides.yaml").read_text())) if run is not None else []
 
 
 def commit() -> str:
@@ -71,11 +80,17 @@ def build_record(ckpt: Path, name: str, kind: str, folder: Path, files: dict[str
                    "global_step": int(checkpoint.get("global_step", -1)), "train_overrides": overrides},
         **extra,
         "rebuild": [" ".join(["neuraldem train", *overrides]),
-                    f"neuraldem release ckpt=<that run>/checkpoints/{Path(ckpt).name} "
+                    f"neuraldem release ckpt=<that run>/{in_run(Path(ckpt))} "
                     f"name={name}{' ' + build_flags if build_flags else ''}"],
         "built_from": {"checkpoint": str(Path(ckpt).resolve()), "commit": commit(),
                        "date_utc": datetime.now(UTC).isoformat(timespec="seconds")},
     }
+
+
+def in_run(ckpt: Path) -> str:
+    """The checkpoint's path inside its run folder (checkpoints/<name> when the run is not found)."""
+    run = run_folder(ckpt)
+    return ckpt.relative_to(run).as_posix() if run is not None else f"checkpoints/{ckpt.name}"
 
 
 # ---- the sealed test split: every read of a dataset's test runs for a release is recorded beside the dataset

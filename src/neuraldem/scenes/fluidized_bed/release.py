@@ -95,12 +95,25 @@ def read_results(path: Path, what: str) -> dict[str, Any]:
     return d.get("results", d)
 
 
+def same_checkpoint(recorded: str | None, ckpt: Path) -> bool:
+    """Whether a checkpoint path recorded by another command is `ckpt`: the same path, or a copy of the same bytes
+    (fb-select copies the one it chooses)."""
+    import filecmp
+
+    if not recorded:
+        return False
+    other = Path(recorded)
+    return other.resolve() == Path(ckpt).resolve() or (
+        other.is_file() and Path(ckpt).is_file() and filecmp.cmp(other, ckpt, shallow=False))
+
+
 def chosen_record(selection: Path, ckpt: Path) -> str:
     """What validation chose, from `report fb-select`'s JSON, which must have chosen this very checkpoint."""
     d = read_results(selection, "report fb-select")
     picked = d.get("selected") or {}
-    if not picked or Path(str(picked.get("copied_to", ""))).resolve() != Path(ckpt).resolve():
-        raise DataError(f"{selection}: fb-select chose {picked.get('copied_to') or 'nothing'}, not ckpt={ckpt}",
+    if not any(same_checkpoint(picked.get(k), ckpt) for k in ("checkpoint", "copied_to")):
+        chose = picked.get("copied_to") or picked.get("checkpoint") or "nothing"
+        raise DataError(f"{selection}: fb-select chose {chose}, not ckpt={ckpt}",
                         "release the checkpoint the selection chose, or give that selection's JSON")
     rows = d.get("rows", [])
     best = next((r for r in rows if r.get("step") == picked.get("step")), {})
@@ -116,7 +129,7 @@ def stability_record(scan: Path, ckpt: Path) -> tuple[str, list[dict[str, Any]]]
     """The stability scan (`bench fb_stability`'s JSON, one series of this checkpoint) as the card's line and its
     failed velocities as weak regions."""
     d = read_results(scan, "bench fb_stability")
-    series = [x for x in d.get("series", []) if Path(str(x.get("checkpoint", ""))).resolve() == Path(ckpt).resolve()]
+    series = [x for x in d.get("series", []) if same_checkpoint(x.get("checkpoint"), ckpt)]
     if len(series) != 1:
         raise DataError(f"{scan}: no single series of ckpt={ckpt} in it", "give the scan of this checkpoint")
     points = series[0]["points"]
