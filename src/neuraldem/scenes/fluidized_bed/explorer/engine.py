@@ -31,7 +31,8 @@ from neuraldem.serve.inputs import parameter_value
 KEY = "inlet_velocity"
 STEP = 0.01  # [m/s] slider step; lattice velocities lie on it
 # background rollouts over the trained range, at server start, one after the other: stepped as one batch they
-# would be at most 1.36x faster per member (results/fluidized_bed/speed/fb_batch.md)
+# would be at most ~1.4 - 1.6x faster per member, and no longer the rollouts `predict` makes
+# (results/fluidized_bed/speed/fb_batch.md)
 LATTICE = 9
 QUIET_S = 0.5  # the background rollouts step only after this long without a move
 FRAMES = 60  # the time player's frames over the window at most (every `stride`-th rollout state)
