@@ -108,6 +108,16 @@ def test_a_held_out_dataset_of_another_scene_is_refused(fb_tiny_pretrained: Path
     assert not (tmp_path / "out").exists() and not (held / "test_reads.json").exists()
 
 
+def test_a_lacey_time_past_the_runs_is_refused_before_the_test_runs_are_read(
+        fb_tiny_pretrained: Path, fb_tiny_dataset: Path, tmp_path: Path):
+    held = held_out(fb_tiny_dataset, tmp_path / "fb_tiny_heldout")
+    ckpt = fb_tiny_pretrained / "fb_tiny_test" / "field.pt"
+    with pytest.raises(DataError, match="lacey_time=5 must lie in"):
+        build_fluidized_bed(ckpt, "fb_rel", tmp_path / "out", fb_tiny_dataset, lacey_time=5.0, progress=False,
+                            test_dataset=held)
+    assert not (held / "test_reads.json").exists()
+
+
 @pytest.mark.parametrize(("flags", "message"), [
     (["test_dataset=no_such_dataset"], "test_dataset=no_such_dataset is no dataset"),
     (["rollout.mirror_alternate=maybe"], "rollout.mirror_alternate=maybe is invalid"),

@@ -187,13 +187,13 @@ def build_fluidized_bed(ckpt: Path, name: str, out_root: Path, dataset: Path | N
         RolloutOptions(**rollout_options)  # checked before anything is read or written
     chosen = chosen_record(selection, ckpt) if selection is not None else None
     scanned = stability_record(stability_scan, ckpt) if stability_scan is not None else None
-    reads = read_test_split(dataset if held is None else test_dataset, ckpt, name, reuse_test)
-    fit_runs = parts.get("train", []) + parts.get("val", [])
-    test = parts.get("test", []) if held is None else held_test
-    test_dir = dataset if held is None else test_dataset
     duration = float(m.parameters["duration"])
     if not 0 < lacey_time <= duration:
         raise DataError(f"lacey_time={lacey_time:g} must lie in (0, {duration:g}] s, the trajectories' duration")
+    reads = read_test_split(dataset if held is None else test_dataset, ckpt, name, reuse_test)  # every check passed
+    fit_runs = parts.get("train", []) + parts.get("val", [])
+    test = parts.get("test", []) if held is None else held_test
+    test_dir = dataset if held is None else test_dataset
     folder = out_root / name
     folder.mkdir(parents=True, exist_ok=True)
     strip_checkpoint(ckpt, folder / "field.pt")
