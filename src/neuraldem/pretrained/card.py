@@ -36,8 +36,7 @@ def errors_table(errors: dict[str, Any]) -> list[str]:
     return out
 
 
-def held_out_line(data: dict[str, Any]) -> list[str]:
-    held = data.get("test_dataset")
+def held_out_line(held: dict[str, Any] | None) -> list[str]:
     if not held:
         return []
     return [f"- test runs from the dataset of held-out runs `{held['dataset']}` (new parameters and start packings), "
@@ -46,6 +45,7 @@ def held_out_line(data: dict[str, Any]) -> list[str]:
 
 def render(meta: dict[str, Any], meta_sha: str) -> str:
     data = meta.get("training_data", {})
+    held = data.get("test_dataset")  # a dataset of held-out runs, scored instead of the split's test part
     ids = data.get("run_ids", {})
     config = meta.get("config", {})
     lines = [f"# Model card: {meta.get('name')} ({meta.get('kind')})", "", str(meta.get("description", "")), "",
@@ -57,7 +57,7 @@ def render(meta: dict[str, Any], meta_sha: str) -> str:
     lines += ["", "## Data", "",
               f"- dataset `{data.get('dataset')}`, manifest SHA-256 `{data.get('manifest_sha256')}`",
               "- runs: " + ", ".join(f"{part} {len(v)}" for part, v in ids.items()) +
-              f" (split `{data.get('split')}`)", *held_out_line(data), "",
+              f" (split `{data.get('split')}`)", *held_out_line(held), "",
               "## Recipe", "",
               f"- training: `{' '.join(config.get('train_overrides', [])) or '(the experiment defaults)'}`, "
               f"step {config.get('global_step')}",
@@ -79,7 +79,6 @@ def render(meta: dict[str, Any], meta_sha: str) -> str:
                      + (" -- this release changed the recipe after an earlier read: its test scores are not "
                         "held-out evidence for the change, new test runs are" if reads[-1].get("changed_recipe")
                         else ""))
-    held = data.get("test_dataset")
     where = f" of `{held['dataset']}` (not the training dataset's own test part)" if held else ""
     lines += ["## Test scores", "", f"On {errors.get('n_test_runs', '?')} held-out solver runs{where}{read_note}:", ""]
     lines += errors_table(errors)

@@ -383,12 +383,12 @@ def dataset_folder(given: str | None, key: str = "test_dataset") -> Path | None:
     """A dataset named on the command line: a folder, or a name under <data dir>/datasets."""
     if given is None:
         return None
-    from neuraldem.data.manifest import MANIFEST_NAME
+    from neuraldem.data.manifest import MANIFEST_NAME, find_dataset
     from neuraldem.paths import data_dir
 
-    for folder in (Path(given), data_dir() / "datasets" / given):
-        if (folder / MANIFEST_NAME).is_file():
-            return folder
+    folder = find_dataset(given)
+    if (folder / MANIFEST_NAME).is_file():
+        return folder
     raise ConfigError(f"{key}={given} is no dataset: neither {given} nor {data_dir() / 'datasets' / given} holds a "
                       f"{MANIFEST_NAME}", "generate it (e.g. neuraldem datagen data=fb_small_heldout) or give its "
                       "folder")

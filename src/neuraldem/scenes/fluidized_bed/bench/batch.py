@@ -39,33 +39,29 @@ STEPS = 50  # rollout steps timed for the cost of a whole step
 
 
 def member_inputs(module: Any, states: Any, velocities: list[float]) -> list[Any]:
-    """The net's input of each velocity's first rollout step (`OperatorInputs`, a batch of one each), all with the
-    same particle count (the smallest: the shipped first states differ by a few particles)."""
+    """The net's input of each velocity's first rollout step as its rollout reads it (`ModelStepper.net_inputs`, a
+    batch of one each), all with the same particle count (the smallest: the shipped first states differ by a few
+    particles) and each with the supernodes its own call reads."""
+    from dataclasses import replace
+
     import torch
 
-    from neuraldem.models.multi_branch_operator import OperatorInputs
-    from neuraldem.scenes.fluidized_bed.surrogate.normalization import grid_input, mixing_input
+    from neuraldem.scenes.fluidized_bed.surrogate.rollout import ModelStepper
 
-    norm = module.norm
     picked = [states.nearest(v)[0] for v in velocities]
     n = min(len(s.positions) for s in picked)
-
-    def tensor(a: np.ndarray) -> torch.Tensor:
-        return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))[None]
-
-    flux = bool(module.metadata.get("solids_flux", False))
-    return [OperatorInputs(particle_pos=tensor(norm.positions(s.positions[:n])),
-                           particle_features=tensor(norm.field("displacement", s.displacement[:n])),
-                           grid=tensor(grid_input(norm, s.fluid_velocity, s.solid_fraction,
-                                                  s.solids_flux if flux else None)),
-                           mixing_grid=tensor(mixing_input(norm, s.mixing)),
-                           scalars=torch.tensor([[norm.velocity(v)]], dtype=torch.float32),
-                           noise=torch.zeros(1, module.net.noise_dim) if module.net.noise_dim else None)
-            for s, v in zip(picked, velocities, strict=True)]
+    noise = torch.zeros(1, module.net.noise_dim) if module.net.noise_dim else None
+    members = [ModelStepper(module, v, runtime="torch").net_inputs(
+        replace(s, positions=s.positions[:n], displacement=s.displacement[:n]), noise=noise)
+        for s, v in zip(picked, velocities, strict=True)]
+    if module.net.particle_branch:
+        encoder = module.net.encoders["particles"]
+        members = [replace(x, supernode_idx=encoder.graph(x.particle_pos).supernode_idx) for x in members]
+    return members
 
 
-def stacked(members: list[Any], net: Any) -> Any:
-    """The members as one batch, each with the supernodes and particle graph its own call finds."""
+def stacked(members: list[Any]) -> Any:
+    """The members as one batch (each keeps the supernodes of its own call)."""
     import torch
 
     from neuraldem.models.multi_branch_operator import OperatorInputs
@@ -74,13 +70,9 @@ def stacked(members: list[Any], net: Any) -> Any:
         parts = [getattr(x, name) for x in members]
         return None if parts[0] is None else torch.cat(parts)
 
-    supernodes = None
-    if net.particle_branch:
-        encoder = net.encoders["particles"]
-        supernodes = torch.cat([encoder.graph(x.particle_pos).supernode_idx for x in members])
     return OperatorInputs(particle_pos=cat("particle_pos"), particle_features=cat("particle_features"),
                           grid=cat("grid"), mixing_grid=cat("mixing_grid"), scalars=cat("scalars"),
-                          supernode_idx=supernodes, noise=cat("noise"))
+                          supernode_idx=cat("supernode_idx"), noise=cat("noise"))
 
 
 def step_call(net: Any, off_branches: bool) -> Any:
@@ -113,7 +105,7 @@ def measure(module: Any, members: list[Any], state: Any, velocity: float, repeat
 
     off_branches = (getattr(module, "stability", None) or BedStability()).mixing != "advect"
     net = module.net.eval()
-    batch = stacked(members, net)
+    batch = stacked(members)
     if runtime == "onnx":
         grid_shape = tuple(int(n) for n in members[0].grid.shape[2:])
         single = OnnxOperator(net, folder, off_branches=off_branches, threads=1)
@@ -123,7 +115,6 @@ def measure(module: Any, members: list[Any], state: Any, velocity: float, repeat
     else:
         single = batched = net
     one, together = step_call(single, off_branches), step_call(batched, off_branches)
-    members = [stacked([x], net) for x in members]  # each with the supernodes it has in the batch
     n = len(members)
     with torch.inference_mode():
         t_one, outs = time_call(lambda: [one(x) for x in members], repeats, warmup=2)

@@ -261,6 +261,18 @@ class ModelStepper:
 
         return rows
 
+    def net_inputs(self, state: BedState, positions: torch.Tensor | None = None, graph: Any = None,
+                   noise: torch.Tensor | None = None) -> OperatorInputs:
+        """What the net reads of `state` at this stepper's velocity, in model units (a batch of one); `positions`:
+        the state's positions already in model units, `graph`: their particle graph, when the caller has them."""
+        norm = self.norm
+        flux = state.solids_flux if self.solids_flux else None
+        return OperatorInputs(
+            particle_pos=self._input_positions(state.positions) if positions is None else positions,
+            particle_graph=graph, particle_features=self._tensor(norm.field("displacement", state.displacement)),
+            grid=self._tensor(grid_input(norm, state.fluid_velocity, state.solid_fraction, flux)),
+            mixing_grid=self._tensor(mixing_input(norm, state.mixing)), scalars=self.scalars, noise=noise)
+
     # inference_mode, not just no_grad: no version counters or view tracking (bench fb_speed on the shipped net:
     # 0.832 -> 0.791 s per simulated second at one thread, fields bit-identical)
     @torch.inference_mode()
@@ -268,8 +280,7 @@ class ModelStepper:
         norm = self.norm
         if self.solid_volume is None:
             self.solid_volume = float(np.sum(state.solid_fraction))
-        flux = state.solids_flux if self.solids_flux else None
-        if self.solids_flux and flux is None:
+        if self.solids_flux and state.solids_flux is None:
             raise DataError("this model reads the solids flux: start the rollout from a dataset trajectory "
                             "(initial_state computes it)")
         positions = self._input_positions(state.positions)
@@ -283,11 +294,7 @@ class ModelStepper:
         noise = None
         if self.net.noise_dim:
             noise = torch.randn(1, self.net.noise_dim, generator=self.generator, device=self.device)
-        x = OperatorInputs(particle_pos=positions, particle_graph=graph,
-                           particle_features=self._tensor(norm.field("displacement", state.displacement)),
-                           grid=self._tensor(grid_input(norm, state.fluid_velocity, state.solid_fraction, flux)),
-                           mixing_grid=self._tensor(mixing_input(norm, state.mixing)), scalars=self.scalars,
-                           noise=noise)
+        x = self.net_inputs(state, positions, graph, noise)
         volume = torch.tensor([self.solid_volume], dtype=torch.float64, device=self.device)
         reads_particles = self.net.particle_branch and not all_particles
         rows = self._rows_next_step_reads(mirrored) if reads_particles else None
